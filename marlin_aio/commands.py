@@ -1,0 +1,93 @@
+"""Turning G-code text into the bytes Marlin expects: validation, comments, line numbers, checksums.
+
+Pure functions, no I/O. Everything that can be wrong with a command is found here and raised as `ValueError`
+before a byte reaches the port, so a caller's mistake never turns into a half-written line on the printer.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "MAX_COMMAND_BYTES",
+    "checksum",
+    "command_code",
+    "encode_command",
+    "number_command",
+    "strip_comment",
+]
+
+#: Marlin's `MAX_CMD_SIZE` is 96 bytes including the terminating NUL, so 95 bytes of text fit.
+MAX_COMMAND_BYTES = 95
+
+
+def checksum(data: bytes) -> int:
+    """Return Marlin's checksum of `data`: the XOR of every byte (the bytes before the `*`)."""
+    value = 0
+    for byte in data:
+        value ^= byte
+    return value
+
+
+def strip_comment(text: str) -> str:
+    """Return `text` without its `;` comment and surrounding white space.
+
+    Marlin treats everything after `;` as a comment, including a `*checksum` placed after it, so comments must go
+    before a line is numbered.
+    """
+    cut = text.find(";")
+    if cut >= 0:
+        text = text[:cut]
+    return text.strip()
+
+
+def _validate(text: str) -> str:
+    if "\n" in text or "\r" in text:
+        raise ValueError(f"command contains a line break: {text!r}; send one command per call")
+    if not text.isascii():
+        raise ValueError(f"command contains non-ASCII characters: {text!r}")
+    if "\x00" in text:
+        raise ValueError(f"command contains a NUL byte: {text!r}")
+    command = strip_comment(text)
+    if not command:
+        raise ValueError(f"command is empty (after removing comments): {text!r}")
+    return command
+
+
+def command_code(text: str) -> str:
+    """Return the command word of a G-code line in upper case (`"m105 t0"` gives `"M105"`), or `""`.
+
+    A leading `N<number>` is skipped.
+    """
+    words = text.split()
+    if words and words[0][:1] in ("N", "n") and words[0][1:].isdigit():
+        words = words[1:]
+    return words[0].upper() if words else ""
+
+
+def number_command(command: str, line_number: int) -> str:
+    """Return `N<line_number> <command>*<checksum>`: Marlin's reliable form of a command.
+
+    Raises:
+        ValueError: if `line_number` is negative.
+    """
+    if line_number < 0:
+        raise ValueError(f"line number must not be negative, got {line_number}")
+    body = f"N{line_number} {command}"
+    return f"{body}*{checksum(body.encode('ascii'))}"
+
+
+def encode_command(text: str, line_number: int | None = None) -> bytes:
+    """Validate a command and return the exact bytes to write, newline included.
+
+    Comments are stripped; with `line_number` the line is numbered and checksummed.
+
+    Raises:
+        ValueError: if the command holds a line break, NUL or a non-ASCII character, is empty once its comment
+            is removed, or is longer than Marlin's 95-byte command buffer once numbered.
+    """
+    command = _validate(text)
+    line = command if line_number is None else number_command(command, line_number)
+    if len(line) > MAX_COMMAND_BYTES:
+        raise ValueError(
+            f"command is {len(line)} bytes, longer than Marlin's {MAX_COMMAND_BYTES}-byte limit: {line[:40]!r}..."
+        )
+    return line.encode("ascii") + b"\n"
