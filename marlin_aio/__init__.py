@@ -1,7 +1,109 @@
-"""marlin_aio: an asyncio client for Marlin 3D-printer firmware, with a simulated printer."""
+"""marlin_aio: an asyncio client for Marlin 3D-printer firmware, with a simulated printer.
+
+    async with marlin_aio.connect("/dev/ttyUSB0") as printer:
+        reading = await printer.temperatures()
+        await printer.set_temperatures(hotend=200, bed=60)
+
+The protocol core (`framing`, `parsing`, `temperatures`, `commands`, `connection`, `trace`) does no I/O and
+imports neither asyncio nor serial; `client` is the asyncio layer on top; `simulator` is a Marlin look-alike
+served on a pseudo-terminal or TCP.
+"""
 
 from __future__ import annotations
 
+from marlin_aio.client import DEFAULT_BAUDRATE, Printer, connect
+from marlin_aio.commands import checksum, encode_command, number_command, strip_comment
+from marlin_aio.connection import Command, Connection, Reply
+from marlin_aio.errors import (
+    CommandTimeoutError,
+    ConnectError,
+    ConnectionLostError,
+    HandshakeError,
+    HandshakeTimeoutError,
+    MarlinError,
+    PortBusyError,
+    PortNotFoundError,
+    PortPermissionError,
+    PrinterHaltedError,
+    PrinterResetError,
+    RemoteProtocolError,
+    ResendLimitError,
+    TemperatureTimeoutError,
+    ThermalRunawayError,
+)
+from marlin_aio.events import (
+    BusyKeepalive,
+    Capability,
+    EchoMessage,
+    ErrorKind,
+    ErrorMessage,
+    Event,
+    FirmwareInfo,
+    HostAction,
+    Ok,
+    OverlongLine,
+    ResendRequest,
+    Start,
+    TemperatureReport,
+    UnrecognisedLine,
+)
+from marlin_aio.framing import LineSplitter
+from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
+from marlin_aio.temperatures import HeaterReading, TemperatureReading, Temperatures, parse_temperatures
+from marlin_aio.trace import Trace, TraceEntry
+
 __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+__all__ = [
+    "DEFAULT_BAUDRATE",
+    "BusyKeepalive",
+    "Capability",
+    "Command",
+    "CommandTimeoutError",
+    "ConnectError",
+    "Connection",
+    "ConnectionLostError",
+    "EchoMessage",
+    "ErrorKind",
+    "ErrorMessage",
+    "Event",
+    "EventParser",
+    "FirmwareInfo",
+    "HandshakeError",
+    "HandshakeTimeoutError",
+    "HeaterReading",
+    "HostAction",
+    "LineSplitter",
+    "MarlinError",
+    "Ok",
+    "OverlongLine",
+    "PortBusyError",
+    "PortNotFoundError",
+    "PortPermissionError",
+    "Printer",
+    "PrinterHaltedError",
+    "PrinterResetError",
+    "RemoteProtocolError",
+    "Reply",
+    "ResendLimitError",
+    "ResendRequest",
+    "Start",
+    "TemperatureReading",
+    "TemperatureReport",
+    "TemperatureTimeoutError",
+    "Temperatures",
+    "ThermalRunawayError",
+    "Trace",
+    "TraceEntry",
+    "UnrecognisedLine",
+    "__version__",
+    "checksum",
+    "classify_line",
+    "connect",
+    "encode_command",
+    "number_command",
+    "parse_endstops",
+    "parse_position",
+    "parse_temperatures",
+    "strip_comment",
+]

@@ -7,10 +7,15 @@ before a byte reaches the port, so a caller's mistake never turns into a half-wr
 from __future__ import annotations
 
 __all__ = [
+    "DEFAULT_MAX_BED_CELSIUS",
+    "DEFAULT_MAX_CHAMBER_CELSIUS",
+    "DEFAULT_MAX_HOTEND_CELSIUS",
     "MAX_COMMAND_BYTES",
+    "check_target",
     "checksum",
     "command_code",
     "encode_command",
+    "format_celsius",
     "number_command",
     "strip_comment",
 ]
@@ -91,3 +96,35 @@ def encode_command(text: str, line_number: int | None = None) -> bytes:
             f"command is {len(line)} bytes, longer than Marlin's {MAX_COMMAND_BYTES}-byte limit: {line[:40]!r}..."
         )
     return line.encode("ascii") + b"\n"
+
+
+#: Marlin's default clamps: HEATER_0_MAXTEMP 275 - HOTEND_OVERSHOOT 15, BED_MAXTEMP 150 - BED_OVERSHOOT 10.
+DEFAULT_MAX_HOTEND_CELSIUS = 260.0
+DEFAULT_MAX_BED_CELSIUS = 140.0
+DEFAULT_MAX_CHAMBER_CELSIUS = 60.0
+
+
+def check_target(name: str, celsius: object, max_celsius: float) -> float:
+    """Return `celsius` as a float if it is a usable heater target for `name`, else raise.
+
+    Raises:
+        ValueError: not a number, NaN or infinite, negative, or above `max_celsius`.
+    """
+    if isinstance(celsius, bool) or not isinstance(celsius, int | float | str):
+        raise ValueError(f"{name} target must be a number of degrees Celsius, got {celsius!r}")
+    try:
+        value = float(celsius)
+    except ValueError:
+        raise ValueError(f"{name} target must be a number of degrees Celsius, got {celsius!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise ValueError(f"{name} target must be a finite number, got {celsius!r}")
+    if value < 0:
+        raise ValueError(f"{name} target must not be negative, got {value:g} C")
+    if value > max_celsius:
+        raise ValueError(f"{name} target {value:g} C is above the limit of {max_celsius:g} C")
+    return value
+
+
+def format_celsius(value: float) -> str:
+    """Format a target the way G-code wants it: `200`, `60.5` (no exponent, no trailing zeros)."""
+    return f"{value:.2f}".rstrip("0").rstrip(".")

@@ -1,0 +1,63 @@
+"""Opening the port: the only module that imports the serial packages.
+
+Every way opening can fail becomes one `ConnectError` subclass with a sentence a user can act on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+from collections.abc import Callable
+
+import serial
+import serial_asyncio_fast
+
+from marlin_aio.errors import ConnectError, PortBusyError, PortNotFoundError, PortPermissionError
+
+__all__ = ["open_link"]
+
+
+def _is_url(port: str) -> bool:
+    return "://" in port
+
+
+async def open_link(
+    port: str, baudrate: int, protocol_factory: Callable[[], asyncio.Protocol]
+) -> tuple[asyncio.Transport, asyncio.Protocol]:
+    """Open a device path or pyserial URL (`socket://host:port`, `rfc2217://...`) with an asyncio protocol.
+
+    Raises:
+        PortNotFoundError: no such device, or nothing listening at the URL.
+        PortBusyError: another program has the port open.
+        PortPermissionError: access denied.
+        ConnectError: any other failure to open.
+    """
+    loop = asyncio.get_running_loop()
+    kwargs: dict[str, object] = {"baudrate": baudrate}
+    if not _is_url(port):
+        # A second program on the same port would steal half the replies: lock it like a modem line.
+        kwargs["exclusive"] = True
+    try:
+        transport, protocol = await serial_asyncio_fast.create_serial_connection(loop, protocol_factory, port, **kwargs)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise _explain(port, baudrate, exc) from exc
+    return transport, protocol
+
+
+def _explain(port: str, baudrate: int, exc: BaseException) -> ConnectError:
+    code = getattr(exc, "errno", None)
+    text = str(exc)
+    if isinstance(exc, ConnectionRefusedError) or code == errno.ECONNREFUSED:
+        return PortNotFoundError(f"nothing is listening at {port} (connection refused)")
+    if code == errno.ENOENT or "No such file" in text:
+        return PortNotFoundError(f"no such port: {port} (run 'marlin-temp ports' to list serial ports)")
+    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
+        return PortPermissionError(
+            f"permission denied opening {port}: add your user to the 'dialout' group "
+            "(sudo usermod -aG dialout $USER, then log in again)"
+        )
+    if code in (errno.EAGAIN, errno.EBUSY) or "exclusively lock" in text or "busy" in text.lower():
+        return PortBusyError(f"{port} is in use by another program (close OctoPrint, Cura, screen, ...)")
+    if isinstance(exc, ValueError):
+        return ConnectError(f"cannot open {port} at {baudrate} baud: {text}")
+    return ConnectError(f"cannot open {port}: {text}")

@@ -1,0 +1,659 @@
+"""The asyncio client: `async with connect(url) as printer: await printer.send("G28")`.
+
+A thin layer over `marlin_aio.connection.Connection` (all protocol decisions live there): it owns the transport,
+turns bytes into `Connection.receive_data` calls, resolves one future per command, arms one timer for the oldest
+command's deadline, and fans temperature readings out to subscribers. Loop-bound objects are created in
+`__aenter__`, never in `__init__`, so a `Printer` can be built outside a running loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import time
+from collections.abc import AsyncGenerator, AsyncIterator
+from types import TracebackType
+from typing import Self
+
+from marlin_aio import _serial
+from marlin_aio.commands import (
+    DEFAULT_MAX_BED_CELSIUS,
+    DEFAULT_MAX_CHAMBER_CELSIUS,
+    DEFAULT_MAX_HOTEND_CELSIUS,
+    check_target,
+    format_celsius,
+)
+from marlin_aio.connection import Connection, Reply
+from marlin_aio.errors import (
+    CommandTimeoutError,
+    ConnectionLostError,
+    HandshakeError,
+    HandshakeTimeoutError,
+    MarlinError,
+    PrinterHaltedError,
+    PrinterResetError,
+    TemperatureTimeoutError,
+)
+from marlin_aio.events import Capability, Event, FirmwareInfo, Ok, OverlongLine, TemperatureReport, UnrecognisedLine
+from marlin_aio.parsing import parse_endstops, parse_position
+from marlin_aio.temperatures import TemperatureReading
+from marlin_aio.trace import Trace
+
+__all__ = ["DEFAULT_BAUDRATE", "Printer", "connect"]
+
+DEFAULT_BAUDRATE = 250_000
+
+
+class _LinkProtocol(asyncio.Protocol):
+    """Hands the transport's callbacks to the printer; holds no state of its own."""
+
+    def __init__(self, printer: Printer) -> None:
+        self._printer = printer
+
+    def data_received(self, data: bytes) -> None:
+        self._printer._on_data(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._printer._on_connection_lost(exc)
+
+
+class Printer:
+    """A connection to one Marlin printer. Create it with `connect()` and use it as an async context manager.
+
+    Any number of tasks may call its coroutines at once: commands go out in the order they were sent, and each
+    resolves with its own reply.
+
+    Attributes:
+        latest: the most recent temperature reading, whatever produced it (None before the first).
+        firmware: the M115 identity line, once the handshake asked for it.
+        capabilities: the M115 `Cap:` flags, e.g. {"AUTOREPORT_TEMP": True}.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = DEFAULT_BAUDRATE,
+        timeout_s: float = 10.0,
+        handshake: bool = True,
+        numbered: bool = True,
+        max_in_flight: int = 1,
+        rx_buffer_bytes: int = 128,
+        boot_quiet_s: float = 0.3,
+        max_hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS,
+        max_bed_celsius: float = DEFAULT_MAX_BED_CELSIUS,
+        max_chamber_celsius: float = DEFAULT_MAX_CHAMBER_CELSIUS,
+    ) -> None:
+        if timeout_s <= 0:
+            raise ValueError(f"timeout_s must be positive, got {timeout_s}")
+        self.port = port
+        self.baudrate = baudrate
+        self.timeout_s = timeout_s
+        self.max_hotend_celsius = max_hotend_celsius
+        self.max_bed_celsius = max_bed_celsius
+        self.max_chamber_celsius = max_chamber_celsius
+        self._handshake_enabled = handshake
+        self._boot_quiet_s = boot_quiet_s
+        self._conn = Connection(numbered=numbered, max_in_flight=max_in_flight, rx_buffer_bytes=rx_buffer_bytes)
+        self.latest: TemperatureReading | None = None
+        self.firmware: FirmwareInfo | None = None
+        self.capabilities: dict[str, bool] = {}
+        self.bytes_received = 0
+        self.garbage_lines = 0
+        self._transport: asyncio.Transport | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._waiters: dict[int, asyncio.Future[Reply]] = {}
+        self._subscribers: list[asyncio.Queue[TemperatureReading | MarlinError]] = []
+        self._timer: asyncio.TimerHandle | None = None
+        self._closed: asyncio.Future[None] | None = None
+        self._lost: MarlinError | None = None
+        self._line_seen: asyncio.Event | None = None
+        self._pollers = 0
+        self._halt_notified: PrinterHaltedError | None = None
+
+    # ------------------------------------------------------------------------------------------- lifecycle
+
+    async def __aenter__(self) -> Self:
+        await self.open()
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.close()
+
+    async def open(self) -> None:
+        """Open the port and, unless disabled, run the handshake (boot banner, sync, M115).
+
+        Raises:
+            ConnectError: the port could not be opened (its subclasses say why).
+            HandshakeError: the printer did not answer the start-up sequence; `step` says where it stopped.
+        """
+        self._loop = asyncio.get_running_loop()
+        self._closed = self._loop.create_future()
+        self._line_seen = asyncio.Event()
+        transport, _ = await _serial.open_link(self.port, self.baudrate, lambda: _LinkProtocol(self))
+        self._transport = transport
+        if self._handshake_enabled:
+            try:
+                await self._handshake()
+            except BaseException:
+                await self.close()
+                raise
+
+    async def close(self) -> None:
+        """Close the port. Commands still waiting fail with `ConnectionLostError`; safe to call twice."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self._lost is None:
+            self._lost = ConnectionLostError(f"the connection to {self.port} was closed")
+            self._conn.fail_all(self._lost)
+            self._deliver_results()
+            self._notify_subscribers(self._lost)
+        transport, self._transport = self._transport, None
+        if transport is not None and not transport.is_closing():
+            transport.close()
+        if self._closed is not None and transport is not None:
+            # pyserial-asyncio-fast closes the port in an executor and then calls connection_lost.
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(self._closed), 2.0)
+
+    # ------------------------------------------------------------------------------------------- handshake
+
+    async def _handshake(self) -> None:
+        loop = self._running_loop()
+        assert self._line_seen is not None
+        # 1. Let the boot banner pass: many boards reset when the port opens and print for a moment. Wait until
+        #    the line stream has been quiet for a short while; a board that does not reset prints nothing.
+        boot_deadline = loop.time() + self.timeout_s
+        while loop.time() < boot_deadline:
+            self._line_seen.clear()
+            try:
+                await asyncio.wait_for(self._line_seen.wait(), self._boot_quiet_s)
+            except TimeoutError:
+                break
+        # 2. Synchronise: M105 until one is answered (commands written during a reset are lost, so retry),
+        #    then set the line counter with M110 N0. A late answer to an earlier probe is recognised as stray.
+        sync_deadline = loop.time() + self.timeout_s
+        while True:
+            remaining = sync_deadline - loop.time()
+            if remaining <= 0:
+                raise HandshakeTimeoutError(self._silence_explanation(), step="sync")
+            try:
+                await self.send("M105", timeout_s=min(1.0, remaining), numbered=False)
+                break
+            except (CommandTimeoutError, PrinterResetError):
+                continue
+            except PrinterHaltedError as exc:
+                raise HandshakeError(f"{exc}; reset the printer (power cycle or reset button)", step="sync") from exc
+        try:
+            await self.send("M110 N0", timeout_s=self.timeout_s)
+        except CommandTimeoutError as exc:
+            raise HandshakeTimeoutError(f"the printer did not answer M110 N0: {exc}", step="sync") from exc
+        # 3. Identify: M115 gives the firmware name and capabilities (collected from events as they arrive).
+        try:
+            await self.send("M115", timeout_s=self.timeout_s)
+        except CommandTimeoutError as exc:
+            raise HandshakeTimeoutError(f"the printer did not answer M115: {exc}", step="identify") from exc
+
+    def _silence_explanation(self) -> str:
+        if self.bytes_received == 0:
+            return (
+                f"no answer from {self.port} within {self.timeout_s:g} s: nothing was received "
+                "(is this the printer's port, and is it powered?)"
+            )
+        if self.garbage_lines:
+            other = 115_200 if self.baudrate != 115_200 else 250_000
+            return (
+                f"no answer from {self.port} within {self.timeout_s:g} s: {self.bytes_received} bytes of garbage "
+                f"received; wrong baud rate? {self.baudrate} is set, try {other}"
+            )
+        return f"no 'ok' from {self.port} within {self.timeout_s:g} s, though it sent {self.bytes_received} bytes"
+
+    # ------------------------------------------------------------------------------------------- commands
+
+    async def send(self, command: str, *, timeout_s: float | None = None, numbered: bool | None = None) -> Reply:
+        """Send one command and return its reply (the lines that came with it and its `ok`).
+
+        Busy keepalives and M109/M190 wait lines push the deadline out, so long commands only time out when the
+        printer falls silent. If the caller is cancelled before the command was written, it is never written.
+
+        Raises:
+            ValueError: the command is malformed (line break, non-ASCII, over 95 bytes, empty).
+            CommandTimeoutError: no `ok` within `timeout_s` (default: the client's) without a sign of life.
+            PrinterHaltedError: the printer halted (ThermalRunawayError if its thermal protection tripped).
+            PrinterResetError: the printer reset before answering.
+            ConnectionLostError: the link went away.
+        """
+        loop = self._running_loop()
+        if self._lost is not None:
+            raise self._lost
+        entry = self._conn.submit(
+            command, timeout_s=self.timeout_s if timeout_s is None else timeout_s, now=loop.time(), numbered=numbered
+        )
+        future: asyncio.Future[Reply] = loop.create_future()
+        self._waiters[entry.id] = future
+        self._flush()
+        try:
+            return await future
+        except asyncio.CancelledError:
+            self._conn.cancel(entry)
+            raise
+        finally:
+            self._waiters.pop(entry.id, None)
+
+    async def send_many(self, commands: list[str]) -> list[Reply]:
+        """Send several commands in order and return their replies; stops at the first error.
+
+        Raises:
+            The same errors as `send`.
+        """
+        replies = []
+        for command in commands:
+            replies.append(await self.send(command))
+        return replies
+
+    def emergency_stop(self) -> None:
+        """Write M112 at once, ahead of anything queued; the printer halts and needs a reset.
+
+        Every command still waiting fails with `PrinterHaltedError` right away.
+        """
+        if self._transport is None or self._lost is not None:
+            return
+        self._transport.write(self._conn.emergency("M112", now=self._running_loop().time()))
+        self._conn.halted = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
+        self._conn.fail_all(self._conn.halted)
+        self._deliver_results()
+
+    # ------------------------------------------------------------------------------------------- temperatures
+
+    async def temperatures(self) -> TemperatureReading:
+        """Ask for the temperatures once (M105) and return the reading.
+
+        Raises:
+            MarlinError: as `send`; also if the printer's answer holds no temperatures.
+        """
+        reply = await self.send("M105")
+        if self.latest is None or reply.temperatures is None:
+            raise MarlinError(f"M105 was answered without temperatures: {reply.ok.payload!r}")
+        return self.latest
+
+    async def temperature_readings(self) -> AsyncGenerator[TemperatureReading, None]:
+        """Yield every temperature report from now on, whatever produced it (polls, auto-report, wait lines).
+
+        Nothing is dropped: each subscriber has its own unbounded queue, so keep up or stop iterating.
+
+        Raises:
+            ConnectionLostError, PrinterHaltedError, PrinterResetError: when the link or printer goes away.
+        """
+        queue: asyncio.Queue[TemperatureReading | MarlinError] = asyncio.Queue()
+        self._subscribers.append(queue)
+        try:
+            if self._lost is not None:
+                raise self._lost
+            while True:
+                item = await queue.get()
+                if isinstance(item, MarlinError):
+                    raise item
+                yield item
+        finally:
+            self._subscribers.remove(queue)
+
+    @contextlib.asynccontextmanager
+    async def poll_temperatures(self, interval_s: float = 0.01, *, auto_report: bool = True) -> AsyncIterator[None]:
+        """Poll M105 every `interval_s` while the block runs; read the readings with `temperature_readings()`.
+
+        At most one M105 is in flight, the schedule is deadline-based (no drift), and a poll that falls behind a
+        long command is not repeated to catch up. With `auto_report` and a firmware that has it (Cap
+        AUTOREPORT_TEMP), M155 S1 is turned on as well so readings keep coming while G28/M109/M190 block the queue.
+
+        Raises:
+            ValueError: `interval_s` is not positive.
+        """
+        if not interval_s > 0:
+            raise ValueError(f"interval_s must be positive, got {interval_s}")
+        use_auto = auto_report and self.capabilities.get("AUTOREPORT_TEMP", False)
+        if use_auto:
+            await self.send("M155 S1")
+        self._pollers += 1
+        task = asyncio.create_task(self._poll_loop(interval_s), name=f"marlin-aio poller {self.port}")
+        try:
+            yield
+        finally:
+            self._pollers -= 1
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, MarlinError):
+                await task
+            if use_auto and self._lost is None and self._conn.halted is None:
+                with contextlib.suppress(MarlinError):
+                    await self.send("M155 S0")
+
+    async def _poll_loop(self, interval_s: float) -> None:
+        loop = self._running_loop()
+        next_poll = loop.time()
+        while True:
+            delay = next_poll - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            try:
+                await self.send("M105")
+            except CommandTimeoutError:
+                pass  # counted by the connection; the next poll tries again
+            except (ConnectionLostError, PrinterHaltedError):
+                return  # subscribers hear about it from the connection
+            except PrinterResetError:
+                pass
+            next_poll += interval_s
+            now = loop.time()
+            if next_poll < now:
+                # Behind (a long command held the queue): skip the missed slots instead of bursting to catch up.
+                next_poll = now
+
+    async def set_temperatures(
+        self,
+        *,
+        hotend: float | None = None,
+        bed: float | None = None,
+        chamber: float | None = None,
+        tool: int | None = None,
+    ) -> None:
+        """Set heater targets (M104, M140, M141) without waiting. 0 turns a heater off.
+
+        Every target is checked before anything is written.
+
+        Raises:
+            ValueError: a target is not a number, negative, or above the client's limit; `tool` is negative.
+            MarlinError: as `send`.
+        """
+        commands = self._target_commands(hotend=hotend, bed=bed, chamber=chamber, tool=tool)
+        for command in commands:
+            await self.send(command)
+
+    def _target_commands(
+        self, *, hotend: float | None, bed: float | None, chamber: float | None, tool: int | None
+    ) -> list[str]:
+        if tool is not None and (isinstance(tool, bool) or not isinstance(tool, int) or tool < 0):
+            raise ValueError(f"tool must be a non-negative integer, got {tool!r}")
+        commands = []
+        if hotend is not None:
+            value = check_target("hotend", hotend, self.max_hotend_celsius)
+            commands.append(f"M104 {'' if tool is None else f'T{tool} '}S{format_celsius(value)}")
+        if bed is not None:
+            value = check_target("bed", bed, self.max_bed_celsius)
+            commands.append(f"M140 S{format_celsius(value)}")
+        if chamber is not None:
+            value = check_target("chamber", chamber, self.max_chamber_celsius)
+            commands.append(f"M141 S{format_celsius(value)}")
+        return commands
+
+    async def wait_for_temperatures(
+        self,
+        *,
+        hotend: float | None = None,
+        bed: float | None = None,
+        chamber: float | None = None,
+        tolerance_c: float = 2.0,
+        timeout_s: float | None = None,
+        poll_interval_s: float = 0.5,
+    ) -> TemperatureReading:
+        """Wait until heaters are within `tolerance_c` of their targets, watching readings (the queue stays free).
+
+        Targets not given are taken from the readings (heaters whose target is 0 are not waited for). If no
+        poller is running, one polls every `poll_interval_s` while waiting.
+
+        Raises:
+            ValueError: `tolerance_c` is negative or a target is invalid.
+            TemperatureTimeoutError: not reached within `timeout_s` (None waits as long as it takes).
+            MarlinError: the link or the printer failed meanwhile.
+        """
+        if not tolerance_c >= 0:
+            raise ValueError(f"tolerance_c must not be negative, got {tolerance_c}")
+        wanted: dict[str, float] = {}
+        if hotend is not None:
+            wanted["T"] = check_target("hotend", hotend, self.max_hotend_celsius)
+        if bed is not None:
+            wanted["B"] = check_target("bed", bed, self.max_bed_celsius)
+        if chamber is not None:
+            wanted["C"] = check_target("chamber", chamber, self.max_chamber_celsius)
+
+        def reached(reading: TemperatureReading) -> bool:
+            heaters = reading.temperatures.heaters
+            targets = dict(wanted)
+            if not wanted:
+                targets = {k: h.target for k, h in heaters.items() if h.target and k in ("T", "B", "C")}
+            return all(
+                key in heaters and abs(heaters[key].actual - target) <= tolerance_c for key, target in targets.items()
+            )
+
+        async def watch() -> TemperatureReading:
+            readings = self.temperature_readings()
+            try:
+                if self.latest is not None and reached(self.latest):
+                    return self.latest
+                async for reading in readings:
+                    if reached(reading):
+                        return reading
+            finally:
+                await readings.aclose()
+            raise ConnectionLostError(f"the connection to {self.port} ended while waiting for temperatures")
+
+        poller = self.poll_temperatures(poll_interval_s, auto_report=False) if self._pollers == 0 else None
+        async with contextlib.AsyncExitStack() as stack:
+            if poller is not None:
+                await stack.enter_async_context(poller)
+            try:
+                async with asyncio.timeout(timeout_s):
+                    return await watch()
+            except TimeoutError:
+                latest = self.latest
+                state = "no reading" if latest is None else _describe_heaters(latest)
+                raise TemperatureTimeoutError(
+                    f"heaters did not reach their targets within {timeout_s:g} s ({state})"
+                ) from None
+        raise AssertionError("unreachable")  # pragma: no cover  (mypy cannot see that `async with` returns)
+
+    # ------------------------------------------------------------------------------------------- other helpers
+
+    async def endstops(self) -> dict[str, bool]:
+        """Read the endstops (M119): {"x_min": False, "z_min": True, ...}, True meaning triggered.
+
+        Raises:
+            MarlinError: as `send`.
+        """
+        return parse_endstops((await self.send("M119")).lines)
+
+    async def position(self) -> dict[str, float]:
+        """Read the current position in millimetres (M114): {"X": 10.0, "Y": 20.0, "Z": 5.0, "E": 0.0}.
+
+        Raises:
+            MarlinError: as `send`; also if the reply holds no position.
+        """
+        reply = await self.send("M114")
+        position = parse_position(reply.lines)
+        if position is None:
+            raise MarlinError(f"M114 was answered without a position: {reply.lines!r}")
+        return position
+
+    async def set_fan(self, fraction: float, *, fan: int = 0) -> None:
+        """Set a part-cooling fan's speed, from 0.0 (off, M107) to 1.0 (full, M106 S255).
+
+        Raises:
+            ValueError: `fraction` is not between 0 and 1, or `fan` is negative.
+            MarlinError: as `send`.
+        """
+        if not (isinstance(fraction, int | float) and 0.0 <= fraction <= 1.0):
+            raise ValueError(f"fan speed must be a fraction from 0.0 to 1.0, got {fraction!r}")
+        if isinstance(fan, bool) or not isinstance(fan, int) or fan < 0:
+            raise ValueError(f"fan must be a non-negative integer, got {fan!r}")
+        index = f" P{fan}" if fan else ""
+        if fraction == 0:
+            await self.send(f"M107{index}")
+        else:
+            await self.send(f"M106{index} S{round(fraction * 255)}")
+
+    # ------------------------------------------------------------------------------------------- state
+
+    @property
+    def trace(self) -> Trace:
+        """The last lines sent and received, with times on the event loop's clock."""
+        return self._conn.trace
+
+    @property
+    def connection(self) -> Connection:
+        """The protocol state (counters such as `timeouts`, `resend_requests`, `resets`)."""
+        return self._conn
+
+    @property
+    def is_connected(self) -> bool:
+        """True while the link is open and has not been lost."""
+        return self._transport is not None and self._lost is None
+
+    # ------------------------------------------------------------------------------------------- I/O plumbing
+
+    def _running_loop(self) -> asyncio.AbstractEventLoop:
+        if self._loop is None:
+            raise RuntimeError("the printer is not open: use 'async with connect(...) as printer'")
+        return self._loop
+
+    def _on_data(self, data: bytes) -> None:
+        loop = self._running_loop()
+        now = loop.time()
+        self.bytes_received += len(data)
+        events = self._conn.receive_data(data, now)
+        if events:
+            if self._line_seen is not None:
+                self._line_seen.set()
+            for event in events:
+                self._on_event(event, now)
+        self._deliver_results()
+        self._flush()
+
+    def _on_event(self, event: Event, now: float) -> None:
+        kind = type(event)
+        if kind is Ok:
+            assert isinstance(event, Ok)
+            if event.temperatures is not None:
+                self._publish(TemperatureReading(event.temperatures, now, time.time(), "poll"))
+        elif kind is TemperatureReport:
+            assert isinstance(event, TemperatureReport)
+            source = "wait" if event.temperatures.waiting else "auto"
+            self._publish(TemperatureReading(event.temperatures, now, time.time(), source))
+        elif kind is Capability:
+            assert isinstance(event, Capability)
+            self.capabilities[event.name] = event.enabled
+        elif kind is FirmwareInfo:
+            assert isinstance(event, FirmwareInfo)
+            self.firmware = event
+        elif kind is OverlongLine or (kind is UnrecognisedLine and "\ufffd" in getattr(event, "text", "")):
+            self.garbage_lines += 1
+
+    def _publish(self, reading: TemperatureReading) -> None:
+        self.latest = reading
+        for queue in self._subscribers:
+            queue.put_nowait(reading)
+
+    def _notify_subscribers(self, error: MarlinError) -> None:
+        for queue in self._subscribers:
+            queue.put_nowait(error)
+
+    def _deliver_results(self) -> None:
+        results = self._conn.take_results()
+        for command, outcome in results:
+            future = self._waiters.get(command.id)
+            if future is None or future.done():
+                continue
+            if isinstance(outcome, Reply):
+                future.set_result(outcome)
+            else:
+                future.set_exception(outcome)
+        halted = self._conn.halted
+        if halted is not None and halted is not self._halt_notified:
+            # Readers of temperatures learn of a halt even when no command was waiting for an answer.
+            self._halt_notified = halted
+            self._notify_subscribers(halted)
+        self._arm_timer()
+
+    def _flush(self) -> None:
+        if self._transport is None or self._lost is not None:
+            return
+        data = self._conn.data_to_send(self._running_loop().time())
+        if data:
+            self._transport.write(data)
+            self._arm_timer()
+
+    def _arm_timer(self) -> None:
+        deadline = self._conn.next_deadline()
+        if deadline is None:
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
+            return
+        # Keep an earlier timer: when it fires it re-arms for the real deadline. That makes the common case (the
+        # deadline moving later with every answer) free of timer churn.
+        if self._timer is not None and self._timer.when() <= deadline:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = self._running_loop().call_at(deadline, self._on_timer)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._conn.check_timeouts(self._running_loop().time())
+        self._deliver_results()
+        self._flush()
+
+    def _on_connection_lost(self, exc: Exception | None) -> None:
+        if self._lost is None:
+            reason = f": {exc}" if exc is not None else ""
+            self._lost = ConnectionLostError(f"the connection to {self.port} was lost{reason}")
+            self._conn.fail_all(self._lost)
+            self._deliver_results()
+            self._notify_subscribers(self._lost)
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self._transport = None
+        if self._closed is not None and not self._closed.done():
+            self._closed.set_result(None)
+
+
+def _describe_heaters(reading: TemperatureReading) -> str:
+    parts = []
+    for key, heater in reading.temperatures.heaters.items():
+        if key in ("T", "B", "C") and heater.target is not None and not math.isnan(heater.actual):
+            parts.append(f"{key} {heater.actual:.1f}/{heater.target:.0f} C")
+    return ", ".join(parts) or "no heaters reported"
+
+
+def connect(
+    port: str,
+    *,
+    baudrate: int = DEFAULT_BAUDRATE,
+    timeout_s: float = 10.0,
+    handshake: bool = True,
+    numbered: bool = True,
+    max_in_flight: int = 1,
+    rx_buffer_bytes: int = 128,
+    max_hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS,
+    max_bed_celsius: float = DEFAULT_MAX_BED_CELSIUS,
+    max_chamber_celsius: float = DEFAULT_MAX_CHAMBER_CELSIUS,
+) -> Printer:
+    """Return a `Printer` for `port` (a device path or a pyserial URL); open it with `async with`.
+
+    `timeout_s` bounds each handshake step and, by default, the wait for each command's `ok` (busy keepalives
+    extend it). `numbered` sends every command with a line number and checksum, so corrupted lines are resent.
+    """
+    return Printer(
+        port,
+        baudrate=baudrate,
+        timeout_s=timeout_s,
+        handshake=handshake,
+        numbered=numbered,
+        max_in_flight=max_in_flight,
+        rx_buffer_bytes=rx_buffer_bytes,
+        max_hotend_celsius=max_hotend_celsius,
+        max_bed_celsius=max_bed_celsius,
+        max_chamber_celsius=max_chamber_celsius,
+    )

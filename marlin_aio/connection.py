@@ -1,0 +1,519 @@
+"""The sans-I/O connection: which command each `ok` answers, resends, deadlines, halts and resets.
+
+Marlin answers every command it processes with exactly one `ok`, in the order it received them. So the connection
+keeps the commands written but not yet answered in a FIFO (`in flight`) and each plain `ok` completes the oldest.
+Three exceptions are handled here, all from Marlin's sources (`gcode/queue.cpp`):
+
+- After a line-number or checksum error the printer prints `Resend: N` then an `ok` that answers nothing; the
+  command is written again. The firmware also throws away what sat in its receive buffer, so every line from N on
+  is written again, and rejections of lines that were already on the wire ("stale") do not trigger more resends.
+- With ADVANCED_OK the `ok` names its line (`ok N12 ...`), and M105's `ok` is recognisable by its temperatures;
+  either one proves that every older command was processed, so a lost `ok` does not shift every later answer.
+- A command that gets no `ok` at all (Marlin's `M105 T9` prints an error and nothing more) times out and is
+  dropped, so the commands behind it go on.
+
+Time never comes from a clock here: every call takes `now` (seconds, monotonic), so tests drive it directly.
+Nothing here imports asyncio or serial; `marlin_aio.client` is the thin layer that does I/O.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+from marlin_aio.commands import command_code, encode_command, number_command
+from marlin_aio.errors import (
+    CommandTimeoutError,
+    MarlinError,
+    PrinterHaltedError,
+    PrinterResetError,
+    RemoteProtocolError,
+    ResendLimitError,
+    ThermalRunawayError,
+)
+from marlin_aio.events import (
+    BusyKeepalive,
+    Capability,
+    EchoMessage,
+    ErrorKind,
+    ErrorMessage,
+    Event,
+    FirmwareInfo,
+    Ok,
+    ResendRequest,
+    Start,
+    TemperatureReport,
+    UnrecognisedLine,
+)
+from marlin_aio.parsing import EventParser
+from marlin_aio.temperatures import Temperatures
+from marlin_aio.trace import Trace
+
+__all__ = ["Command", "Connection", "Reply"]
+
+#: Commands Marlin's emergency parser acts on as soon as their bytes arrive; they skip the queue here too.
+EMERGENCY_COMMANDS = frozenset({"M108", "M112", "M410", "M876"})
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    """What the printer answered to one command: the lines that came with it, and its `ok`.
+
+    `sent_s` and `answered_s` are on the connection's clock, so `latency_s` is the round trip.
+    """
+
+    command: str
+    lines: tuple[str, ...]
+    ok: Ok
+    sent_s: float
+    answered_s: float
+
+    @property
+    def latency_s(self) -> float:
+        """Seconds from writing the command to its `ok`."""
+        return self.answered_s - self.sent_s
+
+    @property
+    def temperatures(self) -> Temperatures | None:
+        """The temperatures an M105 `ok` carried, if any."""
+        return self.ok.temperatures
+
+
+@dataclass(slots=True, eq=False)
+class Command:
+    """A command the connection has accepted: queued, in flight, or finished.
+
+    `id` is unique per connection, for matching results to waiters.
+    """
+
+    id: int
+    text: str
+    code: str
+    numbered: bool
+    timeout_s: float
+    submitted_s: float
+    line_number: int | None = None
+    wire: bytes = b""
+    sent_s: float | None = None
+    head_since_s: float | None = None  # when it became the oldest command waiting for an ok
+    alive_s: float | None = None  # last busy keepalive / wait line while it was the oldest
+    lines: list[str] = field(default_factory=list)
+    sends: int = 0
+    orphan: bool = False  # its caller already gave up (timed out); an answer completes nothing
+
+
+class Connection:
+    """Bookkeeping for one link to a Marlin printer, with no I/O.
+
+    Typical use by an I/O layer: `submit()` commands, write `data_to_send()`, feed bytes read to
+    `receive_data()`, call `check_timeouts()` at `next_deadline()`, and deliver `take_results()`.
+
+    Args:
+        numbered: give every command a line number and checksum so the printer can ask for it again.
+        max_in_flight: how many commands may be written before their `ok` (1 is ping-pong).
+        rx_buffer_bytes: the printer's serial receive buffer; unanswered bytes never exceed it.
+        trace_size: how many lines sent and received the trace keeps.
+        max_resends: how often one line may be requested again before the link is declared too noisy.
+    """
+
+    def __init__(
+        self,
+        *,
+        numbered: bool = True,
+        max_in_flight: int = 1,
+        rx_buffer_bytes: int = 128,
+        trace_size: int = 64,
+        max_resends: int = 10,
+    ) -> None:
+        if max_in_flight < 1:
+            raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
+        if rx_buffer_bytes < 16:
+            raise ValueError(f"rx_buffer_bytes must be at least 16, got {rx_buffer_bytes}")
+        self.numbered = numbered
+        self.max_in_flight = max_in_flight
+        self.rx_buffer_bytes = rx_buffer_bytes
+        self.max_resends = max_resends
+        self.trace = Trace(trace_size)
+        self._parser = EventParser()
+        self._next_id = 0
+        self._next_line = 1  # after reset (or M110 N0) Marlin expects line 1
+        self._queue: deque[Command] = deque()  # accepted, not yet written
+        self._in_flight: deque[Command] = deque()  # written, waiting for an ok, in the order they were written
+        self._in_flight_bytes = 0
+        self._history: dict[int, Command] = {}  # numbered lines by number, for resends
+        self._history_order: deque[int] = deque()
+        self._resend_from: int | None = None  # the resend being carried out
+        self._stale = 0  # answers still due for lines written before the last resend request
+        self._swallow_ok = False  # the ok right after a resend request answers nothing
+        self._results: list[tuple[Command, Reply | MarlinError]] = []
+        self._thermal_message: str | None = None
+        self.halted: PrinterHaltedError | None = None
+        self.resets = 0
+        self.resend_requests = 0
+        self.stray_oks = 0
+        self.timeouts = 0
+
+    # ----------------------------------------------------------------------------------------------- commands
+
+    def submit(self, text: str, *, timeout_s: float, now: float, numbered: bool | None = None) -> Command:
+        """Accept a command for sending; it goes out in order with the others.
+
+        Raises:
+            ValueError: the command is not valid (line break, non-ASCII, too long, empty).
+            PrinterHaltedError: the printer halted and answers nothing until it is reset.
+        """
+        use_numbers = self.numbered if numbered is None else numbered
+        # Validate now, with the longest line number it could get, so a bad command never reaches the queue.
+        encode_command(text, 99_999_999 if use_numbers else None)
+        code = command_code(text)
+        if self.halted is not None and code != "M999":
+            raise self.halted
+        if timeout_s <= 0:
+            raise ValueError(f"timeout_s must be positive, got {timeout_s}")
+        self._next_id += 1
+        stripped = encode_command(text).decode("ascii").rstrip("\n")
+        command = Command(self._next_id, stripped, code, use_numbers, timeout_s, now)
+        self._queue.append(command)
+        return command
+
+    def emergency(self, text: str, *, now: float) -> bytes:
+        """Return the bytes of an emergency command (M112, M108, M410) to write at once, ahead of the queue.
+
+        It is never numbered (the emergency parser wants the bare command) and gets no entry in the FIFO: M112 halts
+        the printer, and the halt fails everything that was waiting.
+
+        Raises:
+            ValueError: the command is not one of M108, M112, M410, M876, or is malformed.
+        """
+        wire = encode_command(text)
+        if command_code(text) not in EMERGENCY_COMMANDS:
+            raise ValueError(f"{text!r} is not an emergency command (M108, M112, M410, M876)")
+        self.trace.sent(now, wire.decode("ascii").rstrip("\n"))
+        return wire
+
+    def data_to_send(self, now: float) -> bytes:
+        """Return the bytes to write now: resends first, then queued commands, as far as the window allows."""
+        chunks: list[bytes] = []
+        while self._queue:
+            command = self._queue[0]
+            if self._in_flight and (
+                len(self._in_flight) >= self.max_in_flight
+                or self._in_flight_bytes + self._wire_size(command) > self.rx_buffer_bytes
+            ):
+                break
+            self._queue.popleft()
+            if not command.wire:
+                self._assign_wire(command)
+            chunks.append(self._write(command, now))
+        return b"".join(chunks)
+
+    def _wire_size(self, command: Command) -> int:
+        if command.wire:
+            return len(command.wire)
+        # An estimate that is never too small: the line number can only add this many bytes.
+        return len(command.text) + (len(str(self._next_line)) + 6 if command.numbered else 1)
+
+    def _assign_wire(self, command: Command) -> None:
+        if not command.numbered:
+            command.wire = command.text.encode("ascii") + b"\n"
+            return
+        if command.code == "M110":
+            # M110 sets the counter: number the line with the value it sets, as Marlin's own hosts do.
+            words = command.text.split()
+            value = next((int(w[1:]) for w in words[1:] if w[:1] in "Nn" and w[1:].isdigit()), 0)
+            command.line_number = value
+            self._next_line = value + 1
+            self._forget_history()
+        else:
+            command.line_number = self._next_line
+            self._next_line += 1
+        command.wire = number_command(command.text, command.line_number).encode("ascii") + b"\n"
+        self._history[command.line_number] = command
+        self._history_order.append(command.line_number)
+        # Keep enough history for everything that can be in flight, with a wide margin.
+        while len(self._history_order) > max(256, 4 * self.max_in_flight):
+            self._history.pop(self._history_order.popleft(), None)
+
+    def _forget_history(self) -> None:
+        self._history.clear()
+        self._history_order.clear()
+
+    def _write(self, command: Command, now: float) -> bytes:
+        command.sends += 1
+        if command.sent_s is None:
+            command.sent_s = now
+        if not self._in_flight:
+            command.head_since_s = now
+        self._in_flight.append(command)
+        self._in_flight_bytes += len(command.wire)
+        self.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
+        return command.wire
+
+    # ----------------------------------------------------------------------------------------------- receiving
+
+    def receive_data(self, data: bytes, now: float) -> list[Event]:
+        """Feed bytes read from the printer; return the events of the lines they complete.
+
+        Results (answered and failed commands) collect in `take_results()`; call `data_to_send()` afterwards,
+        as an answer may open the window for more.
+        """
+        events: list[Event] = []
+        for text, event in self._parser.receive_data(data):
+            self.trace.received(now, text)
+            self._handle(text, event, now)
+            events.append(event)
+        return events
+
+    def _handle(self, text: str, event: Event, now: float) -> None:
+        kind = type(event)
+        if kind is Ok:
+            assert isinstance(event, Ok)
+            self._on_ok(event, now)
+            return
+        self._swallow_ok = False
+        head = self._in_flight[0] if self._in_flight else None
+        if kind is BusyKeepalive or (
+            kind is TemperatureReport and isinstance(event, TemperatureReport) and event.temperatures.waiting
+        ):
+            # Proof that the printer is alive and working on the oldest command: push its deadline out.
+            if head is not None:
+                head.alive_s = now
+        elif kind is ResendRequest:
+            assert isinstance(event, ResendRequest)
+            self._on_resend(event.line_number, now)
+        elif kind is ErrorMessage:
+            assert isinstance(event, ErrorMessage)
+            self._on_error(event, now)
+        elif kind is Start:
+            self._on_start()
+        elif head is not None and kind in (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability):
+            head.lines.append(text)
+
+    def _on_ok(self, ok: Ok, now: float) -> None:
+        if self._swallow_ok:
+            self._swallow_ok = False
+            return
+        if not self._in_flight:
+            self.stray_oks += 1
+            return
+        # How many in-flight commands does this ok finish? Normally one; more when it proves older oks were lost.
+        count = 1
+        if ok.line_number is not None:
+            for index, command in enumerate(self._in_flight):
+                if command.line_number == ok.line_number:
+                    count = index + 1
+                    break
+        elif ok.temperatures is not None and self._in_flight[0].code != "M105":
+            # Only M105 answers `ok T:...`. If one is in flight, the oks before it were lost; if none is, this
+            # answers a probe we already gave up on, and must not complete an unrelated command.
+            for index, command in enumerate(self._in_flight):
+                if command.code == "M105":
+                    count = index + 1
+                    break
+            else:
+                self.stray_oks += 1
+                return
+        for _ in range(count):
+            command = self._pop_in_flight(now)
+            if self._stale == 0 or (self._resend_from is not None and (command.line_number or 0) >= self._resend_from):
+                # The firmware has reached the lines written again: nothing older can still answer.
+                self._stale = 0
+                self._resend_from = None
+            if not command.orphan:
+                sent = now if command.sent_s is None else command.sent_s
+                reply = Reply(command.text, tuple(command.lines), ok, sent, now)
+                self._results.append((command, reply))
+
+    def _pop_in_flight(self, now: float) -> Command:
+        command = self._in_flight.popleft()
+        self._in_flight_bytes -= len(command.wire)
+        if self._in_flight:
+            self._in_flight[0].head_since_s = now
+        return command
+
+    def _on_resend(self, line_number: int, now: float) -> None:
+        self.resend_requests += 1
+        self._swallow_ok = True
+        if line_number != self._resend_from:
+            # A request for another line means the firmware has got past every stale line.
+            self._stale = 0
+        elif self._stale > 0:
+            # The rejection of a line that was already on the wire when this resend began: expected, no action.
+            self._stale -= 1
+            return
+        first = self._history.get(line_number)
+        if first is None:
+            self._fail_everything(
+                RemoteProtocolError(
+                    f"the printer asked for line {line_number}, which was never sent or is too old to resend "
+                    f"(next line is {self._next_line})"
+                )
+            )
+            return
+        if first.sends > self.max_resends:
+            self._fail_everything(
+                ResendLimitError(
+                    f"the printer asked for line {line_number} ({first.text!r}) {first.sends} times; "
+                    "the link is too noisy (check the cable, baud rate and grounding)"
+                )
+            )
+            return
+        # Marlin rejected one line and threw away its receive buffer: every numbered line from N on that is on
+        # the wire will be rejected or lost. Take them out of the in-flight FIFO (all but the one this rejection
+        # answers will each send a stale rejection, or nothing) and write every line from N on again, in order,
+        # ahead of new commands.
+        owed = {id(c) for c in self._in_flight}
+        keep: deque[Command] = deque()
+        removed = 0
+        for command in self._in_flight:
+            if command.line_number is not None and command.line_number >= line_number:
+                removed += 1
+            else:
+                keep.append(command)
+        self._stale = max(removed - 1, 0)
+        queued = {id(c) for c in self._queue}
+        again: list[Command] = []
+        for number in range(line_number, self._next_line):
+            resend = self._history.get(number)
+            if resend is None or id(resend) in queued:
+                continue
+            if id(resend) not in owed:
+                # Not in flight and not queued: its caller already had a result (a timeout). Resend it so the
+                # numbering goes on, but its answer completes nothing.
+                resend.orphan = True
+            again.append(resend)
+        self._in_flight = keep
+        self._in_flight_bytes = sum(len(c.wire) for c in keep)
+        if keep and keep[0].head_since_s is None:
+            keep[0].head_since_s = now
+        self._resend_from = line_number
+        self._queue.extendleft(reversed(again))
+
+    def _on_error(self, event: ErrorMessage, now: float) -> None:
+        if event.kind is ErrorKind.THERMAL:
+            self._thermal_message = event.message
+            self._halt(ThermalRunawayError(f"thermal protection tripped: {event.message}"))
+        elif event.kind is ErrorKind.HALTED:
+            if self._thermal_message is not None:
+                message = f"thermal protection tripped: {self._thermal_message} ({event.message})"
+                self._halt(ThermalRunawayError(message))
+            else:
+                self._halt(PrinterHaltedError(f"the printer halted: {event.message}"))
+        elif event.kind is ErrorKind.OTHER and self._in_flight:
+            self._in_flight[0].lines.append(f"Error:{event.message}")
+
+    def _halt(self, error: PrinterHaltedError) -> None:
+        if self.halted is None or isinstance(error, ThermalRunawayError):
+            self.halted = error
+        self._fail_everything(self.halted)
+
+    def _on_start(self) -> None:
+        self.resets += 1
+        # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
+        self._fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
+        self.halted = None
+        self._thermal_message = None
+        self._next_line = 1
+
+    def _fail_everything(self, error: MarlinError) -> None:
+        for command in (*self._in_flight, *self._queue):
+            if not command.orphan:
+                self._results.append((command, error))
+        self._in_flight.clear()
+        self._queue.clear()
+        self._in_flight_bytes = 0
+        self._forget_history()
+        self._stale = 0
+        self._resend_from = None
+        self._swallow_ok = False
+
+    def cancel(self, command: Command) -> bool:
+        """Withdraw a command whose caller gave up; return True if it was never written (so it never will be).
+
+        A command already written stays in the FIFO, as the printer will still answer it; only its result is dropped.
+        """
+        if command.sends == 0:
+            try:
+                self._queue.remove(command)
+            except ValueError:
+                return False
+            return True
+        command.orphan = True
+        return False
+
+    def fail_all(self, error: MarlinError) -> None:
+        """Fail every queued and in-flight command with `error` (the link is gone, or the client closes)."""
+        self._fail_everything(error)
+
+    # ----------------------------------------------------------------------------------------------- time
+
+    def next_deadline(self) -> float | None:
+        """When the oldest command in flight times out unless the printer shows a sign of life first."""
+        if not self._in_flight:
+            return None
+        head = self._in_flight[0]
+        start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
+        return start + head.timeout_s
+
+    def check_timeouts(self, now: float) -> None:
+        """Time out the oldest command if its deadline has passed; the commands behind it go on."""
+        while self._in_flight:
+            deadline = self.next_deadline()
+            if deadline is None or now < deadline:
+                return
+            head = self._in_flight[0]
+            self.timeouts += 1
+            # A whole timeout of silence: no stale rejection can still be on its way.
+            self._stale = 0
+            error = CommandTimeoutError(self.describe_stall(head, now), command=head.text)
+            self._pop_in_flight(now)
+            if head.line_number is not None:
+                # Marlin may still hold it (as with M105 T9, which never answers): keep it for resends, but its
+                # caller is told now, and a late answer completes nothing.
+                head.orphan = True
+            self._results.append((head, error))
+
+    def describe_stall(self, command: Command, now: float) -> str:
+        """One line saying who waits for whom: the command, for how long, and what each side last said."""
+        waited = now - (command.submitted_s if command.head_since_s is None else command.head_since_s)
+        parts = [f"no 'ok' for {command.text!r} after {waited:.1f} s"]
+        if command.line_number is not None:
+            parts[0] += f" (line {command.line_number})"
+        behind = len(self._in_flight) - 1 + len(self._queue)
+        if behind:
+            parts.append(f"{behind} more command{'s' if behind != 1 else ''} waiting behind it")
+        last_in = self.trace.last_received
+        last_out = self.trace.last_sent
+        if last_out is not None:
+            parts.append(f"last sent {last_out.text!r} {now - last_out.time_s:.1f} s ago")
+        if last_in is None:
+            parts.append("nothing ever received: the printer is silent (wrong port or baud rate?)")
+        else:
+            silent = now - last_in.time_s
+            parts.append(f"last received {last_in.text!r} {silent:.1f} s ago")
+            if silent >= command.timeout_s:
+                parts.append("the printer has been silent since")
+            else:
+                parts.append("the printer is talking but did not answer this command")
+        return "; ".join(parts)
+
+    # ----------------------------------------------------------------------------------------------- results
+
+    def take_results(self) -> list[tuple[Command, Reply | MarlinError]]:
+        """Return and forget the commands finished since the last call, with their reply or error."""
+        results, self._results = self._results, []
+        return results
+
+    @property
+    def in_flight(self) -> int:
+        """How many commands were written and wait for their `ok`."""
+        return len(self._in_flight)
+
+    @property
+    def queued(self) -> int:
+        """How many accepted commands wait to be written."""
+        return len(self._queue)
+
+    def oldest_waiting(self) -> Command | None:
+        """The command the printer should answer next, if any."""
+        return self._in_flight[0] if self._in_flight else None

@@ -1,0 +1,107 @@
+"""The exception hierarchy: everything marlin_aio raises on purpose derives from `MarlinError`.
+
+Timeouts also derive from `TimeoutError` and lost links from `ConnectionError`, so code that already catches
+those built-ins keeps working. Bad arguments raise plain `ValueError` before anything is written to the port.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CommandTimeoutError",
+    "ConnectError",
+    "ConnectionLostError",
+    "HandshakeError",
+    "HandshakeTimeoutError",
+    "MarlinError",
+    "PortBusyError",
+    "PortNotFoundError",
+    "PortPermissionError",
+    "PrinterHaltedError",
+    "PrinterResetError",
+    "RemoteProtocolError",
+    "ResendLimitError",
+    "TemperatureTimeoutError",
+    "ThermalRunawayError",
+]
+
+
+class MarlinError(Exception):
+    """Base class of every error marlin_aio raises about the printer or the link."""
+
+
+class RemoteProtocolError(MarlinError):
+    """The printer sent something the protocol does not allow (the printer's fault, not the caller's)."""
+
+
+class ConnectError(MarlinError, ConnectionError):
+    """The port could not be opened."""
+
+
+class PortNotFoundError(ConnectError):
+    """No device exists at the given path or URL."""
+
+
+class PortBusyError(ConnectError):
+    """Another program holds the port open."""
+
+
+class PortPermissionError(ConnectError):
+    """The operating system refused access to the port (on Linux: add the user to the `dialout` group)."""
+
+
+class HandshakeError(MarlinError):
+    """The port opened but the printer did not complete the start-up sequence.
+
+    `step` names the step that failed: "boot", "sync" or "identify".
+    """
+
+    def __init__(self, message: str, *, step: str) -> None:
+        super().__init__(message)
+        self.step = step
+
+
+class HandshakeTimeoutError(HandshakeError, TimeoutError):
+    """A start-up step got no answer within its timeout."""
+
+
+class CommandTimeoutError(MarlinError, TimeoutError):
+    """A command got no `ok` within its timeout while the printer gave no sign of being busy.
+
+    The message says who waited for whom: the command, how long it waited, and what was last sent and received.
+    `command` is the command text.
+    """
+
+    def __init__(self, message: str, *, command: str) -> None:
+        super().__init__(message)
+        self.command = command
+
+
+class TemperatureTimeoutError(MarlinError, TimeoutError):
+    """Heaters did not reach their targets within the allowed time."""
+
+
+class ConnectionLostError(MarlinError, ConnectionError):
+    """The link to the printer went away (port unplugged, closed, or the TCP peer left)."""
+
+
+class PrinterResetError(MarlinError):
+    """The printer restarted (it printed `start`); every command in flight was lost."""
+
+
+class PrinterHaltedError(MarlinError):
+    """The printer stopped itself (`Error:Printer halted`, M112, a kill) and answers nothing until reset.
+
+    `message` is the printer's own explanation, as it printed it.
+    """
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+
+class ThermalRunawayError(PrinterHaltedError):
+    """The printer halted because its thermal protection tripped (runaway, heating failed, MAXTEMP, MINTEMP)."""
+
+
+class ResendLimitError(MarlinError):
+    """The printer asked for the same line again and again; the link is too noisy to go on."""

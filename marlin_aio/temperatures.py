@@ -1,0 +1,129 @@
+"""Temperature reports: the `T:21.50 /0.00 B:21.30 /0.00 @:0 B@:0` fields Marlin prints, parsed.
+
+The same fields arrive three ways: after `ok` (M105), on their own line starting with a space (M155 auto-report),
+and with ` W:` at the end while M109/M190 wait. One parser serves all three.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+__all__ = ["HeaterReading", "TemperatureReading", "Temperatures", "parse_temperatures"]
+
+
+@dataclass(frozen=True, slots=True)
+class HeaterReading:
+    """One sensor: its temperature, target and heater power (0-127 in Marlin's soft PWM) in degrees Celsius."""
+
+    actual: float
+    target: float | None = None
+    power: int | None = None
+    raw: float | None = None  # the ADC value Marlin prints in parentheses when asked to
+
+    @property
+    def power_fraction(self) -> float | None:
+        """Power as a fraction of full power (0.0-1.0), or None when not reported."""
+        return None if self.power is None else min(max(self.power / 127.0, 0.0), 1.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Temperatures:
+    """All sensors of one report, keyed by Marlin's letter: T (active hotend), T0..Tn, B, C, L, P, M, R.
+
+    `waiting` is true for M109/M190 wait lines; `wait_remaining_s` is their `W:` countdown (None for `W:?`).
+    """
+
+    heaters: dict[str, HeaterReading]
+    waiting: bool = False
+    wait_remaining_s: float | None = None
+
+    @property
+    def hotend(self) -> HeaterReading | None:
+        """The active hotend (`T`), falling back to `T0`."""
+        return self.heaters.get("T") or self.heaters.get("T0")
+
+    @property
+    def bed(self) -> HeaterReading | None:
+        """The bed (`B`), if the printer has one."""
+        return self.heaters.get("B")
+
+    @property
+    def chamber(self) -> HeaterReading | None:
+        """The chamber (`C`), if the printer has one."""
+        return self.heaters.get("C")
+
+
+_NUMBER = r"-?(?:\d+(?:\.\d*)?|\.\d+|inf|nan)"
+# One field: a sensor `X:actual /target (raw)` or a power `X@:n` / `@n:n`, or `W:n|?`. The key must start a word:
+# `B@:` must not be read as `@:` and ` W:` must not match inside another token.
+_FIELD = re.compile(
+    rf"(?<!\S)(?P<key>[TBCLPMR]?@\d*|[TBCLPMR]\d*|W):[ \t]*(?P<value>{_NUMBER}|\?)?"
+    rf"(?:[ \t]*/[ \t]*(?P<target>{_NUMBER}))?(?:[ \t]*\((?P<raw>{_NUMBER})\))?"
+)
+_LEADING = re.compile(r"[ \t]*[TBC]\d*:")
+
+
+def looks_like_temperatures(text: str) -> bool:
+    """Tell whether `text` (a line, or what follows `ok `) starts with a temperature field."""
+    return _LEADING.match(text) is not None
+
+
+def parse_temperatures(text: str) -> Temperatures | None:
+    """Parse the temperature fields in `text`; return None when it holds no sensor reading.
+
+    Fields the parser does not know are skipped, so a firmware that adds one does not break the rest.
+    """
+    actual: dict[str, tuple[float, float | None, float | None]] = {}
+    powers: dict[str, int] = {}
+    waiting = False
+    remaining: float | None = None
+    for match in _FIELD.finditer(text):
+        key, value = match["key"], match["value"]
+        if key == "W":
+            waiting = True
+            remaining = None if value in (None, "?") else float(value)
+        elif "@" in key:
+            if value not in (None, "?"):
+                # `@:` is the active hotend, `@0:` hotend 0, `B@:` the bed, `C@:` the chamber.
+                letter, _, index = key.partition("@")
+                heater = (letter or "T") + index
+                powers[heater] = int(float(value))
+        elif value not in (None, "?"):
+            target = match["target"]
+            raw = match["raw"]
+            actual[key] = (
+                float(value),
+                None if target is None else float(target),
+                None if raw is None else float(raw),
+            )
+    if not actual:
+        return None
+    heaters = {
+        key: HeaterReading(actual=a, target=t, power=powers.get(key), raw=r) for key, (a, t, r) in actual.items()
+    }
+    return Temperatures(heaters=heaters, waiting=waiting, wait_remaining_s=remaining)
+
+
+@dataclass(frozen=True, slots=True)
+class TemperatureReading:
+    """One temperature report as the client received it, stamped on arrival.
+
+    `monotonic_s` is the event loop's clock (for intervals and rates), `wall_time_s` is `time.time()` (for logs).
+    `source` is "poll" (an M105 reply), "auto" (M155 auto-report) or "wait" (an M109/M190 wait line).
+    """
+
+    temperatures: Temperatures
+    monotonic_s: float
+    wall_time_s: float
+    source: str
+
+    @property
+    def hotend(self) -> HeaterReading | None:
+        """The active hotend's reading."""
+        return self.temperatures.hotend
+
+    @property
+    def bed(self) -> HeaterReading | None:
+        """The bed's reading."""
+        return self.temperatures.bed

@@ -1,0 +1,52 @@
+"""A ring buffer of the last lines sent and received, for saying who was waiting for whom when a link stalls."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Literal
+
+__all__ = ["Trace", "TraceEntry"]
+
+
+@dataclass(frozen=True, slots=True)
+class TraceEntry:
+    """One line on the wire: `direction` is "sent" or "received"; `time_s` is on the connection's clock."""
+
+    time_s: float
+    direction: Literal["sent", "received"]
+    text: str
+
+
+class Trace:
+    """The last `size` lines sent and received, oldest first, plus when each direction last saw traffic."""
+
+    __slots__ = ("_entries", "last_received", "last_sent")
+
+    def __init__(self, size: int = 64) -> None:
+        self._entries: deque[TraceEntry] = deque(maxlen=size)
+        self.last_sent: TraceEntry | None = None
+        self.last_received: TraceEntry | None = None
+
+    def sent(self, time_s: float, text: str) -> None:
+        """Record a line written to the printer."""
+        entry = TraceEntry(time_s, "sent", text)
+        self._entries.append(entry)
+        self.last_sent = entry
+
+    def received(self, time_s: float, text: str) -> None:
+        """Record a line read from the printer."""
+        entry = TraceEntry(time_s, "received", text)
+        self._entries.append(entry)
+        self.last_received = entry
+
+    def entries(self) -> list[TraceEntry]:
+        """The recorded lines, oldest first."""
+        return list(self._entries)
+
+    def format(self, now: float) -> str:
+        """The recorded lines as text, one per line, each with its age: `  -0.512 s >> N12 G1 X10*93`."""
+        return "\n".join(
+            f"{entry.time_s - now:+9.3f} s {'>>' if entry.direction == 'sent' else '<<'} {entry.text}"
+            for entry in self._entries
+        )
