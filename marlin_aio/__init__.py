@@ -11,6 +11,7 @@ served on a pseudo-terminal or TCP.
 
 from __future__ import annotations
 
+from marlin_aio._serial import PortInfo, list_ports
 from marlin_aio.client import DEFAULT_BAUDRATE, Printer, connect
 from marlin_aio.commands import checksum, encode_command, number_command, strip_comment
 from marlin_aio.connection import Command, Connection, Reply
@@ -78,6 +79,7 @@ __all__ = [
     "Ok",
     "OverlongLine",
     "PortBusyError",
+    "PortInfo",
     "PortNotFoundError",
     "PortPermissionError",
     "Printer",
@@ -101,6 +103,7 @@ __all__ = [
     "classify_line",
     "connect",
     "encode_command",
+    "list_ports",
     "number_command",
     "parse_endstops",
     "parse_position",

@@ -8,13 +8,14 @@ from __future__ import annotations
 import asyncio
 import errno
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import serial
 import serial_asyncio_fast
 
 from marlin_aio.errors import ConnectError, PortBusyError, PortNotFoundError, PortPermissionError
 
-__all__ = ["open_link"]
+__all__ = ["PRINTER_BRIDGES", "PortInfo", "list_ports", "open_link"]
 
 
 def _is_url(port: str) -> bool:
@@ -61,3 +62,44 @@ def _explain(port: str, baudrate: int, exc: BaseException) -> ConnectError:
     if isinstance(exc, ValueError):
         return ConnectError(f"cannot open {port} at {baudrate} baud: {text}")
     return ConnectError(f"cannot open {port}: {text}")
+
+
+#: USB ids of the bridges printer boards use, with a name to show.
+PRINTER_BRIDGES: dict[tuple[int, int], str] = {
+    (0x1A86, 0x7523): "CH340",
+    (0x10C4, 0xEA60): "CP2102",
+    (0x0403, 0x6001): "FTDI",
+    (0x0483, 0x5740): "STM32 VCP",
+    (0x2341, 0x0042): "Arduino Mega 2560",
+    (0x2341, 0x0010): "Arduino Mega 2560",
+}
+
+
+@dataclass(frozen=True, slots=True)
+class PortInfo:
+    """A serial port the system knows: its device path, description, USB id, and the bridge it looks like."""
+
+    device: str
+    description: str
+    usb_id: str | None
+    bridge: str | None
+
+    @property
+    def likely_printer(self) -> bool:
+        """True when the USB id is one of the bridges printer boards use."""
+        return self.bridge is not None
+
+
+def list_ports() -> list[PortInfo]:
+    """List the serial ports on this machine, printer-like bridges marked."""
+    from serial.tools import list_ports as serial_list_ports
+
+    found = []
+    for port in sorted(serial_list_ports.comports(), key=lambda p: p.device):
+        usb_id = None
+        bridge = None
+        if port.vid is not None and port.pid is not None:
+            usb_id = f"{port.vid:04x}:{port.pid:04x}"
+            bridge = PRINTER_BRIDGES.get((port.vid, port.pid))
+        found.append(PortInfo(port.device, port.description or "", usb_id, bridge))
+    return found

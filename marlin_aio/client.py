@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import math
 import time
+from collections import deque
 from collections.abc import AsyncGenerator, AsyncIterator
 from types import TracebackType
 from typing import Self
@@ -100,6 +101,8 @@ class Printer:
         self.firmware: FirmwareInfo | None = None
         self.capabilities: dict[str, bool] = {}
         self.bytes_received = 0
+        #: (answered at, round trip) of the latest replies, on the loop's clock: for latency figures.
+        self.round_trips: deque[tuple[float, float]] = deque(maxlen=8192)
         self.garbage_lines = 0
         self._transport: asyncio.Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -565,6 +568,7 @@ class Printer:
             if future is None or future.done():
                 continue
             if isinstance(outcome, Reply):
+                self.round_trips.append((outcome.answered_s, outcome.latency_s))
                 future.set_result(outcome)
             else:
                 future.set_exception(outcome)

@@ -152,6 +152,10 @@ class Connection:
         self.resend_requests = 0
         self.stray_oks = 0
         self.timeouts = 0
+        # Every submitted command ends up counted once: answered + failed + cancelled + still queued or in flight.
+        self.answered = 0
+        self.failed = 0
+        self.cancelled = 0
 
     # ----------------------------------------------------------------------------------------------- commands
 
@@ -322,7 +326,7 @@ class Connection:
             if not command.orphan:
                 sent = now if command.sent_s is None else command.sent_s
                 reply = Reply(command.text, tuple(command.lines), ok, sent, now)
-                self._results.append((command, reply))
+                self._finish(command, reply)
 
     def _pop_in_flight(self, now: float) -> Command:
         command = self._in_flight.popleft()
@@ -418,7 +422,7 @@ class Connection:
     def _fail_everything(self, error: MarlinError) -> None:
         for command in (*self._in_flight, *self._queue):
             if not command.orphan:
-                self._results.append((command, error))
+                self._finish(command, error)
         self._in_flight.clear()
         self._queue.clear()
         self._in_flight_bytes = 0
@@ -437,6 +441,7 @@ class Connection:
                 self._queue.remove(command)
             except ValueError:
                 return False
+            self.cancelled += 1
             return True
         command.orphan = True
         return False
@@ -471,7 +476,7 @@ class Connection:
                 # Marlin may still hold it (as with M105 T9, which never answers): keep it for resends, but its
                 # caller is told now, and a late answer completes nothing.
                 head.orphan = True
-            self._results.append((head, error))
+            self._finish(head, error)
 
     def describe_stall(self, command: Command, now: float) -> str:
         """One line saying who waits for whom: the command, for how long, and what each side last said."""
@@ -498,6 +503,18 @@ class Connection:
         return "; ".join(parts)
 
     # ----------------------------------------------------------------------------------------------- results
+
+    def _finish(self, command: Command, outcome: Reply | MarlinError) -> None:
+        if isinstance(outcome, Reply):
+            self.answered += 1
+        else:
+            self.failed += 1
+        self._results.append((command, outcome))
+
+    @property
+    def submitted(self) -> int:
+        """How many commands were accepted by `submit()` in all."""
+        return self._next_id
 
     def take_results(self) -> list[tuple[Command, Reply | MarlinError]]:
         """Return and forget the commands finished since the last call, with their reply or error."""

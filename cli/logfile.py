@@ -1,0 +1,202 @@
+"""Temperature log files: one row per reading, in CSV or JSON lines, safe to kill at any moment.
+
+Rows are buffered and written as whole lines at least once a second, so a crash or SIGKILL loses at most the
+last second and never leaves half a row behind (the file still parses). Appending to an existing CSV keeps its
+columns, and refuses (with a clear message) a file whose columns differ.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO
+
+from marlin_aio import TemperatureReading
+
+__all__ = ["LogFormat", "LogSummary", "TemperatureLog", "read_log"]
+
+LogFormat = str  # "csv" or "jsonl"
+
+
+def _columns_for(keys: list[str]) -> list[str]:
+    columns = ["time_utc", "elapsed_s"]
+    for key in keys:
+        columns += [f"{key}_actual", f"{key}_target", f"{key}_power"]
+    return columns
+
+
+def _iso(wall_time_s: float) -> str:
+    return datetime.fromtimestamp(wall_time_s, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def _number(value: float | int | None) -> str:
+    return "" if value is None else f"{value:g}" if isinstance(value, int) else f"{value:.2f}"
+
+
+@dataclass
+class LogSummary:
+    """What a logging run wrote, for the one-line summary at the end."""
+
+    path: Path
+    rows: int = 0
+    first: dict[str, float] = field(default_factory=dict)
+    last: dict[str, float] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+
+    def line(self) -> str:
+        """`wrote 6000 rows to temps.csv over 60.0 s: hotend 25.0 -> 200.1 C, bed 25.0 -> 60.0 C`."""
+        changes = ", ".join(
+            f"{key} {self.first[key]:.1f} -> {self.last[key]:.1f} C" for key in self.last if key in self.first
+        )
+        return f"wrote {self.rows} rows to {self.path} over {self.elapsed_s:.1f} s" + (
+            f": {changes}" if changes else ""
+        )
+
+
+class TemperatureLog:
+    """Writes readings to `path` as CSV or JSON lines; use as a context manager.
+
+    Raises:
+        ValueError: `fmt` is unknown, or an existing CSV has other columns than this printer reports.
+        OSError: the file cannot be opened or written.
+    """
+
+    def __init__(self, path: Path, fmt: LogFormat = "csv", flush_interval_s: float = 1.0) -> None:
+        if fmt not in ("csv", "jsonl"):
+            raise ValueError(f"unknown log format {fmt!r}: use csv or jsonl")
+        self.path = path
+        self.format = fmt
+        self.flush_interval_s = flush_interval_s
+        self.summary = LogSummary(path)
+        self._file: IO[str] | None = None
+        self._columns: list[str] | None = None
+        self._existing_columns: list[str] | None = None
+        self._pending: list[str] = []
+        self._last_flush = time.monotonic()
+        self._start: float | None = None
+
+    def __enter__(self) -> TemperatureLog:
+        if self.format == "csv" and self.path.exists() and self.path.stat().st_size > 0:
+            with self.path.open(newline="") as existing:
+                self._existing_columns = next(csv.reader(existing), None)
+        self._file = self.path.open("a", newline="", encoding="utf-8")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def add(self, reading: TemperatureReading) -> None:
+        """Queue one row; rows reach the file at least every `flush_interval_s`."""
+        if self._start is None:
+            self._start = reading.monotonic_s
+        elapsed = reading.monotonic_s - self._start
+        heaters = reading.temperatures.heaters
+        if self.format == "csv":
+            if self._columns is None:
+                self._start_csv(list(heaters))
+            assert self._columns is not None
+            row = [_iso(reading.wall_time_s), f"{elapsed:.3f}"]
+            for column in self._columns[2:]:
+                key, _, part = column.rpartition("_")
+                heater = heaters.get(key)
+                value = None if heater is None else getattr(heater, part)
+                row.append(_number(value))
+            buffer = io.StringIO()
+            csv.writer(buffer, lineterminator="\n").writerow(row)
+            self._pending.append(buffer.getvalue())
+        else:
+            record = {
+                "time_utc": _iso(reading.wall_time_s),
+                "elapsed_s": round(elapsed, 3),
+                "source": reading.source,
+                "heaters": {
+                    key: {"actual": h.actual, "target": h.target, "power": h.power} for key, h in heaters.items()
+                },
+            }
+            self._pending.append(json.dumps(record) + "\n")
+        self.summary.rows += 1
+        self.summary.elapsed_s = elapsed
+        for key, heater in heaters.items():
+            self.summary.first.setdefault(key, heater.actual)
+            self.summary.last[key] = heater.actual
+        if time.monotonic() - self._last_flush >= self.flush_interval_s:
+            self.flush()
+
+    def _start_csv(self, keys: list[str]) -> None:
+        columns = _columns_for(keys)
+        if self._existing_columns is not None:
+            if self._existing_columns != columns:
+                raise ValueError(
+                    f"{self.path} has other columns ({', '.join(self._existing_columns[2:]) or 'none'}) than this "
+                    f"printer reports ({', '.join(columns[2:])}); choose another --output file"
+                )
+        else:
+            self._pending.append(",".join(columns) + "\n")
+        self._columns = columns
+
+    def flush(self) -> None:
+        """Write every queued row as whole lines and push them to the operating system."""
+        self._last_flush = time.monotonic()
+        if not self._pending or self._file is None:
+            return
+        # One write of whole lines: a kill between writes can cut the file only at a line end.
+        self._file.write("".join(self._pending))
+        self._pending.clear()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def close(self) -> None:
+        """Flush and close (idempotent)."""
+        if self._file is not None:
+            self.flush()
+            self._file.close()
+            self._file = None
+
+
+def read_log(path: Path) -> tuple[list[float], dict[str, list[tuple[float | None, float | None]]]]:
+    """Read a CSV or JSONL log back: elapsed seconds, and per heater key a list of (actual, target).
+
+    Raises:
+        ValueError: the file is empty or not a temperature log.
+        OSError: it cannot be read.
+    """
+    text = path.read_text(encoding="utf-8")
+    if not text.strip():
+        raise ValueError(f"{path} is empty")
+    elapsed: list[float] = []
+    series: dict[str, list[tuple[float | None, float | None]]] = {}
+    if text.lstrip().startswith("{"):
+        for number, line in enumerate(text.splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+                elapsed.append(float(record["elapsed_s"]))
+                for key, heater in record["heaters"].items():
+                    series.setdefault(key, []).append((heater.get("actual"), heater.get("target")))
+            except (ValueError, KeyError, TypeError) as exc:
+                raise ValueError(f"{path}:{number} is not a temperature log line: {exc}") from None
+        return elapsed, series
+    rows = list(csv.reader(io.StringIO(text)))
+    header = rows[0]
+    if header[:2] != ["time_utc", "elapsed_s"]:
+        raise ValueError(f"{path} is not a marlin-temp log (its first line is {','.join(header)[:60]!r})")
+    keys = [column[: -len("_actual")] for column in header[2:] if column.endswith("_actual")]
+    index = {column: i for i, column in enumerate(header)}
+    for row in rows[1:]:
+        if len(row) != len(header):
+            continue  # a row cut short by a crash in an older writer; skip it rather than fail
+        elapsed.append(float(row[1]))
+        for key in keys:
+            actual = row[index[f"{key}_actual"]]
+            target = row[index[f"{key}_target"]]
+            series.setdefault(key, []).append(
+                (float(actual) if actual else None, float(target) if target else None)
+            )
+    return elapsed, series

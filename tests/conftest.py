@@ -1,0 +1,35 @@
+"""Shared fixtures: the simulated printer served on a real pty (and TCP), and a client connected to it."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+
+import pytest
+
+import marlin_aio
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty, serve_tcp
+
+# Simulated seconds per real second: heating and homing finish quickly, yet the client sees Marlin's timing shapes.
+TIME_SCALE = 20.0
+
+
+@pytest.fixture(params=["pty", "tcp"])
+async def sim(request: pytest.FixtureRequest) -> AsyncIterator[SimulatorServer]:
+    """The simulated printer, served once on a pseudo-terminal and once on TCP (socket://)."""
+    serve = serve_pty if request.param == "pty" else serve_tcp
+    async with serve(SimulatorConfig(), Faults(), time_scale=TIME_SCALE) as server:
+        yield server
+
+
+@pytest.fixture
+async def pty_sim() -> AsyncIterator[SimulatorServer]:
+    """The simulated printer on a pseudo-terminal only."""
+    async with serve_pty(SimulatorConfig(), Faults(), time_scale=TIME_SCALE) as server:
+        yield server
+
+
+@pytest.fixture
+async def printer(pty_sim: SimulatorServer) -> AsyncIterator[marlin_aio.Printer]:
+    """A client connected to `pty_sim`, with a short command timeout so fault tests stay quick."""
+    async with marlin_aio.connect(pty_sim.url, timeout_s=2.0) as connected:
+        yield connected

@@ -1,0 +1,327 @@
+"""The asyncio client against the simulated printer through a real pty (and socket://): no mocks of our code."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import pty
+import tty
+from collections.abc import AsyncIterator
+
+import pytest
+
+import marlin_aio
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
+
+from .conftest import TIME_SCALE
+
+
+def executed_codes(server: SimulatorServer, prefix: str) -> list[str]:
+    return [c for c in server.printer.executed if c.startswith(prefix)]
+
+
+async def test_handshake_identifies_the_firmware(sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(sim.url) as printer:
+        assert printer.firmware is not None
+        assert printer.firmware.name.startswith("Marlin")
+        assert printer.capabilities.get("AUTOREPORT_TEMP") is True
+        sent = [e.text for e in printer.trace.entries() if e.direction == "sent"]
+        assert "N0 M110 N0*125" in sent
+        assert any(text.endswith("M115*" + text.rsplit("*", 1)[1]) for text in sent if "M115" in text)
+
+
+async def test_send_returns_the_lines_that_belong_to_the_command(printer: marlin_aio.Printer) -> None:
+    reply = await printer.send("M119")
+    assert reply.lines[0] == "Reporting endstop status"
+    assert await printer.endstops() == {"x_min": False, "y_min": False, "z_min": False}
+    position = await printer.position()
+    assert set(position) >= {"X", "Y", "Z"}
+
+
+async def test_concurrent_senders_each_get_their_own_reply(sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(sim.url) as printer:
+
+        async def echo(index: int) -> tuple[int, marlin_aio.Reply]:
+            return index, await printer.send(f"M118 E1 task {index}")
+
+        results = await asyncio.gather(*(echo(i) for i in range(60)))
+    for index, reply in results:
+        assert reply.lines == (f"echo:task {index}",)
+    # And the printer executed them in the order they were sent, each exactly once.
+    assert executed_codes(sim, "M118") == [f"M118 E1 task {i}" for i in range(60)]
+
+
+async def test_polling_at_100_hz_while_other_commands_run(printer: marlin_aio.Printer) -> None:
+    readings: list[marlin_aio.TemperatureReading] = []
+    enough = asyncio.Event()
+
+    async def collect() -> None:
+        async for reading in printer.temperature_readings():
+            readings.append(reading)
+            if len([r for r in readings if r.source == "poll"]) >= 150:
+                enough.set()
+
+    collector = asyncio.create_task(collect())
+    async with printer.poll_temperatures(interval_s=0.01):
+        moves = [await printer.send(f"G1 X{i} Y{i} F6000") for i in range(1, 20)]
+        dwell = await printer.send("G4 P200")
+        await asyncio.wait_for(enough.wait(), 30)
+    collector.cancel()
+    assert all(reply.ok is not None for reply in moves)
+    assert dwell.latency_s > 0
+    assert printer.connection.timeouts == 0
+    # Never more than one M105 on the wire at once, and none written while the dwell held the queue.
+    outstanding = 0
+    in_dwell = False
+    for entry in printer.trace.entries():
+        if entry.direction == "sent":
+            outstanding += 1
+            in_dwell = in_dwell or "G4 P200" in entry.text
+            assert outstanding <= 1, "two commands were written before the first was answered"
+        elif entry.text.startswith("ok"):
+            outstanding = 0
+            in_dwell = False
+    poll_times = [r.monotonic_s for r in readings if r.source == "poll"]
+    assert poll_times == sorted(poll_times)
+
+
+async def test_auto_report_keeps_readings_coming_during_a_long_command(printer: marlin_aio.Printer) -> None:
+    sources: list[str] = []
+
+    async def collect() -> None:
+        async for reading in printer.temperature_readings():
+            sources.append(reading.source)
+
+    collector = asyncio.create_task(collect())
+    async with printer.poll_temperatures(interval_s=0.01):
+        before = len(sources)
+        await printer.send("G4 S4")  # 4 simulated seconds: several auto-reports arrive meanwhile
+        during = sources[before:]
+    collector.cancel()
+    assert "auto" in during
+
+
+async def test_long_m190_with_keepalives_never_times_out() -> None:
+    async with (
+        serve_pty(SimulatorConfig(), Faults(), time_scale=TIME_SCALE) as server,
+        marlin_aio.connect(server.url, timeout_s=0.5) as printer,
+    ):
+        wait_lines: list[marlin_aio.TemperatureReading] = []
+
+        async def collect() -> None:
+            async for reading in printer.temperature_readings():
+                if reading.source == "wait":
+                    wait_lines.append(reading)
+
+        collector = asyncio.create_task(collect())
+        # The bed needs far longer than the 0.5 s timeout to reach 45 C; keepalives and wait lines keep it alive.
+        reply = await printer.send("M190 S45")
+        collector.cancel()
+        assert reply.ok is not None
+        assert reply.latency_s > 0.5
+        assert len(wait_lines) >= 3
+        assert printer.connection.timeouts == 0
+        assert server.printer.heater_celsius("B") >= 44.0
+
+
+async def test_a_command_that_is_never_answered_times_out_and_the_queue_goes_on(printer: marlin_aio.Printer) -> None:
+    with pytest.raises(marlin_aio.CommandTimeoutError) as caught:
+        await printer.send("M105 T9", timeout_s=0.3)
+    message = str(caught.value)
+    assert "M105 T9" in message
+    assert "waited" in message or "after" in message
+    assert "last received" in message
+    assert caught.value.command == "M105 T9"
+    reading = await printer.temperatures()
+    assert reading.hotend is not None
+
+
+async def test_a_silent_printer_is_detected_within_the_timeout(pty_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(pty_sim.url, timeout_s=0.4) as printer:
+        pty_sim.printer.faults.silent = True
+        with pytest.raises(marlin_aio.CommandTimeoutError, match="silent") as caught:
+            await printer.send("G28")
+        assert isinstance(caught.value, TimeoutError)
+
+
+async def test_corrupted_lines_are_resent_and_executed_exactly_once(pty_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(pty_sim.url, timeout_s=2.0) as printer:
+        pty_sim.printer.faults.corrupt_rx_ratio = 0.3
+        moves = [f"G1 X{i} Y{i % 7} F9000" for i in range(80)]
+        for move in moves:
+            await printer.send(move)
+        assert printer.connection.resend_requests > 0
+    assert executed_codes(pty_sim, "G1 ") == moves
+
+
+async def test_concurrent_senders_survive_corruption(pty_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(pty_sim.url, timeout_s=2.0, max_in_flight=4) as printer:
+        pty_sim.printer.faults.corrupt_rx_ratio = 0.1
+        results = await asyncio.gather(*(printer.send(f"M118 E1 n{i}") for i in range(40)))
+        assert [r.lines for r in results] == [(f"echo:n{i}",) for i in range(40)]
+    assert executed_codes(pty_sim, "M118") == [f"M118 E1 n{i}" for i in range(40)]
+
+
+async def test_a_reset_fails_the_waiting_command_and_the_link_recovers(printer: marlin_aio.Printer, pty_sim: SimulatorServer) -> None:
+    pending = asyncio.create_task(printer.send("G4 S30"))
+    await wait_until_sent(printer, "G4 S30")
+    pty_sim.printer.reset(pty_sim.now())
+    pty_sim.poke()
+    with pytest.raises(marlin_aio.PrinterResetError):
+        await pending
+    reading = await printer.temperatures()
+    assert reading.hotend is not None
+    assert printer.connection.resets == 1
+
+
+async def test_thermal_runaway_halts_with_the_printers_message(
+    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+) -> None:
+    readings = printer.temperature_readings()
+    first = asyncio.ensure_future(readings.__anext__())
+    pending = asyncio.create_task(printer.send("G4 S30"))
+    await wait_until_sent(printer, "G4 S30")
+    pty_sim.printer.thermal_runaway(pty_sim.now(), heater="E0")
+    pty_sim.poke()
+    with pytest.raises(marlin_aio.ThermalRunawayError, match="Thermal Runaway"):
+        await pending
+    with pytest.raises(marlin_aio.PrinterHaltedError):
+        await first
+    with pytest.raises(marlin_aio.ThermalRunawayError):
+        await printer.send("M105")
+    await readings.aclose()
+
+
+async def test_unplugging_fails_every_waiting_command(printer: marlin_aio.Printer, pty_sim: SimulatorServer) -> None:
+    pending = [asyncio.create_task(printer.send(f"G4 S{20 + i}")) for i in range(3)]
+    await wait_until_sent(printer, "G4 S20")
+    await pty_sim.disconnect()
+    for task in pending:
+        with pytest.raises(marlin_aio.ConnectionLostError):
+            await asyncio.wait_for(task, 5)
+    with pytest.raises(marlin_aio.ConnectionLostError):
+        await printer.send("M105")
+    assert not printer.is_connected
+
+
+async def test_emergency_stop_is_written_at_once_and_fails_what_waits(
+    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+) -> None:
+    pending = [asyncio.create_task(printer.send(f"G4 S{10 + i}")) for i in range(3)]
+    await wait_until_sent(printer, "G4 S10")
+    printer.emergency_stop()
+    for task in pending:
+        with pytest.raises(marlin_aio.PrinterHaltedError):
+            await task
+    # The two dwells behind the first were never written: M112 went ahead of them.
+    sent = [e.text for e in printer.trace.entries() if e.direction == "sent"]
+    assert sent[-1] == "M112"
+    assert not any("G4 S11" in text for text in sent)
+
+
+async def test_bad_commands_are_rejected_before_anything_is_written(
+    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+) -> None:
+    before = list(printer.trace.entries())
+    for bad in ["G1 X1\nM112", "M117 caf\u00e9", "M117 " + "x" * 100, "   ; only a comment", "G1\rX2"]:
+        with pytest.raises(ValueError, match=r"\S"):
+            await printer.send(bad)
+    for kwargs in [{"hotend": 900}, {"hotend": float("nan")}, {"bed": -5}, {"hotend": "abc"}, {"bed": 141}]:
+        with pytest.raises(ValueError, match="target"):
+            await printer.set_temperatures(**kwargs)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="fan"):
+        await printer.set_fan(1.5)
+    assert printer.trace.entries() == before
+
+
+async def test_targets_are_set_and_reached(printer: marlin_aio.Printer, pty_sim: SimulatorServer) -> None:
+    await printer.set_temperatures(hotend=60, bed=35)
+    reading = await printer.wait_for_temperatures(tolerance_c=1.5, timeout_s=60)
+    assert reading.hotend is not None and abs(reading.hotend.actual - 60) <= 1.5
+    assert reading.bed is not None and abs(reading.bed.actual - 35) <= 1.5
+    assert "M104 S60" in pty_sim.printer.executed
+    assert "M140 S35" in pty_sim.printer.executed
+
+
+async def test_waiting_for_an_unreachable_temperature_times_out(printer: marlin_aio.Printer) -> None:
+    await printer.set_temperatures(hotend=250)
+    with pytest.raises(marlin_aio.TemperatureTimeoutError, match="250"):
+        await printer.wait_for_temperatures(hotend=250, timeout_s=0.3)
+    await printer.set_temperatures(hotend=0)
+
+
+async def test_fan_commands(printer: marlin_aio.Printer, pty_sim: SimulatorServer) -> None:
+    await printer.set_fan(0.5)
+    await printer.set_fan(0.0)
+    assert pty_sim.printer.executed[-2:] == ["M106 S128", "M107"]
+
+
+# ---------------------------------------------------------------------------------------------------- opening
+
+
+async def test_a_missing_port_is_reported_clearly() -> None:
+    with pytest.raises(marlin_aio.PortNotFoundError, match="no such port"):
+        async with marlin_aio.connect("/dev/does-not-exist-marlin"):
+            pass
+
+
+async def test_a_port_in_use_is_reported_clearly(pty_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(pty_sim.url):
+        with pytest.raises(marlin_aio.PortBusyError, match="in use"):
+            async with marlin_aio.connect(pty_sim.url):
+                pass
+
+
+async def test_nothing_listening_on_tcp_is_a_connect_error() -> None:
+    with pytest.raises(marlin_aio.ConnectError, match="refused"):
+        async with marlin_aio.connect("socket://127.0.0.1:9"):
+            pass
+
+
+@pytest.fixture
+async def dead_port() -> AsyncIterator[tuple[int, str]]:
+    """A pty nobody answers on: the master end is ours, to stay silent or write garbage into."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    try:
+        yield master, os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+async def test_a_silent_port_fails_the_handshake_with_the_step(dead_port: tuple[int, str]) -> None:
+    _, path = dead_port
+    with pytest.raises(marlin_aio.HandshakeTimeoutError, match="nothing was received") as caught:
+        async with marlin_aio.connect(path, timeout_s=0.5):
+            pass
+    assert caught.value.step == "sync"
+
+
+async def test_garbage_at_the_wrong_baud_rate_suggests_the_other_rate(dead_port: tuple[int, str]) -> None:
+    master, path = dead_port
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+
+    async def babble() -> None:
+        while not stop.is_set():
+            os.write(master, b"\x80\xfe\x13\xff\xc3\x00garbage\xf0\n")
+            await asyncio.sleep(0.05)
+
+    noise = loop.create_task(babble())
+    try:
+        with pytest.raises(marlin_aio.HandshakeTimeoutError, match="wrong baud rate.*115200"):
+            async with marlin_aio.connect(path, timeout_s=0.6):
+                pass
+    finally:
+        stop.set()
+        await noise
+
+
+async def wait_until_sent(printer: marlin_aio.Printer, text: str) -> None:
+    """Wait (on events, not time) until `text` was written: the trace grows as lines go out."""
+    for _ in range(10_000):
+        if any(e.direction == "sent" and text in e.text for e in printer.trace.entries()):
+            return
+        await asyncio.sleep(0)
+    raise AssertionError(f"{text!r} was never sent")
