@@ -196,7 +196,5 @@ def read_log(path: Path) -> tuple[list[float], dict[str, list[tuple[float | None
         for key in keys:
             actual = row[index[f"{key}_actual"]]
             target = row[index[f"{key}_target"]]
-            series.setdefault(key, []).append(
-                (float(actual) if actual else None, float(target) if target else None)
-            )
+            series.setdefault(key, []).append((float(actual) if actual else None, float(target) if target else None))
     return elapsed, series

@@ -1,23 +1,100 @@
-"""The `marlin-temp` command."""
+"""The `marlin-temp` command: watch, set and log the temperatures of a Marlin printer.
+
+Typer has no async commands, so each command parses and checks its options, then calls `asyncio.run` on an
+async function the tests can call too. Every failure ends as one line on stderr and an exit code from
+`connect.Exit`; nothing is sent to the printer before the options are known to be good.
+"""
 
 from __future__ import annotations
 
-from typing import Annotated
+import asyncio
+import signal
+from collections.abc import Coroutine
+from pathlib import Path
+from typing import Annotated, Any, NoReturn, TypeVar
 
 import typer
+from rich.console import Console
 
-from marlin_aio import __version__
+import marlin_aio
+from marlin_aio.commands import (
+    DEFAULT_MAX_BED_CELSIUS,
+    DEFAULT_MAX_CHAMBER_CELSIUS,
+    DEFAULT_MAX_HOTEND_CELSIUS,
+    check_target,
+)
+
+from .connect import EXIT_CODES_HELP, ConnectOptions, Exit, UsageProblem, exit_code_for
+
+__all__ = ["app"]
 
 app = typer.Typer(
     name="marlin-temp",
-    help="Watch, set and log the temperatures of a Marlin 3D printer.",
+    help="Watch, set and log the temperatures of a Marlin 3D printer. Try it with --sim: no printer needed.",
+    epilog=EXIT_CODES_HELP,
     no_args_is_help=True,
+    add_completion=True,
+    pretty_exceptions_enable=False,
 )
+
+_T = TypeVar("_T")
+
+
+def _stderr() -> Console:
+    return Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def fail(message: str, code: int = Exit.ERROR) -> NoReturn:
+    """Print `error: message` as one line on stderr and exit with `code`."""
+    _stderr().print(f"[bold red]error:[/] {message}", markup=True)
+    raise typer.Exit(int(code))
+
+
+def run(main: Coroutine[Any, Any, _T]) -> _T:
+    """Run an async command body; map errors to one line and an exit code, Ctrl-C to 130."""
+    try:
+        return asyncio.run(main)
+    except KeyboardInterrupt:
+        _stderr().print("interrupted", style="dim")
+        raise typer.Exit(int(Exit.INTERRUPTED)) from None
+    except UsageProblem as exc:
+        fail(str(exc), exc.code)
+    except marlin_aio.MarlinError as exc:
+        fail(str(exc), exit_code_for(exc))
+    except OSError as exc:
+        fail(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
+
+
+# ------------------------------------------------------------------------------------------- shared options
+
+PortOption = Annotated[
+    str | None,
+    typer.Option(
+        "--port",
+        "-p",
+        help="Device path (/dev/ttyUSB0) or pyserial URL (socket://host:port). Default: the one printer-like port.",
+        show_default=False,
+    ),
+]
+BaudOption = Annotated[
+    int | None,
+    typer.Option("--baud", "-b", help="Baud rate. Default 250000, falling back to 115200 when auto-detecting."),
+]
+SimOption = Annotated[bool, typer.Option("--sim", help="Use the built-in simulated printer (no hardware needed).")]
+SimSpeedOption = Annotated[
+    float, typer.Option("--sim-speed", help="With --sim: simulated seconds per real second.", min=0.01)
+]
+AnswerTimeoutOption = Annotated[
+    float, typer.Option("--answer-timeout", help="Seconds to wait for each answer from the printer.", min=0.1)
+]
+MaxHotendOption = Annotated[float, typer.Option("--max-hotend", help="Highest hotend target allowed (C).")]
+MaxBedOption = Annotated[float, typer.Option("--max-bed", help="Highest bed target allowed (C).")]
+MaxChamberOption = Annotated[float, typer.Option("--max-chamber", help="Highest chamber target allowed (C).")]
 
 
 def _version_callback(value: bool) -> None:
     if value:
-        typer.echo(f"marlin-temp {__version__}")
+        typer.echo(f"marlin-temp {marlin_aio.__version__}")
         raise typer.Exit()
 
 
@@ -28,4 +105,224 @@ def main(
         typer.Option("--version", callback=_version_callback, is_eager=True, help="Print the version and exit."),
     ] = False,
 ) -> None:
-    """Watch, set and log the temperatures of a Marlin 3D printer."""
+    """Watch, set and log the temperatures of a Marlin 3D printer. Try it with --sim: no printer needed."""
+
+
+# ------------------------------------------------------------------------------------------- watch
+
+
+@app.command(epilog=EXIT_CODES_HELP)
+def watch(
+    port: PortOption = None,
+    baud: BaudOption = None,
+    sim: SimOption = False,
+    sim_speed: SimSpeedOption = 1.0,
+    answer_timeout: AnswerTimeoutOption = 10.0,
+    interval: Annotated[float, typer.Option("--interval", help="Seconds between M105 polls.", min=0.001)] = 0.01,
+    refresh: Annotated[float, typer.Option("--refresh", help="Seconds between screen redraws.", min=0.05)] = 1.0,
+    window: Annotated[float, typer.Option("--window", help="Seconds of history in the chart.", min=5)] = 60.0,
+    tolerance: Annotated[float, typer.Option("--tolerance", help="Within this many C a heater is holding.")] = 2.0,
+    log: Annotated[Path | None, typer.Option("--log", help="Also record every reading to this CSV file.")] = None,
+    json_lines: Annotated[bool, typer.Option("--json", help="Print JSON lines instead of the live view.")] = False,
+    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    reconnect: Annotated[bool, typer.Option("--reconnect", help="When the printer goes away, keep retrying.")] = False,
+) -> None:
+    """Live view of every heater: table, chart of the last minute, link statistics. q or Ctrl-C quits.
+
+    When stdout is not a terminal it prints one plain line per refresh instead (or JSON lines with --json).
+    """
+    from .watch import WatchSettings, watch_printer
+
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=answer_timeout)
+    settings = WatchSettings(
+        interval_s=interval,
+        refresh_s=refresh,
+        window_s=window,
+        tolerance_c=tolerance,
+        log_path=log,
+        json_lines=json_lines,
+        duration_s=duration,
+        reconnect=reconnect,
+    )
+    code = run(watch_printer(options, settings, Console(highlight=False), _stderr()))
+    raise typer.Exit(int(code))
+
+
+# ------------------------------------------------------------------------------------------- set
+
+
+def _target(name: str, raw: str | None, limit: float) -> float | None:
+    if raw is None:
+        return None
+    try:
+        return check_target(name, raw, limit)
+    except ValueError as exc:
+        hint = f" (raise the limit with --max-{name})" if "above the limit" in str(exc) else ""
+        fail(f"{exc}{hint}", Exit.USAGE)
+
+
+@app.command("set", epilog=EXIT_CODES_HELP)
+def set_targets(
+    hotend: Annotated[str | None, typer.Option("--hotend", help="Hotend target in C (0 turns it off).")] = None,
+    bed: Annotated[str | None, typer.Option("--bed", help="Bed target in C (0 turns it off).")] = None,
+    chamber: Annotated[str | None, typer.Option("--chamber", help="Chamber target in C.")] = None,
+    tool: Annotated[
+        int | None, typer.Option("--tool", help="Which hotend --hotend sets (default: active).", min=0)
+    ] = None,
+    off: Annotated[bool, typer.Option("--off", help="Turn every heater off.")] = False,
+    wait: Annotated[bool, typer.Option("--wait", help="Wait until the targets are reached, with progress.")] = False,
+    tolerance: Annotated[float, typer.Option("--tolerance", help="With --wait: how close counts (C).", min=0)] = 2.0,
+    timeout: Annotated[
+        float | None, typer.Option("--timeout", help="With --wait: give up after this many seconds.", min=0.1)
+    ] = None,
+    port: PortOption = None,
+    baud: BaudOption = None,
+    sim: SimOption = False,
+    sim_speed: SimSpeedOption = 1.0,
+    answer_timeout: AnswerTimeoutOption = 10.0,
+    max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
+    max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
+    max_chamber: MaxChamberOption = DEFAULT_MAX_CHAMBER_CELSIUS,
+) -> None:
+    """Set heater targets and print what the printer confirmed; --wait heats up with a progress bar per heater.
+
+    Targets are checked before anything is sent: not a number, negative or above the limit (hotend 260 C,
+    bed 140 C, chamber 60 C by default: Marlin's own clamps) exits with code 2 and one line saying why.
+    """
+    from .setcmd import SetRequest, set_printer_targets
+
+    if off and (hotend or bed or chamber):
+        fail("--off turns every heater off; do not combine it with targets", Exit.USAGE)
+    request = SetRequest(
+        hotend=0.0 if off else _target("hotend", hotend, max_hotend),
+        bed=0.0 if off else _target("bed", bed, max_bed),
+        chamber=_target("chamber", chamber, max_chamber),
+        tool=tool,
+        off=off,
+        wait=wait,
+        tolerance_c=tolerance,
+        timeout_s=timeout,
+    )
+    if request.hotend is None and request.bed is None and request.chamber is None:
+        fail("nothing to set: give --hotend, --bed, --chamber or --off", Exit.USAGE)
+    options = ConnectOptions(
+        port=port,
+        baud=baud,
+        sim=sim,
+        sim_speed=sim_speed,
+        timeout_s=answer_timeout,
+        max_hotend_celsius=max_hotend,
+        max_bed_celsius=max_bed,
+        max_chamber_celsius=max_chamber,
+    )
+    code = run(set_printer_targets(options, request, Console(highlight=False), _stderr()))
+    raise typer.Exit(int(code))
+
+
+# ------------------------------------------------------------------------------------------- log
+
+
+@app.command(epilog=EXIT_CODES_HELP)
+def log(
+    output: Annotated[Path, typer.Option("--output", "-o", help="File to write (appended to if it exists).")],
+    interval: Annotated[float, typer.Option("--interval", help="Seconds between readings.", min=0.005)] = 1.0,
+    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    fmt: Annotated[str, typer.Option("--format", help="csv or jsonl.")] = "csv",
+    port: PortOption = None,
+    baud: BaudOption = None,
+    sim: SimOption = False,
+    sim_speed: SimSpeedOption = 1.0,
+    answer_timeout: AnswerTimeoutOption = 10.0,
+) -> None:
+    """Record temperatures to a file, headless, for long runs. Ctrl-C (or --duration) ends it with a summary.
+
+    One row per reading: UTC time, seconds since start, and actual/target/power of each heater. Rows reach the
+    disk at least once a second, so a crash loses at most the last second and the file always parses.
+    """
+    from .logcmd import log_temperatures
+
+    if fmt not in ("csv", "jsonl"):
+        fail(f"unknown --format {fmt!r}: use csv or jsonl", Exit.USAGE)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=answer_timeout)
+    code = run(log_temperatures(options, output, fmt, interval, duration, _stderr()))
+    raise typer.Exit(int(code))
+
+
+# ------------------------------------------------------------------------------------------- plot
+
+
+@app.command(epilog=EXIT_CODES_HELP)
+def plot(
+    logfile: Annotated[Path, typer.Argument(help="A log written by 'marlin-temp log' or 'watch --log'.")],
+    output: Annotated[Path | None, typer.Option("--output", "-o", help="PNG file to write (needs matplotlib).")] = None,
+    show: Annotated[bool, typer.Option("--show", help="Draw the curves in the terminal instead.")] = False,
+) -> None:
+    """Plot actual and target curves from a log: a PNG with matplotlib, or --show in the terminal."""
+    from .plotcmd import plot_log
+
+    if output is None and not show:
+        fail("give --output FILE.png, or --show to draw in the terminal", Exit.USAGE)
+    try:
+        message = plot_log(logfile, output, show, Console(highlight=False))
+    except UsageProblem as exc:
+        fail(str(exc), exc.code)
+    except (ValueError, OSError) as exc:
+        fail(str(exc))
+    if message:
+        _stderr().print(message)
+
+
+# ------------------------------------------------------------------------------------------- ports
+
+
+@app.command()
+def ports() -> None:
+    """List serial ports, marking the USB bridges printer boards use (CH340, CP2102, FTDI, STM32, Mega)."""
+    from rich.table import Table
+
+    found = marlin_aio.list_ports()
+    console = Console(highlight=False)
+    if not found:
+        console.print("no serial ports found")
+        return
+    table = Table(box=None, header_style="bold")
+    for column in ("port", "description", "usb id", "printer bridge"):
+        table.add_column(column)
+    for info in found:
+        style = "bold" if info.likely_printer else "dim"
+        table.add_row(info.device, info.description, info.usb_id or "-", info.bridge or "-", style=style)
+    console.print(table)
+
+
+# ------------------------------------------------------------------------------------------- sim
+
+
+@app.command("sim")
+def simulate(
+    tcp: Annotated[
+        int | None, typer.Option("--tcp", help="Serve on this TCP port (0: any free) instead of a pty.")
+    ] = None,
+    speed: Annotated[float, typer.Option("--speed", help="Simulated seconds per real second.", min=0.01)] = 1.0,
+) -> None:
+    """Run the simulated printer on a pseudo-terminal (or TCP) and print its address; Ctrl-C stops it.
+
+    Open the printed device path (or socket:// URL) with any host program, e.g. marlin-temp watch --port PATH.
+    """
+    from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
+
+    async def serve() -> None:
+        server = (
+            serve_tcp(SimulatorConfig(), port=tcp, time_scale=speed)
+            if tcp is not None
+            else serve_pty(SimulatorConfig(), time_scale=speed)
+        )
+        async with server:
+            print(server.url, flush=True)
+            _stderr().print(f"simulated Marlin printer on {server.url}; Ctrl-C stops it", style="dim")
+            stop = asyncio.Event()
+            loop = asyncio.get_running_loop()
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                loop.add_signal_handler(signum, stop.set)
+            await stop.wait()
+
+    run(serve())

@@ -36,7 +36,7 @@ def _eta(seconds: float | None, state: str) -> str:
         return "at target"
     if seconds is None or math.isinf(seconds):
         return "-"
-    minutes, secs = divmod(int(round(seconds)), 60)
+    minutes, secs = divmod(round(seconds), 60)
     return f"{minutes}:{secs:02d}" if minutes else f"{secs} s"
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import itertools
 import os
 import resource
 import statistics
@@ -56,8 +57,9 @@ async def run(port: str, seconds: float, hotend: float, bed: float) -> int:
         async def heat() -> str:
             await printer.set_temperatures(hotend=hotend, bed=bed)
             reached = await printer.wait_for_temperatures(tolerance_c=2.0)
-            hot, bed_reading = reached.hotend, reached.bed
-            return f"targets reached: hotend {hot.actual if hot else '?'} C, bed {bed_reading.actual if bed_reading else '?'} C"
+            hot = reached.hotend.actual if reached.hotend else float("nan")
+            warm = reached.bed.actual if reached.bed else float("nan")
+            return f"targets reached: hotend {hot:.1f} C, bed {warm:.1f} C"
 
         cpu_start, wall_start = cpu_seconds(), time.monotonic()
         collector = asyncio.create_task(collect())
@@ -77,7 +79,7 @@ async def run(port: str, seconds: float, hotend: float, bed: float) -> int:
         await printer.set_temperatures(hotend=0, bed=0)
 
     polls = [r for r in readings if r.source == "poll"]
-    intervals = [b.monotonic_s - a.monotonic_s for a, b in zip(polls, polls[1:], strict=False)]
+    intervals = [b.monotonic_s - a.monotonic_s for a, b in itertools.pairwise(polls)]
     conn = printer.connection
     print(outcome)
     print(f"readings: {len(readings)} ({len(polls)} from polls) in {wall:.1f} s = {len(polls) / wall:.1f} polls/s")

@@ -1,0 +1,142 @@
+"""Choosing and opening the printer for a CLI command, and turning failures into one line and an exit code."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from enum import IntEnum
+
+from rich.console import Console
+
+import marlin_aio
+from marlin_aio.commands import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS
+from marlin_aio.simulator import SimulatorConfig, serve_pty
+
+__all__ = ["EXIT_CODES_HELP", "ConnectOptions", "Exit", "UsageProblem", "exit_code_for", "open_printer"]
+
+
+class Exit(IntEnum):
+    """The exit codes of every marlin-temp command (also listed in `--help`)."""
+
+    OK = 0
+    ERROR = 1
+    USAGE = 2
+    NO_PORT = 3
+    PORT_BUSY = 4
+    PERMISSION = 5
+    NO_ANSWER = 6
+    HALTED = 7
+    LOST = 8
+    TIMEOUT = 9
+    INTERRUPTED = 130
+
+
+EXIT_CODES_HELP = (
+    "Exit codes: 0 done; 1 other error; 2 bad arguments or targets; 3 port not found; 4 port busy; "
+    "5 permission denied; 6 no answer (wrong port or baud rate); 7 printer halted or thermal runaway; "
+    "8 connection lost; 9 timed out; 130 interrupted."
+)
+
+
+class UsageProblem(Exception):
+    """A problem with the user's arguments or environment, reported with exit code 2 (or `code`)."""
+
+    def __init__(self, message: str, code: Exit = Exit.USAGE) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def exit_code_for(exc: marlin_aio.MarlinError) -> Exit:
+    """The exit code for a library error."""
+    if isinstance(exc, marlin_aio.PortNotFoundError):
+        return Exit.NO_PORT
+    if isinstance(exc, marlin_aio.PortBusyError):
+        return Exit.PORT_BUSY
+    if isinstance(exc, marlin_aio.PortPermissionError):
+        return Exit.PERMISSION
+    if isinstance(exc, marlin_aio.HandshakeError):
+        return Exit.NO_ANSWER
+    if isinstance(exc, marlin_aio.PrinterHaltedError):
+        return Exit.HALTED
+    if isinstance(exc, marlin_aio.ConnectionLostError):
+        return Exit.LOST
+    if isinstance(exc, TimeoutError):
+        return Exit.TIMEOUT
+    return Exit.ERROR
+
+
+@dataclass(frozen=True)
+class ConnectOptions:
+    """The options every command that talks to a printer shares."""
+
+    port: str | None = None
+    baud: int | None = None
+    sim: bool = False
+    sim_speed: float = 1.0
+    timeout_s: float = 10.0
+    max_hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS
+    max_bed_celsius: float = DEFAULT_MAX_BED_CELSIUS
+    max_chamber_celsius: float = DEFAULT_MAX_CHAMBER_CELSIUS
+
+    def printer(self, port: str, baud: int) -> marlin_aio.Printer:
+        """A client for `port` with these options."""
+        return marlin_aio.connect(
+            port,
+            baudrate=baud,
+            timeout_s=self.timeout_s,
+            max_hotend_celsius=self.max_hotend_celsius,
+            max_bed_celsius=self.max_bed_celsius,
+            max_chamber_celsius=self.max_chamber_celsius,
+        )
+
+
+def _choose_port(console: Console) -> str:
+    ports = marlin_aio.list_ports()
+    likely = [p for p in ports if p.likely_printer]
+    if len(likely) == 1:
+        console.print(f"using {likely[0].device} ({likely[0].bridge})", style="dim")
+        return likely[0].device
+    if not likely:
+        raise UsageProblem(
+            "no printer port found: give --port DEVICE (see 'marlin-temp ports'), or --sim for the simulated printer",
+            Exit.NO_PORT,
+        )
+    names = ", ".join(p.device for p in likely)
+    raise UsageProblem(f"several printer ports found ({names}): choose one with --port")
+
+
+@contextlib.asynccontextmanager
+async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterator[tuple[marlin_aio.Printer, str]]:
+    """Open the printer the options name; yield it with a label for the footer (the port).
+
+    With `--sim` the simulated printer runs in this process on a real pty. Without `--port`, a single likely
+    printer port is used, trying 250000 baud then 115200 unless `--baud` was given.
+
+    Raises:
+        UsageProblem: no port given and none (or several) found.
+        MarlinError: opening or the handshake failed.
+    """
+    if options.sim:
+        async with (
+            serve_pty(SimulatorConfig(), time_scale=options.sim_speed) as server,
+            options.printer(server.url, options.baud or marlin_aio.DEFAULT_BAUDRATE) as printer,
+        ):
+            yield printer, f"{server.url} (simulated)"
+        return
+    port = options.port or _choose_port(console)
+    rates = [options.baud] if options.baud else [250_000, 115_200]
+    for index, baud in enumerate(rates):
+        try:
+            printer = options.printer(port, baud)
+            await printer.open()
+        except marlin_aio.HandshakeError:
+            if index + 1 < len(rates):
+                console.print(f"no answer at {baud} baud, trying {rates[index + 1]}", style="dim")
+                continue
+            raise
+        try:
+            yield printer, port
+        finally:
+            await printer.close()
+        return

@@ -1,0 +1,60 @@
+"""`marlin-temp log`: a headless logger for long runs."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+from pathlib import Path
+
+from rich.console import Console
+
+from .connect import ConnectOptions, Exit, open_printer
+from .logfile import TemperatureLog
+
+__all__ = ["log_temperatures"]
+
+
+async def log_temperatures(
+    options: ConnectOptions, output: Path, fmt: str, interval_s: float, duration_s: float | None, errors: Console
+) -> Exit:
+    """Poll every `interval_s` and append each reading to `output` until Ctrl-C, SIGTERM or `duration_s`.
+
+    Raises:
+        MarlinError: the printer could not be opened, halted, or went away (the file keeps what was logged).
+        ValueError: `output` holds other columns than this printer reports.
+        OSError: the file cannot be written.
+    """
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, stop.set)
+    try:
+        with TemperatureLog(output, fmt) as log:
+            async with open_printer(options, errors) as (printer, label):
+                errors.print(f"logging {label} to {output} every {interval_s:g} s; Ctrl-C stops", style="dim")
+
+                async def record() -> None:
+                    async for reading in printer.temperature_readings():
+                        log.add(reading)
+
+                async with printer.poll_temperatures(interval_s):
+                    recorder = asyncio.create_task(record(), name="marlin-temp log")
+                    stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
+                    try:
+                        done, _ = await asyncio.wait(
+                            {recorder, stopper}, timeout=duration_s, return_when="FIRST_COMPLETED"
+                        )
+                        if recorder in done:
+                            recorder.result()
+                    finally:
+                        for task in (recorder, stopper):
+                            task.cancel()
+                        await asyncio.gather(recorder, stopper, return_exceptions=True)
+                        log.flush()
+                        errors.print(log.summary.line())
+    finally:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(Exception):
+                loop.remove_signal_handler(signum)
+    return Exit.OK
