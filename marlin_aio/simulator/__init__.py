@@ -1,0 +1,14 @@
+"""A simulated Marlin 2.1 printer, for tests and for trying a host without hardware.
+
+`SimulatedPrinter` is the firmware itself, sans-I/O: bytes and simulated time in, bytes out. `serve_pty()` and
+`serve_tcp()` put it behind a pseudo-terminal or a TCP port, where a client opens it like a real board
+(`/dev/pts/N` with pyserial, or `socket://127.0.0.1:PORT`). `marlin-sim` (or `python -m marlin_aio.simulator`)
+does the same from a shell.
+"""
+
+from __future__ import annotations
+
+from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
+from marlin_aio.simulator._serve import SimulatorServer, serve_pty, serve_tcp
+
+__all__ = ["Faults", "SimulatedPrinter", "SimulatorConfig", "SimulatorServer", "serve_pty", "serve_tcp"]

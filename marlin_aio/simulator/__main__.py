@@ -1,0 +1,108 @@
+"""`marlin-sim`: serve a simulated Marlin printer on a pseudo-terminal (default) or a TCP port.
+
+The first line on stdout is the URL to open (a device path such as `/dev/pts/3`, or `socket://127.0.0.1:PORT`),
+flushed at once so a script can read it; everything meant for people goes to stderr. Runs until SIGINT or
+SIGTERM and then exits 0. argparse keeps this dependency-free and quick to start.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+from collections.abc import Sequence
+
+from marlin_aio.simulator._printer import Faults, SimulatorConfig
+from marlin_aio.simulator._serve import serve_pty, serve_tcp
+
+__all__ = ["main"]
+
+
+def _ratio(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1, got {text}")
+    return value
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="marlin-sim",
+        description="Serve a simulated Marlin 2.1 printer. Prints the URL to open as the first line on stdout.",
+    )
+    parser.add_argument("--tcp", type=int, metavar="PORT", help="serve on TCP 127.0.0.1:PORT (0 picks a free port)")
+    parser.add_argument("--host", default="127.0.0.1", help="TCP address to listen on (default %(default)s)")
+    parser.add_argument(
+        "--time-scale", type=_positive, default=1.0, help="simulated seconds per real second (default 1)"
+    )
+    parser.add_argument("--advanced-ok", action="store_true", help="ok N<line> P<planner> B<buffer> (ADVANCED_OK)")
+    parser.add_argument("--extruders", type=int, default=1, choices=range(1, 9), metavar="N", help="hotends (1-8)")
+    parser.add_argument("--chamber", action="store_true", help="add a heated chamber (M141, C: in M105)")
+    parser.add_argument("--no-bed", action="store_true", help="no heated bed")
+    parser.add_argument("--no-emergency-parser", action="store_true", help="M108/M112/M410 wait their turn")
+    parser.add_argument("--rx-buffer", type=int, default=128, metavar="BYTES", help="serial receive buffer")
+    parser.add_argument("--seed", type=int, default=0, help="seed for every random fault decision")
+    parser.add_argument("--corrupt-rx", type=_ratio, default=0.0, metavar="RATIO", help="share of lines corrupted")
+    parser.add_argument("--drop-ok", type=_ratio, default=0.0, metavar="RATIO", help="share of oks not sent")
+    parser.add_argument("--noise", type=_ratio, default=0.0, metavar="RATIO", help="share of lines after noise")
+    return parser
+
+
+async def _serve(arguments: argparse.Namespace) -> None:
+    config = SimulatorConfig(
+        advanced_ok=arguments.advanced_ok,
+        extruders=arguments.extruders,
+        has_bed=not arguments.no_bed,
+        has_chamber=arguments.chamber,
+        emergency_parser=not arguments.no_emergency_parser,
+        rx_buffer_size=arguments.rx_buffer,
+        seed=arguments.seed,
+    )
+    faults = Faults(corrupt_rx_ratio=arguments.corrupt_rx, drop_ok_ratio=arguments.drop_ok, noise_ratio=arguments.noise)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, stop.set)
+    if arguments.tcp is not None:
+        server = serve_tcp(config, faults, host=arguments.host, port=arguments.tcp, time_scale=arguments.time_scale)
+    else:
+        server = serve_pty(config, faults, time_scale=arguments.time_scale)
+    async with server:
+        print(server.url, flush=True)
+        print(
+            f"marlin-sim: {config.firmware_name} on {server.url}, time scale {arguments.time_scale:g}"
+            f"{', ADVANCED_OK' if config.advanced_ok else ''}; Ctrl-C to stop",
+            file=sys.stderr,
+            flush=True,
+        )
+        await stop.wait()
+    print("marlin-sim: stopped", file=sys.stderr, flush=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run `marlin-sim` with `argv` (default: the command line); return the exit status."""
+    arguments = _build_parser().parse_args(argv)
+    try:
+        asyncio.run(_serve(arguments))
+    except OSError as exc:
+        print(f"marlin-sim: cannot serve: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
