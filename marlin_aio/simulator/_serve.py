@@ -114,6 +114,9 @@ class SimulatorServer:
             self._server = await self._loop.create_server(lambda: _Connection(self), self._host, self._port)
             port = self._server.sockets[0].getsockname()[1]
             self._url = f"socket://{self._host}:{port}"
+        # On a pty the boot banner waits in the terminal, where a client that does not flush on open finds it;
+        # on TCP nobody is listening yet, and each client gets a banner of its own when it connects.
+        self._flush()
         self._reschedule()
 
     async def aclose(self) -> None:
@@ -211,7 +214,7 @@ class SimulatorServer:
             self._write_pty(data)
         elif self._transport is not None:
             self._transport.write(data)
-        # With no client on TCP, output goes nowhere, like a board talking to an unplugged cable.
+        # Otherwise the output goes nowhere, like a board talking to an unplugged cable.
 
     def _reschedule(self) -> None:
         if self._loop is None or self._closed or self._paused or self._clock is not None:

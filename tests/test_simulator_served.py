@@ -1,0 +1,327 @@
+"""The simulated printer served on a real pseudo-terminal and on TCP, and the `marlin-sim` command.
+
+Raw bytes only (os.read/os.write, asyncio streams, plain pyserial): the marlin_aio client is not involved, so a
+failure here is the simulator's. Every wait is a read with a timeout, never a sleep.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import sys
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+import pytest
+import serial
+
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty, serve_tcp
+
+TIME_SCALE = 50.0
+IDLE_M105 = "ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0"
+
+
+class PtyClient:
+    """The host end of a pty, read through the event loop so the server keeps running meanwhile."""
+
+    def __init__(self, path: str) -> None:
+        # No tcsetattr here: the server made the terminal raw, and TCSAFLUSH would throw the banner away.
+        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        self.eof = False
+        self._buffer = bytearray()
+        self._arrived = asyncio.Event()
+        self._loop = asyncio.get_running_loop()
+        self._loop.add_reader(self.fd, self._on_readable)
+
+    def _on_readable(self) -> None:
+        try:
+            data = os.read(self.fd, 65536)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self.eof = True
+            self._loop.remove_reader(self.fd)
+        self._buffer += data
+        self._arrived.set()
+
+    def send(self, text: str) -> None:
+        os.write(self.fd, text.encode() + b"\n")
+
+    async def readline(self, timeout_s: float = 5.0) -> str:
+        async with asyncio.timeout(timeout_s):
+            while b"\n" not in self._buffer:
+                if self.eof:
+                    raise EOFError("the pty was closed")
+                self._arrived.clear()
+                await self._arrived.wait()
+        end = self._buffer.index(b"\n")
+        line = self._buffer[:end].decode("latin-1")
+        del self._buffer[: end + 1]
+        return line
+
+    async def wait_eof(self, timeout_s: float = 5.0) -> None:
+        async with asyncio.timeout(timeout_s):
+            while not self.eof:
+                self._arrived.clear()
+                await self._arrived.wait()
+
+    def close(self) -> None:
+        if not self.eof:
+            self._loop.remove_reader(self.fd)
+        os.close(self.fd)
+
+
+@asynccontextmanager
+async def pty_client(path: str) -> AsyncIterator[PtyClient]:
+    client = PtyClient(path)
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+async def read_until(readline: Callable[[], object], predicate: Callable[[str], bool]) -> list[str]:
+    """Read lines until one satisfies `predicate`; return them all."""
+    seen: list[str] = []
+    while True:
+        line = await readline()  # type: ignore[misc]
+        assert isinstance(line, str)
+        seen.append(line)
+        if predicate(line):
+            return seen
+
+
+async def tcp_readline(reader: asyncio.StreamReader, timeout_s: float = 5.0) -> str:
+    async with asyncio.timeout(timeout_s):
+        line = await reader.readline()
+    if not line:
+        raise EOFError("the connection was closed")
+    return line.decode("latin-1").rstrip("\n")
+
+
+def host_port(server: SimulatorServer) -> tuple[str, int]:
+    host, port = server.url.removeprefix("socket://").rsplit(":", 1)
+    return host, int(port)
+
+
+# ---------------------------------------------------------------------------------------------------------- pty
+
+
+async def test_pty_serves_the_banner_and_answers_m105() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
+        assert sim.url.startswith("/dev/")
+        banner = await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        assert banner[:2] == ["start", "PowerUp"]
+        for _ in range(3):
+            host.send("M105")
+            assert await host.readline() == IDLE_M105
+
+
+async def test_pty_long_commands_keepalives_and_ordered_oks() -> None:
+    config = SimulatorConfig(advanced_ok=True, homing_s=6.0)
+    async with serve_pty(config, time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
+        await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        host.send("G28\nM118 E1 after\nM114")
+        replies = await read_until(host.readline, lambda line: line == "echo:after")
+        assert replies == [
+            "echo:busy: processing",
+            "echo:busy: processing",
+            "echo:busy: processing",
+            "X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0",
+            "ok P15 B1",  # M118 and M114 were read in while G28 ran
+            "echo:after",
+        ]
+        assert [await host.readline() for _ in range(3)] == ["ok P15 B2", replies[3], "ok P15 B3"]
+        assert sim.printer.executed == ["G28", "M118 E1 after", "M114"]
+
+
+async def test_pyserial_opens_the_pty_at_250000_baud() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE) as sim:
+
+        def round_trip() -> list[bytes]:
+            with serial.Serial(sim.url, 250000, timeout=5, exclusive=True) as port:
+                port.reset_input_buffer()
+                replies = []
+                for _ in range(3):
+                    port.write(b"M105\n")
+                    replies.append(port.readline())
+                return replies
+
+        assert await asyncio.to_thread(round_trip) == [IDLE_M105.encode() + b"\n"] * 3
+
+
+async def test_pty_disconnect_makes_the_host_see_the_link_drop() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
+        await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        host.send("G4 S60")
+        await sim.disconnect()
+        await host.wait_eof()
+        assert not sim.connected
+
+
+async def test_pyserial_raises_after_disconnect() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE) as sim:
+        port = serial.Serial(sim.url, 250000, timeout=5)
+        try:
+            await sim.disconnect()
+            with pytest.raises(serial.SerialException):
+                await asyncio.to_thread(port.read, 1)
+        finally:
+            port.close()
+
+
+async def test_manual_clock_moves_only_when_poked() -> None:
+    simulated = [0.0]
+    async with (
+        serve_pty(SimulatorConfig(), clock=lambda: simulated[0]) as sim,
+        pty_client(sim.url) as host,
+    ):
+        await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        host.send("G4 S1")
+        host.send("M105")
+        with pytest.raises(TimeoutError):
+            await host.readline(timeout_s=0.3)
+        simulated[0] = 1.0
+        sim.poke()
+        assert await host.readline() == "ok"
+        assert await host.readline() == IDLE_M105
+
+
+async def test_pause_holds_replies_until_resume() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
+        await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        sim.pause()
+        host.send("M105")
+        with pytest.raises(TimeoutError):
+            await host.readline(timeout_s=0.3)
+        sim.resume()
+        assert await host.readline() == IDLE_M105
+
+
+async def test_faults_and_one_shots_while_served() -> None:
+    faults = Faults()
+    async with serve_pty(SimulatorConfig(), faults, time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
+        await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        faults.silent = True
+        host.send("M105")
+        with pytest.raises(TimeoutError):
+            await host.readline(timeout_s=0.3)
+        faults.silent = False
+        host.send("M105")
+        assert await host.readline() == IDLE_M105
+        sim.printer.thermal_runaway(sim.now(), heater="bed")
+        sim.poke()
+        assert await host.readline() == "Error:Thermal Runaway, system stopped! Heater_ID: bed"
+        assert await host.readline() == "Error:Printer halted. kill() called!"
+        sim.printer.reset(sim.now())
+        sim.poke()
+        assert (await host.readline(), await host.readline()) == ("start", "External Reset")
+
+
+# ---------------------------------------------------------------------------------------------------------- tcp
+
+
+async def test_tcp_resets_on_connect_and_answers_m105() -> None:
+    async with serve_tcp(SimulatorConfig(), time_scale=TIME_SCALE) as sim:
+        assert sim.url.startswith("socket://127.0.0.1:")
+        reader, writer = await asyncio.open_connection(*host_port(sim))
+        try:
+            banner = await read_until(lambda: tcp_readline(reader), lambda line: line.startswith("echo:  M301"))
+            assert banner[:2] == ["start", "External Reset"]
+            for _ in range(3):
+                writer.write(b"M105\n")
+                assert await tcp_readline(reader) == IDLE_M105
+        finally:
+            writer.close()
+            await writer.wait_closed()
+
+
+async def test_tcp_accepts_one_client_at_a_time_and_disconnect_drops_it() -> None:
+    async with serve_tcp(SimulatorConfig(), time_scale=TIME_SCALE) as sim:
+        reader, writer = await asyncio.open_connection(*host_port(sim))
+        await read_until(lambda: tcp_readline(reader), lambda line: line.startswith("echo:  M301"))
+        second_reader, second_writer = await asyncio.open_connection(*host_port(sim))
+        with pytest.raises(EOFError):
+            await tcp_readline(second_reader)
+        second_writer.close()
+        assert sim.connected
+
+        await sim.disconnect()
+        with pytest.raises(EOFError):
+            await tcp_readline(reader)
+        writer.close()
+        assert not sim.connected
+
+        # Plugged back in: a new client finds a freshly reset board.
+        reader, writer = await asyncio.open_connection(*host_port(sim))
+        assert (await tcp_readline(reader), await tcp_readline(reader)) == ("start", "External Reset")
+        writer.close()
+        await writer.wait_closed()
+
+
+# -------------------------------------------------------------------------------------------------- the command
+
+
+async def _start_command(*arguments: str) -> tuple[asyncio.subprocess.Process, str]:
+    process = await asyncio.create_subprocess_exec(
+        *arguments, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE
+    )
+    assert process.stdout is not None
+    async with asyncio.timeout(20):
+        first_line = (await process.stdout.readline()).decode().strip()
+    return process, first_line
+
+
+async def _stop_command(process: asyncio.subprocess.Process, signum: int) -> None:
+    process.send_signal(signum)
+    async with asyncio.timeout(20):
+        _, stderr = await process.communicate()
+    assert process.returncode == 0
+    assert b"Traceback" not in stderr
+    assert b"marlin-sim:" in stderr
+
+
+async def test_module_command_prints_the_pty_path_first_and_stops_on_sigint() -> None:
+    process, url = await _start_command(sys.executable, "-m", "marlin_aio.simulator", "--time-scale", "20")
+    try:
+        assert url.startswith("/dev/")
+        async with pty_client(url) as host:
+            await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+            host.send("M105")
+            assert await host.readline() == IDLE_M105
+    finally:
+        await _stop_command(process, signal.SIGINT)
+
+
+async def test_console_script_serves_tcp_and_stops_on_sigterm() -> None:
+    script = Path(sys.executable).parent / "marlin-sim"
+    if not script.exists():
+        pytest.skip("the marlin-sim console script is not installed next to this interpreter")
+    process, url = await _start_command(str(script), "--tcp", "0", "--advanced-ok", "--extruders", "2")
+    try:
+        assert url.startswith("socket://127.0.0.1:")
+        host, port = url.removeprefix("socket://").rsplit(":", 1)
+        reader, writer = await asyncio.open_connection(host, int(port))
+        await read_until(lambda: tcp_readline(reader), lambda line: line.startswith("echo:  M301"))
+        writer.write(b"M115\n")
+        identity = await read_until(lambda: tcp_readline(reader), lambda line: line.startswith("ok"))
+        assert " EXTRUDER_COUNT:2 " in identity[0]
+        assert identity[-1] == "ok P15 B3"
+        writer.close()
+        await writer.wait_closed()
+    finally:
+        await _stop_command(process, signal.SIGTERM)
+
+
+async def test_command_rejects_bad_options() -> None:
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "marlin_aio.simulator", "--drop-ok", "2", stderr=asyncio.subprocess.PIPE
+    )
+    async with asyncio.timeout(20):
+        _, stderr = await process.communicate()
+    assert process.returncode == 2
+    assert b"between 0 and 1" in stderr
