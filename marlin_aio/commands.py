@@ -54,6 +54,9 @@ def _validate(text: str) -> str:
     command = strip_comment(text)
     if not command:
         raise ValueError(f"command is empty (after removing comments): {text!r}")
+    if "*" in command:
+        # Marlin reads the first `*` as the start of the checksum: the line could never be accepted.
+        raise ValueError(f"command contains '*', which Marlin reserves for the checksum: {text!r}")
     return command
 
 
@@ -114,7 +117,7 @@ def check_target(name: str, celsius: object, max_celsius: float) -> float:
         raise ValueError(f"{name} target must be a number of degrees Celsius, got {celsius!r}")
     try:
         value = float(celsius)
-    except ValueError:
+    except (ValueError, OverflowError):
         raise ValueError(f"{name} target must be a number of degrees Celsius, got {celsius!r}") from None
     if value != value or value in (float("inf"), float("-inf")):
         raise ValueError(f"{name} target must be a finite number, got {celsius!r}")

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
-from marlin_aio.commands import command_code, encode_command, number_command
+from marlin_aio.commands import MAX_COMMAND_BYTES, command_code, encode_command, number_command
 from marlin_aio.errors import (
     CommandTimeoutError,
     MarlinError,
@@ -114,6 +114,8 @@ class Connection:
         rx_buffer_bytes: the printer's serial receive buffer; unanswered bytes never exceed it.
         trace_size: how many lines sent and received the trace keeps.
         max_resends: how often one line may be requested again before the link is declared too noisy.
+        resend_timeout_s: while lines are being resent, how long a resent line may go unanswered before it is
+            written again (its rejection may have been taken for a stale one).
     """
 
     def __init__(
@@ -124,6 +126,7 @@ class Connection:
         rx_buffer_bytes: int = 128,
         trace_size: int = 64,
         max_resends: int = 10,
+        resend_timeout_s: float = 3.0,
     ) -> None:
         if max_in_flight < 1:
             raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
@@ -133,6 +136,7 @@ class Connection:
         self.max_in_flight = max_in_flight
         self.rx_buffer_bytes = rx_buffer_bytes
         self.max_resends = max_resends
+        self.resend_timeout_s = resend_timeout_s
         self.trace = Trace(trace_size)
         self._parser = EventParser()
         self._next_id = 0
@@ -148,6 +152,7 @@ class Connection:
         self._results: list[tuple[Command, Reply | MarlinError]] = []
         self._thermal_message: str | None = None
         self.halted: PrinterHaltedError | None = None
+        self._halt_recoverable = False  # a stop() halt, which M999 clears; a kill() needs a reset
         self.resets = 0
         self.resend_requests = 0
         self.stray_oks = 0
@@ -167,8 +172,17 @@ class Connection:
             PrinterHaltedError: the printer halted and answers nothing until it is reset.
         """
         use_numbers = self.numbered if numbered is None else numbered
-        # Validate now, with the longest line number it could get, so a bad command never reaches the queue.
-        encode_command(text, 99_999_999 if use_numbers else None)
+        # Validate now, so a bad command never reaches the queue: first as given (the clearest message), then
+        # with a line number comfortably larger than any it can get while queued.
+        encode_command(text)
+        if use_numbers:
+            try:
+                encode_command(text, self._next_line + len(self._queue) + len(self._in_flight) + 1000)
+            except ValueError:
+                raise ValueError(
+                    f"command {text[:40]!r}... is too long: with its line number and checksum it would exceed "
+                    f"Marlin's {MAX_COMMAND_BYTES}-byte limit"
+                ) from None
         code = command_code(text)
         if self.halted is not None and code != "M999":
             raise self.halted
@@ -207,6 +221,10 @@ class Connection:
                 break
             self._queue.popleft()
             if not command.wire:
+                if self._wire_size(command) - 1 > MAX_COMMAND_BYTES:
+                    # Only possible if the line numbers grew by over a thousand while it waited in the queue.
+                    self._finish(command, MarlinError(f"{command.text!r} grew too long for Marlin once numbered"))
+                    continue
                 self._assign_wire(command)
             chunks.append(self._write(command, now))
         return b"".join(chunks)
@@ -214,23 +232,26 @@ class Connection:
     def _wire_size(self, command: Command) -> int:
         if command.wire:
             return len(command.wire)
-        # An estimate that is never too small: the line number can only add this many bytes.
-        return len(command.text) + (len(str(self._next_line)) + 6 if command.numbered else 1)
+        if not command.numbered:
+            return len(command.text) + 1
+        # "N<n> <text>*<checksum>\n": the checksum has at most 3 digits, so this is never too small.
+        return len(command.text) + len(str(self._line_number_for(command))) + 7
+
+    def _line_number_for(self, command: Command) -> int:
+        if command.code == "M110":
+            # M110 sets the counter: number the line with the value it sets, as Marlin's own hosts do.
+            words = command.text.split()
+            return next((int(w[1:]) for w in words[1:] if w[:1] in "Nn" and w[1:].isdigit()), 0)
+        return self._next_line
 
     def _assign_wire(self, command: Command) -> None:
         if not command.numbered:
             command.wire = command.text.encode("ascii") + b"\n"
             return
+        command.line_number = self._line_number_for(command)
         if command.code == "M110":
-            # M110 sets the counter: number the line with the value it sets, as Marlin's own hosts do.
-            words = command.text.split()
-            value = next((int(w[1:]) for w in words[1:] if w[:1] in "Nn" and w[1:].isdigit()), 0)
-            command.line_number = value
-            self._next_line = value + 1
             self._forget_history()
-        else:
-            command.line_number = self._next_line
-            self._next_line += 1
+        self._next_line = command.line_number + 1
         command.wire = number_command(command.text, command.line_number).encode("ascii") + b"\n"
         self._history[command.line_number] = command
         self._history_order.append(command.line_number)
@@ -307,6 +328,12 @@ class Connection:
                 if command.line_number == ok.line_number:
                     count = index + 1
                     break
+            else:
+                if self._in_flight[0].line_number is not None:
+                    # It names a line no longer in flight (a command that already timed out): completing the
+                    # head with it would hand one command another's answer.
+                    self.stray_oks += 1
+                    return
         elif ok.temperatures is not None and self._in_flight[0].code != "M105":
             # Only M105 answers `ok T:...`. If one is in flight, the oks before it were lost; if none is, this
             # answers a probe we already gave up on, and must not complete an unrelated command.
@@ -323,6 +350,10 @@ class Connection:
                 # The firmware has reached the lines written again: nothing older can still answer.
                 self._stale = 0
                 self._resend_from = None
+            if command.code == "M999" and self._halt_recoverable:
+                # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
+                self.halted = None
+                self._halt_recoverable = False
             if not command.orphan:
                 sent = now if command.sent_s is None else command.sent_s
                 reply = Reply(command.text, tuple(command.lines), ok, sent, now)
@@ -337,14 +368,22 @@ class Connection:
 
     def _on_resend(self, line_number: int, now: float) -> None:
         self.resend_requests += 1
+        # The ok right after a resend request answers nothing. (M999 prints `Resend:` and `ok` too, then its own ok.)
         self._swallow_ok = True
         if line_number != self._resend_from:
             # A request for another line means the firmware has got past every stale line.
             self._stale = 0
         elif self._stale > 0:
             # The rejection of a line that was already on the wire when this resend began: expected, no action.
+            # (If it was in fact the resent line failing again, the shorter resend deadline recovers.)
             self._stale -= 1
             return
+        if line_number == self._next_line:
+            # The printer has every line we sent (M999 asks this way): nothing to write again.
+            return
+        self._resend(line_number, now)
+
+    def _resend(self, line_number: int, now: float) -> None:
         first = self._history.get(line_number)
         if first is None:
             self._fail_everything(
@@ -409,6 +448,8 @@ class Connection:
     def _halt(self, error: PrinterHaltedError) -> None:
         if self.halted is None or isinstance(error, ThermalRunawayError):
             self.halted = error
+        message = str(self.halted).lower()
+        self._halt_recoverable = "stopped due to errors" in message and "kill()" not in message
         self._fail_everything(self.halted)
 
     def _on_start(self) -> None:
@@ -416,6 +457,7 @@ class Connection:
         # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
         self._fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
         self.halted = None
+        self._halt_recoverable = False
         self._thermal_message = None
         self._next_line = 1
 
@@ -458,7 +500,17 @@ class Connection:
             return None
         head = self._in_flight[0]
         start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
+        if self._resending(head):
+            return start + min(head.timeout_s, self.resend_timeout_s)
         return start + head.timeout_s
+
+    def _resending(self, head: Command) -> bool:
+        return (
+            self._resend_from is not None
+            and head.line_number is not None
+            and head.line_number >= self._resend_from
+            and head.sends <= self.max_resends
+        )
 
     def check_timeouts(self, now: float) -> None:
         """Time out the oldest command if its deadline has passed; the commands behind it go on."""
@@ -467,9 +519,13 @@ class Connection:
             if deadline is None or now < deadline:
                 return
             head = self._in_flight[0]
-            self.timeouts += 1
-            # A whole timeout of silence: no stale rejection can still be on its way.
+            # No stale rejection can still be on its way after this much silence.
             self._stale = 0
+            if self._resending(head) and head.line_number is not None:
+                # A resent line went unanswered: its rejection was probably taken for a stale one. Resend again.
+                self._resend(head.line_number, now)
+                continue
+            self.timeouts += 1
             error = CommandTimeoutError(self.describe_stall(head, now), command=head.text)
             self._pop_in_flight(now)
             if head.line_number is not None:

@@ -29,8 +29,9 @@ from marlin_aio.temperatures import looks_like_temperatures, parse_temperatures
 
 __all__ = ["EventParser", "classify_line", "parse_endstops", "parse_position"]
 
-_ADVANCED_OK = re.compile(r"([NPB])(\d+)")
-_RESEND = re.compile(r"(?:Resend|rs)[: ]\s*N?(\d+)", re.IGNORECASE)
+# Digit runs are bounded: int() refuses more than 4300 digits, and classify_line must never raise.
+_ADVANCED_OK = re.compile(r"([NPB])(\d{1,12})")
+_RESEND = re.compile(r"(?:Resend|rs)[: ]\s*N?(\d{1,12})(?!\d)", re.IGNORECASE)
 _FIRMWARE_FIELD = re.compile(r"([A-Z_]+):")
 _THERMAL_WORDS = ("thermal runaway", "thermal malfunction", "heating failed", "maxtemp", "mintemp")
 _HALT_WORDS = ("printer halted", "kill() called", "printer stopped due to errors")

@@ -6,6 +6,7 @@ and with ` W:` at the end while M109/M190 wait. One parser serves all three.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 
@@ -85,10 +86,11 @@ def parse_temperatures(text: str) -> Temperatures | None:
             remaining = None if value in (None, "?") else float(value)
         elif "@" in key:
             if value not in (None, "?"):
-                # `@:` is the active hotend, `@0:` hotend 0, `B@:` the bed, `C@:` the chamber.
-                letter, _, index = key.partition("@")
-                heater = (letter or "T") + index
-                powers[heater] = int(float(value))
+                power = float(value)
+                if math.isfinite(power):  # `@:nan` from a confused board must not break the whole report
+                    # `@:` is the active hotend, `@0:` hotend 0, `B@:` the bed, `C@:` the chamber.
+                    letter, _, index = key.partition("@")
+                    powers[(letter or "T") + index] = int(power)
         elif value not in (None, "?"):
             target = match["target"]
             raw = match["raw"]

@@ -92,14 +92,21 @@ def test_invalid_commands_never_reach_the_queue(text: str, problem: str) -> None
     assert conn.data_to_send(0.0) == b""
 
 
-def test_command_too_long_for_any_line_number_is_rejected_at_submit() -> None:
-    # 85 bytes fit as line 1 but not with the line numbers a long session reaches: refused up front, not later.
-    text = "M117 " + "A" * 80
-    assert len(encode_command(text, 1)) <= 96
+def test_command_too_long_once_numbered_is_rejected_at_submit() -> None:
+    # 89 bytes are fine bare, but not with a line number and checksum: refused up front, with a message that says so.
+    text = "M117 " + "A" * 84
+    assert len(encode_command(text)) <= 96
     conn = Connection()
-    with pytest.raises(ValueError, match="95-byte limit"):
+    with pytest.raises(ValueError, match=r"with its line number and checksum it would exceed Marlin's 95-byte limit"):
         conn.submit(text, timeout_s=5.0, now=0.0)
     assert conn.queued == 0
+
+
+def test_a_command_that_fits_once_numbered_is_accepted() -> None:
+    text = "M117 " + "A" * 80  # 85 bytes: "N1001 " + 85 + "*cs" is still within 95
+    conn = Connection()
+    conn.submit(text, timeout_s=5.0, now=0.0)
+    assert conn.data_to_send(0.0) == encode_command(text, 1)
 
 
 def test_timeout_must_be_positive() -> None:
@@ -315,11 +322,6 @@ def test_stray_ok_with_temperatures_completes_nothing() -> None:
     assert [text for text, _ in replies(conn)] == ["G28", "M114"]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: an `ok N<k>` whose line is no longer in flight (its command timed out) falls back to completing "
-    "the head, so the next command gets the late answer of the one before it",
-)
 def test_late_advanced_ok_of_a_timed_out_command_completes_nothing() -> None:
     conn = Connection(max_in_flight=4)
     submit_all(conn, "G28", "M114")
@@ -443,12 +445,6 @@ def test_discarded_lines_are_resent_when_the_printer_drops_them_silently() -> No
     assert [text for text, _ in replies(conn)] == texts
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: after a resend the connection expects one stale rejection per later line in flight; when Marlin "
-    "flushed those lines silently and the resent line is corrupted again, its rejection is taken for a stale one, "
-    "nothing is resent, and the link stalls until the command times out",
-)
 def test_resent_line_corrupted_again_is_resent_again() -> None:
     conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
     texts = [f"G1 X{i}" for i in range(1, 5)]
@@ -458,7 +454,16 @@ def test_resent_line_corrupted_again_is_resent_again() -> None:
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")  # 2..4 flushed silently
     assert sent(conn.data_to_send(0.0)) == all_four
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")  # the resent line 1 hit by noise again
-    assert sent(conn.data_to_send(0.0)) == all_four
+    # That rejection is indistinguishable from a stale one for line 2, so nothing goes out at once; but a resent line
+    # that stays unanswered for resend_timeout_s (much shorter than the command timeout) is written again.
+    assert conn.data_to_send(0.0) == b""
+    deadline = conn.next_deadline()
+    assert deadline is not None and deadline <= conn.resend_timeout_s
+    conn.check_timeouts(deadline)
+    assert conn.take_results() == []
+    assert sent(conn.data_to_send(deadline)) == all_four
+    receive(conn, "ok", "ok", "ok", "ok")
+    assert [text for text, _ in replies(conn)] == texts
 
 
 def test_max_resends_exceeded_fails_with_resend_limit_error() -> None:
@@ -651,11 +656,6 @@ def test_plain_halt_fails_everything_with_printer_halted_error() -> None:
     assert conn.queued == 1
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: `halted` is only cleared by `start`; after stop() Marlin resumes on M999, but the connection goes "
-    "on refusing every command (and M999's own `Resend: <next line>` fails everything, see below)",
-)
 def test_m999_after_stop_lets_commands_through_again() -> None:
     conn = Connection()
     submit_all(conn, "M105")
@@ -673,11 +673,6 @@ def test_m999_after_stop_lets_commands_through_again() -> None:
     assert conn.data_to_send(2.0) == (wire("M105", 3) + "\n").encode()
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: `Resend: <next line>` (Marlin has every line, nothing to resend; M999 prints it) is treated as a "
-    "request for a line never sent and fails everything with RemoteProtocolError",
-)
 def test_resend_of_the_next_line_asks_for_nothing() -> None:
     conn = Connection()
     submit_all(conn, "M999")
@@ -756,11 +751,6 @@ def test_window_lets_a_single_long_command_through() -> None:
     assert len(conn.data_to_send(0.0)) > 16  # alone on the wire, or it could never be sent
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: _wire_size estimates `N<n> cmd*cs\\n` as len(cmd)+len(n)+6, one byte short when the checksum has "
-    "three digits, so bytes in flight can exceed rx_buffer_bytes",
-)
 def test_window_never_exceeds_rx_buffer_bytes_with_three_digit_checksums() -> None:
     first = encode_command("M105", 1)
     second = encode_command("M104 S0", 2)
@@ -930,15 +920,7 @@ _CORRUPTIONS = st.lists(st.booleans(), max_size=30)
     [
         (1, True),
         (1, False),
-        pytest.param(
-            4,
-            True,
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="BUG: a resent line corrupted again while stale rejections are still expected is ignored "
-                "(see test_resent_line_corrupted_again_is_resent_again)",
-            ),
-        ),
+        (4, True),
         (4, False),
     ],
 )
@@ -956,7 +938,7 @@ def test_ideal_firmware_every_command_completes_once_in_order(
 def test_ideal_firmware_with_flush_when_no_resent_line_is_hit_again(
     texts: list[str], corruptions: list[bool], advanced_ok: bool
 ) -> None:
-    # The flushing firmware with four in flight, minus the case the xfail above covers: noise never hits two
-    # lines in a row, so the first line written again always gets through.
+    # The flushing firmware with four in flight when noise never hits two lines in a row: the first line written
+    # again always gets through, so no resend deadline is needed.
     spaced = [hit and not (index and corruptions[index - 1]) for index, hit in enumerate(corruptions)]
     run_session(texts, spaced, max_in_flight=4, flush=True, advanced_ok=advanced_ok)
