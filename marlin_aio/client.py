@@ -403,8 +403,8 @@ class Printer:
     ) -> TemperatureReading:
         """Wait until heaters are within `tolerance_c` of their targets, watching readings (the queue stays free).
 
-        Targets not given are taken from the readings (heaters whose target is 0 are not waited for). If no
-        poller is running, one polls every `poll_interval_s` while waiting.
+        Targets not given are taken from readings that arrive after the call (heaters whose target is 0 are not
+        waited for). If no poller is running, one polls every `poll_interval_s` while waiting.
 
         Raises:
             ValueError: `tolerance_c` is negative or a target is invalid.
@@ -433,7 +433,8 @@ class Printer:
         async def watch() -> TemperatureReading:
             readings = self.temperature_readings()
             try:
-                if self.latest is not None and reached(self.latest):
+                # A reading from before the call may predate the targets just set: only trust it for explicit ones.
+                if wanted and self.latest is not None and reached(self.latest):
                     return self.latest
                 async for reading in readings:
                     if reached(reading):

@@ -13,7 +13,7 @@ import pytest
 import marlin_aio
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
 
-from .conftest import TIME_SCALE
+from conftest import TIME_SCALE
 
 
 def executed_codes(server: SimulatorServer, prefix: str) -> list[str]:
