@@ -390,7 +390,7 @@ class SimulatedPrinter:
         now = self._t
         if self._task is not None and self._next_keepalive is not None and self._next_keepalive <= now:
             self._emit("echo:busy: processing")
-            self._next_keepalive = now + self._keepalive_us
+            self._next_keepalive = now + self._keepalive_us if self._keepalive_us > 0 else None
         if self._next_report is not None and self._next_report <= now:
             self._emit(self._heater_states(self._active_extruder))
             self._next_report = now + self._report_us
@@ -856,7 +856,9 @@ class SimulatedPrinter:
                 old_celsius = celsius
             if not self._wait_for_heatup:
                 return
-            wake = min(next_print, (now // STEP_US + 1) * STEP_US)
+            # Sleep until the temperature could enter the window (or, once inside, leave the hysteresis band).
+            margin = difference - _WINDOW_CELSIUS if residency_start is None else _HYSTERESIS_CELSIUS - difference
+            wake = min(next_print, (now // STEP_US + heater.steps_to_change(margin)) * STEP_US)
             if residency_start is not None:
                 residency_end = residency_start + _RESIDENCY_US
                 if now >= residency_end:

@@ -86,6 +86,16 @@ class Heater:
             self._settled = False
         return celsius
 
+    def steps_to_change(self, celsius: float) -> int:
+        """How many grid steps at least pass before the temperature can have moved by `celsius` (at least 1).
+
+        A bound, so a wait can sleep until its condition could possibly change instead of checking every step.
+        """
+        spec = self.spec
+        excess = max(self.celsius, self.target_celsius) - self.ambient_celsius
+        fastest = max(spec.heating_rate_cps / spec.loss_per_s, excess) * (1.0 - self._decay)
+        return max(1, int(celsius / fastest))
+
     def advance(self, steps: int) -> None:
         """Run `steps` grid steps."""
         if steps <= 0:
