@@ -15,6 +15,7 @@ from typing import Annotated, Any, NoReturn, TypeVar
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 import marlin_aio
 from marlin_aio.commands import (
@@ -46,7 +47,7 @@ def _stderr() -> Console:
 
 def fail(message: str, code: int = Exit.ERROR) -> NoReturn:
     """Print `error: message` as one line on stderr and exit with `code`."""
-    _stderr().print(f"[bold red]error:[/] {message}", markup=True)
+    _stderr().print(f"[bold red]error:[/] {escape(message)}", markup=True)
     raise typer.Exit(int(code))
 
 
@@ -61,6 +62,9 @@ def run(main: Coroutine[Any, Any, _T]) -> _T:
         fail(str(exc), exc.code)
     except marlin_aio.MarlinError as exc:
         fail(str(exc), exit_code_for(exc))
+    except ValueError as exc:
+        # Our own checks raise ValueError for bad input found late (e.g. a log file with other columns).
+        fail(str(exc), Exit.USAGE)
     except OSError as exc:
         fail(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
 

@@ -1,7 +1,7 @@
 """classify_line and EventParser: one event per line, for every kind of line Marlin sends, and never an exception.
 
-The golden tests read the real Marlin 2.1 sessions in the captures directory (`MARLIN_CAPTURES`, by default
-tests/captures/marlin-2.1, copied from shared/captures) and state, rule by rule, which event each printer line must give.
+The golden tests read the real Marlin 2.1 sessions in tests/captures/marlin-2.1 (copied from shared/captures;
+`MARLIN_CAPTURES` overrides it) and state, rule by rule, which event each printer line must give.
 """
 
 from __future__ import annotations
