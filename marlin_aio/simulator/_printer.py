@@ -20,6 +20,9 @@ How it follows Marlin 2.1 (`gcode/queue.cpp`, `MarlinCore.cpp`, `module/temperat
   their own timers, as `idle()` does. Integer time keeps ties exact: a keepalive due at the same moment as an M109
   wait line comes first, as in the captures.
 - Temperatures come from `_thermal`, integrated lazily on a fixed grid, so they do not depend on call frequency.
+- M112 without the emergency parser halts when its turn comes, as `gcode.cpp` does (`case 112: M112()`); one
+  capture shows a board answering it with `ok` instead, which the source does not explain.
+- Moves take distance / feedrate (no acceleration), so streamed moves finish a little sooner than on the board.
 """
 
 from __future__ import annotations
@@ -118,8 +121,8 @@ _CAPABILITIES: tuple[tuple[str, int | None], ...] = (
 
 # Commands Marlin accepts that change nothing the simulation shows.
 _NO_OPS = frozenset(
-    {"G21", "M17", "M18", "M84", "M92", "M117", "M149", "M200", "M201", "M203", "M204", "M205", "M206", "M220"}
-    | {"M221", "M301", "M999"}
+    {"G21", "M17", "M18", "M84", "M92", "M106", "M107", "M117", "M149", "M200", "M201", "M203", "M204", "M205"}
+    | {"M206", "M220", "M221", "M301", "M999"}
 )
 
 _EOL = re.compile(rb"[\r\n]")
@@ -346,7 +349,6 @@ class SimulatedPrinter:
         self._relative_xyz = False
         self._relative_e = False
         self._active_extruder = 0
-        self._fan_speed = 0
         self._wait_for_heatup = False
         self._keepalive_us = _to_us(self.config.keepalive_interval_s)
         self._next_keepalive: int | None = None
@@ -676,8 +678,6 @@ class SimulatedPrinter:
             "M83": self._m83,
             "M104": self._m104,
             "M105": self._m105,
-            "M106": self._m106,
-            "M107": self._m107,
             "M108": self._m108,
             "M109": self._m109,
             "M110": self._no_op,  # the counter was already set when the line was read
@@ -736,8 +736,8 @@ class SimulatedPrinter:
             target[axis] = start[axis] + value if relative else value
         dx, dy, dz, de = (target[axis] - start[axis] for axis in range(4))
         length = math.sqrt(dx * dx + dy * dy + dz * dz) or abs(de)
-        self._position = target
         if length == 0.0:
+            self._position = target  # Marlin plans no block for a move of no steps
             return
         # buffer_line() waits (in idle(), so lines keep coming in) until the planner has a free block.
         while self._moves_free() == 0:
@@ -745,6 +745,7 @@ class SimulatedPrinter:
         begin = self._planner[-1][0] if self._planner else self._t
         duration = round(length / self._feedrate_mm_s * _US_PER_S)
         self._planner.append((max(begin, self._t) + duration, target[0], target[1], target[2], target[3]))
+        self._position = target
 
     def _g4(self, command: _Command) -> _Task:
         parameters = _parameters(command.args)
@@ -873,13 +874,6 @@ class SimulatedPrinter:
         extruder = self._target_extruder(command, _parameters(command.args))
         if extruder is not None:
             self._emit("ok" + self._heater_states(extruder))
-
-    def _m106(self, command: _Command) -> None:
-        speed = _parameters(command.args).get("S")
-        self._fan_speed = 255 if speed is None else min(max(int(speed), 0), 255)
-
-    def _m107(self, command: _Command) -> None:
-        self._fan_speed = 0
 
     def _m108(self, command: _Command) -> None:
         if not self.config.emergency_parser:
