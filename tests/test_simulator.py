@@ -575,6 +575,15 @@ def test_m410_drops_planned_moves() -> None:
     assert send(printer, "M114", 2.0)[0].startswith("X:0.00 ")
 
 
+def test_m410_while_a_move_waits_for_a_planner_block() -> None:
+    printer = make(planner_buffer_size=2)
+    send(printer, "G1 X100 F600")  # 10 s
+    assert send(printer, "G1 X50", 1.0) == []  # no free block yet
+    assert send(printer, "M410", 2.0) == ["ok", "ok"]  # the waiting move is planned from the stop, then M410
+    assert send(printer, "M114", 2.0)[0].startswith("X:50.00 ")
+    assert [line for _, line in run(printer, 20.0)] == []
+
+
 def test_thermal_runaway_prints_the_error_and_halts() -> None:
     printer = make()
     send(printer, "M104 S200")

@@ -222,6 +222,13 @@ async def test_faults_and_one_shots_while_served() -> None:
         assert (await host.readline(), await host.readline()) == ("start", "External Reset")
 
 
+def test_server_arguments_are_checked() -> None:
+    with pytest.raises(ValueError, match="time_scale"):
+        serve_pty(time_scale=0)
+    with pytest.raises(RuntimeError, match="not started"):
+        _ = serve_tcp().url
+
+
 # ---------------------------------------------------------------------------------------------------------- tcp
 
 

@@ -98,6 +98,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     arguments = _build_parser().parse_args(argv)
     try:
         asyncio.run(_serve(arguments))
+    except KeyboardInterrupt:
+        pass  # Ctrl-C before the signal handlers were in place: still a clean stop
     except OSError as exc:
         print(f"marlin-sim: cannot serve: {exc}", file=sys.stderr)
         return 1

@@ -158,7 +158,7 @@ class SimulatorServer:
 
     def poke(self) -> None:
         """Advance the printer to `now()` at once and send what it printed (use after moving a manual clock,
-        or after calling the printer's methods, such as `reset()`, from outside)."""
+        or after calling the printer's methods, such as `reset()`, from outside). Does nothing while paused."""
         if self._loop is None or self._closed or self._paused:
             return
         self.printer.advance(self.now())
