@@ -79,7 +79,9 @@ def chart(model: WatchModel, width: int = 72, height: int = 12, now: float | Non
     for key in keys:
         for _, actual, target in model.series[key]:
             top = max(top, actual, target or 0.0)
-    top = math.ceil(top * 1.05 / 50.0) * 50.0
+    # A round top (50s below 100 C, 100s above) so the quarter-height labels are round numbers too.
+    step = 50.0 if top * 1.05 <= 100 else 100.0
+    top = math.ceil(top * 1.05 / step) * step
     grid: list[list[tuple[str, str]]] = [[(" ", "")] * plot_width for _ in range(height)]
 
     def row_of(value: float) -> int:
@@ -102,10 +104,12 @@ def chart(model: WatchModel, width: int = 72, height: int = 12, now: float | Non
         for column, actual in actuals.items():
             grid[row_of(actual)][column] = ("•", f"bold {colour}")
 
+    # Label the rows that hold round values (quarters of a multiple of 50), not whatever each row happens to be.
+    labels = {row_of(top * quarter / 4): top * quarter / 4 for quarter in range(5)}
     text = Text()
     for index, row in enumerate(grid):
-        value = top * (height - 1 - index) / (height - 1)
-        label = f"{value:>4.0f} ┤" if index % 3 == 0 or index == height - 1 else "     │"
+        value = labels.get(index)
+        label = f"{value:>4.0f} ┤" if value is not None else "     │"
         text.append(label, style="dim")
         for char, style in row:
             text.append(char, style=style)
@@ -124,15 +128,16 @@ def footer(port: str, firmware: str, link: LinkStats) -> Text:
     latency = (
         "-"
         if link.latency_median_ms is None
-        else f"{link.latency_median_ms:.1f} ms median, {link.latency_worst_ms or 0:.1f} ms worst"
+        else f"{link.latency_median_ms:.1f} ms median, {link.latency_worst_ms or 0:.1f} worst"
     )
     text = Text()
     text.append(f"{port}", style="bold")
-    text.append(f"  {firmware}  ", style="dim")
+    # "Marlin 2.1.2.4 (Jan  1 2024 12:00:00)": the build date only crowds the line.
+    text.append(f"  {firmware.split(' (')[0]}  ", style="dim")
     text.append(f"{link.polls_per_s:.0f} polls/s  latency {latency}  ")
     style = "bold red" if link.timeouts or link.errors else "dim"
-    text.append(f"timeouts {link.timeouts}  errors {link.errors}", style=style)
-    text.append("   q quits", style="dim")
+    text.append(f"{link.timeouts} timeouts  {link.errors} errors", style=style)
+    text.append("  q quits", style="dim")
     return text
 
 
