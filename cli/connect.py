@@ -98,11 +98,11 @@ def _choose_port(console: Console) -> str:
         console.print(f"using {likely[0].device} ({likely[0].bridge})", style="dim")
         return likely[0].device
     if not likely:
+        seen = ", ".join(p.device for p in ports) or "none"
         raise UsageProblem(
-            "no printer port found: give --port DEVICE (see 'marlin-temp ports'), or --sim for the simulated printer",
-            Exit.NO_PORT,
+            f"no printer port found (serial ports: {seen}): give --port DEVICE, or --sim for the simulated printer"
         )
-    names = ", ".join(p.device for p in likely)
+    names = ", ".join(f"{p.device} ({p.bridge})" for p in likely)
     raise UsageProblem(f"several printer ports found ({names}): choose one with --port")
 
 

@@ -19,6 +19,8 @@ from typing import IO
 
 from marlin_aio import TemperatureReading
 
+from .model import heater_name
+
 __all__ = ["LogFormat", "LogSummary", "TemperatureLog", "read_log"]
 
 LogFormat = str  # "csv" or "jsonl"
@@ -52,7 +54,9 @@ class LogSummary:
     def line(self) -> str:
         """`wrote 6000 rows to temps.csv over 60.0 s: hotend 25.0 -> 200.1 C, bed 25.0 -> 60.0 C`."""
         changes = ", ".join(
-            f"{key} {self.first[key]:.1f} -> {self.last[key]:.1f} C" for key in self.last if key in self.first
+            f"{heater_name(key)} {self.first[key]:.1f} -> {self.last[key]:.1f} C"
+            for key in self.last
+            if key in self.first
         )
         return f"wrote {self.rows} rows to {self.path} over {self.elapsed_s:.1f} s" + (
             f": {changes}" if changes else ""

@@ -88,6 +88,10 @@ SimOption = Annotated[bool, typer.Option("--sim", help="Use the built-in simulat
 SimSpeedOption = Annotated[
     float, typer.Option("--sim-speed", help="With --sim: simulated seconds per real second.", min=0.01)
 ]
+TimeoutOption = Annotated[
+    float, typer.Option("--timeout", help="Seconds to wait for each answer from the printer.", min=0.1)
+]
+# In `set`, --timeout bounds the wait for the targets (as users expect there); the answer timeout moves aside.
 AnswerTimeoutOption = Annotated[
     float, typer.Option("--answer-timeout", help="Seconds to wait for each answer from the printer.", min=0.1)
 ]
@@ -121,7 +125,7 @@ def watch(
     baud: BaudOption = None,
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
-    answer_timeout: AnswerTimeoutOption = 10.0,
+    timeout: TimeoutOption = 10.0,
     interval: Annotated[float, typer.Option("--interval", help="Seconds between M105 polls.", min=0.001)] = 0.01,
     refresh: Annotated[float, typer.Option("--refresh", help="Seconds between screen redraws.", min=0.05)] = 1.0,
     window: Annotated[float, typer.Option("--window", help="Seconds of history in the chart.", min=5)] = 60.0,
@@ -137,7 +141,7 @@ def watch(
     """
     from .watch import WatchSettings, watch_printer
 
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=answer_timeout)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
     settings = WatchSettings(
         interval_s=interval,
         refresh_s=refresh,
@@ -236,7 +240,7 @@ def log(
     baud: BaudOption = None,
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
-    answer_timeout: AnswerTimeoutOption = 10.0,
+    timeout: TimeoutOption = 10.0,
 ) -> None:
     """Record temperatures to a file, headless, for long runs. Ctrl-C (or --duration) ends it with a summary.
 
@@ -247,7 +251,7 @@ def log(
 
     if fmt not in ("csv", "jsonl"):
         fail(f"unknown --format {fmt!r}: use csv or jsonl", Exit.USAGE)
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=answer_timeout)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
     code = run(log_temperatures(options, output, fmt, interval, duration, _stderr()))
     raise typer.Exit(int(code))
 

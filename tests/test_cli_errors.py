@@ -1,0 +1,168 @@
+"""The errors a user will hit, each one line on stderr with its own exit code, through real ports and processes."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import pty
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import tty
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+from typer.testing import CliRunner
+
+import marlin_aio
+from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
+from marlin_temp.connect import ConnectOptions, Exit
+from marlin_temp.main import app
+from marlin_temp.watch import WatchSettings, watch_printer
+
+runner = CliRunner()
+
+
+def one_line(output: str) -> str:
+    lines = [line for line in output.splitlines() if line.strip()]
+    assert len(lines) == 1, output
+    assert "Traceback" not in output
+    return lines[0]
+
+
+@pytest.fixture
+def dead_pty() -> Iterator[tuple[int, str]]:
+    """A pty with nobody behind it: ours to keep silent or to fill with garbage."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    try:
+        yield master, os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+async def test_a_busy_port_exits_4() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim, marlin_aio.connect(sim.url):
+        result = await asyncio.to_thread(runner.invoke, app, ["set", "--port", sim.url, "--hotend", "200"])
+    assert result.exit_code == Exit.PORT_BUSY
+    assert "in use by another program" in one_line(result.output)
+
+
+def test_a_silent_port_exits_6(dead_pty: tuple[int, str]) -> None:
+    _, path = dead_pty
+    result = runner.invoke(app, ["set", "--port", path, "--baud", "250000", "--answer-timeout", "0.5", "--bed", "50"])
+    assert result.exit_code == Exit.NO_ANSWER
+    assert "nothing was received" in one_line(result.output)
+
+
+def test_garbage_suggests_the_other_baud_rate(dead_pty: tuple[int, str]) -> None:
+    master, path = dead_pty
+    # A board talking at another rate looks like this: a steady stream of bytes, no line that makes sense. It must
+    # keep coming, as pyserial throws away what arrived before the port was opened.
+    stop = threading.Event()
+
+    def babble() -> None:
+        while not stop.wait(0.02):
+            os.write(master, b"\xf0\x80\x13\xfe\xff garbage \xc3\x00\n")
+
+    noise = threading.Thread(target=babble, daemon=True)
+    noise.start()
+    try:
+        result = runner.invoke(
+            app, ["set", "--port", path, "--baud", "250000", "--answer-timeout", "0.5", "--bed", "50"]
+        )
+    finally:
+        stop.set()
+        noise.join()
+    assert result.exit_code == Exit.NO_ANSWER
+    assert "wrong baud rate? 250000 is set, try 115200" in one_line(result.output)
+
+
+@pytest.mark.skipif(shutil.which("setpriv") is None, reason="setpriv is needed to drop root's file permissions")
+def test_permission_denied_says_dialout_and_exits_5(dead_pty: tuple[int, str]) -> None:
+    _, path = dead_pty
+    os.chmod(path, 0)
+    # Root ignores file permissions; without CAP_DAC_OVERRIDE it gets the EACCES a normal user would.
+    drop = "-dac_override,-dac_read_search"
+    command = ["setpriv", f"--inh-caps={drop}", f"--bounding-set={drop}"]
+    command += [sys.executable, "-m", "marlin_temp", "set", "--port", path, "--hotend", "200"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert result.returncode == Exit.PERMISSION, result.stderr
+    assert "dialout" in one_line(result.stderr)
+
+
+def test_no_port_given_and_none_found_lists_candidates_and_exits_2() -> None:
+    result = runner.invoke(app, ["set", "--hotend", "200"])
+    if any(port.likely_printer for port in marlin_aio.list_ports()):
+        pytest.skip("this machine has a printer-like USB port plugged in")
+    assert result.exit_code == Exit.USAGE
+    assert "no printer port found" in one_line(result.output)
+
+
+async def test_unplugged_while_watching_says_so_and_exits_8(tmp_path: Path) -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+        log = tmp_path / "watch.csv"
+        settings = WatchSettings(refresh_s=0.2, log_path=log)
+        console = Console(file=open(os.devnull, "w"), force_terminal=False)  # noqa: SIM115 (closed with the test)
+        watching = asyncio.create_task(watch_printer(ConnectOptions(port=sim.url), settings, console, console))
+        # Unplug once readings are flowing: the log file gets its first rows within a second.
+        for _ in range(600):
+            if log.exists() and log.stat().st_size > 200:
+                break
+            await asyncio.sleep(0.05)  # polling a condition (rows on disk), bounded
+        await sim.disconnect()
+        with pytest.raises(marlin_aio.ConnectionLostError, match="unplugged\\? use --reconnect"):
+            await asyncio.wait_for(watching, 10)
+        console.file.close()
+    assert log.read_text().count("\n") > 2  # what was logged before the unplug is on disk
+
+
+def test_ctrl_c_while_waiting_says_the_heaters_stay_on() -> None:
+    process = subprocess.Popen(
+        [sys.executable, "-m", "marlin_temp", "set", "--sim", "--hotend", "200", "--bed", "60", "--wait"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert process.stdout is not None
+    confirmed = process.stdout.readline()  # printed before the wait starts
+    assert "hotend target 200 C" in confirmed
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=30)
+    assert process.returncode == Exit.INTERRUPTED
+    assert "the heaters stay on" in stderr
+    assert "marlin-temp set --off" in stderr
+    assert "Traceback" not in stderr
+
+
+async def test_watch_reconnect_keeps_retrying_and_resumes(tmp_path: Path) -> None:
+    # On TCP the simulator keeps listening after a disconnect, like a board that is plugged back in.
+    async with serve_tcp(SimulatorConfig(), time_scale=20) as sim:
+        log = tmp_path / "watch.csv"
+        settings = WatchSettings(refresh_s=0.2, log_path=log, reconnect=True, duration_s=60)
+        sink = open(os.devnull, "w")  # noqa: SIM115 (closed below)
+        errors = Console(file=sink, record=True, force_terminal=False)
+        watching = asyncio.create_task(watch_printer(ConnectOptions(port=sim.url), settings, errors, errors))
+
+        async def rows_beyond(count: int) -> int:
+            for _ in range(600):
+                if log.exists():
+                    rows = log.read_text().count("\n")
+                    if rows > count:
+                        return rows
+                await asyncio.sleep(0.05)  # polling a condition (rows on disk), bounded
+            raise AssertionError(f"the log never grew beyond {count} rows")
+
+        before = await rows_beyond(3)
+        await sim.disconnect()
+        await rows_beyond(before + 20)  # readings flow again after the reconnect
+        watching.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await watching
+        sink.close()
+    assert "retrying in 2 s" in errors.export_text()
