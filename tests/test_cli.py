@@ -12,13 +12,13 @@ import time
 from pathlib import Path
 
 import pytest
-from marlin_temp.main import app
-from marlin_temp.model import WatchModel
-from marlin_temp.render import chart, heater_table, plain_line, watch_view
 from rich.console import Console
 from typer.testing import CliRunner
 
 from marlin_aio import TemperatureReading, parse_temperatures
+from marlin_temp.main import app
+from marlin_temp.model import WatchModel
+from marlin_temp.render import chart, heater_table, plain_line, watch_view
 
 runner = CliRunner()
 FAST = ["--sim", "--sim-speed", "50"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import io
 import os
 import pty
 import shutil
@@ -108,7 +109,7 @@ async def test_unplugged_while_watching_says_so_and_exits_8(tmp_path: Path) -> N
     async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
         log = tmp_path / "watch.csv"
         settings = WatchSettings(refresh_s=0.2, log_path=log)
-        console = Console(file=open(os.devnull, "w"), force_terminal=False)  # noqa: SIM115 (closed with the test)
+        console = Console(file=io.StringIO(), force_terminal=False)
         watching = asyncio.create_task(watch_printer(ConnectOptions(port=sim.url), settings, console, console))
         # Unplug once readings are flowing: the log file gets its first rows within a second.
         for _ in range(600):
@@ -118,7 +119,6 @@ async def test_unplugged_while_watching_says_so_and_exits_8(tmp_path: Path) -> N
         await sim.disconnect()
         with pytest.raises(marlin_aio.ConnectionLostError, match="unplugged\\? use --reconnect"):
             await asyncio.wait_for(watching, 10)
-        console.file.close()
     assert log.read_text().count("\n") > 2  # what was logged before the unplug is on disk
 
 
@@ -145,8 +145,7 @@ async def test_watch_reconnect_keeps_retrying_and_resumes(tmp_path: Path) -> Non
     async with serve_tcp(SimulatorConfig(), time_scale=20) as sim:
         log = tmp_path / "watch.csv"
         settings = WatchSettings(refresh_s=0.2, log_path=log, reconnect=True, duration_s=60)
-        sink = open(os.devnull, "w")  # noqa: SIM115 (closed below)
-        errors = Console(file=sink, record=True, force_terminal=False)
+        errors = Console(file=io.StringIO(), record=True, force_terminal=False)
         watching = asyncio.create_task(watch_printer(ConnectOptions(port=sim.url), settings, errors, errors))
 
         async def rows_beyond(count: int) -> int:
@@ -164,5 +163,4 @@ async def test_watch_reconnect_keeps_retrying_and_resumes(tmp_path: Path) -> Non
         watching.cancel()
         with pytest.raises(asyncio.CancelledError):
             await watching
-        sink.close()
     assert "retrying in 2 s" in errors.export_text()
