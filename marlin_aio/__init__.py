@@ -12,7 +12,7 @@ served on a pseudo-terminal or TCP.
 from __future__ import annotations
 
 from marlin_aio._serial import PortInfo, list_ports
-from marlin_aio.client import DEFAULT_BAUDRATE, Printer, connect
+from marlin_aio.client import DEFAULT_BAUDRATE, Printer, PrintHandle, connect
 from marlin_aio.commands import checksum, encode_command, number_command, strip_comment
 from marlin_aio.connection import Command, Connection, Reply
 from marlin_aio.errors import (
@@ -27,6 +27,7 @@ from marlin_aio.errors import (
     PortPermissionError,
     PrinterHaltedError,
     PrinterResetError,
+    PrintStalledError,
     RemoteProtocolError,
     ResendLimitError,
     TemperatureTimeoutError,
@@ -50,6 +51,7 @@ from marlin_aio.events import (
 )
 from marlin_aio.framing import LineSplitter
 from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
+from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
 from marlin_aio.temperatures import HeaterReading, TemperatureReading, Temperatures, parse_temperatures
 from marlin_aio.trace import Trace, TraceEntry
 
@@ -82,6 +84,11 @@ __all__ = [
     "PortInfo",
     "PortNotFoundError",
     "PortPermissionError",
+    "PrintHandle",
+    "PrintJob",
+    "PrintProgress",
+    "PrintStalledError",
+    "PrintState",
     "Printer",
     "PrinterHaltedError",
     "PrinterResetError",

@@ -13,7 +13,8 @@ import contextlib
 import math
 import time
 from collections import deque
-from collections.abc import AsyncGenerator, AsyncIterator
+from collections.abc import AsyncGenerator, AsyncIterator, Generator, Iterable
+from pathlib import Path
 from types import TracebackType
 from typing import Self
 
@@ -38,10 +39,11 @@ from marlin_aio.errors import (
 )
 from marlin_aio.events import Capability, Event, FirmwareInfo, Ok, OverlongLine, TemperatureReport, UnrecognisedLine
 from marlin_aio.parsing import parse_endstops, parse_position
+from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
 from marlin_aio.temperatures import TemperatureReading
 from marlin_aio.trace import Trace
 
-__all__ = ["DEFAULT_BAUDRATE", "Printer", "connect"]
+__all__ = ["DEFAULT_BAUDRATE", "PrintHandle", "Printer", "connect"]
 
 DEFAULT_BAUDRATE = 250_000
 
@@ -57,6 +59,61 @@ class _LinkProtocol(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._printer._on_connection_lost(exc)
+
+
+class PrintHandle:
+    """A print in progress: watch `progress`, `pause()`, `resume()`, `cancel()`, and await it for the outcome."""
+
+    def __init__(self, printer: Printer, job: PrintJob, done: asyncio.Future[PrintProgress]) -> None:
+        self._printer = printer
+        self.job = job
+        self._done = done
+
+    @property
+    def progress(self) -> PrintProgress:
+        """Lines and bytes sent and acknowledged, elapsed time, rate, estimate of what remains."""
+        return self.job.progress(self._printer._running_loop().time())
+
+    @property
+    def finished(self) -> bool:
+        """True once the print ended (done, cancelled or failed)."""
+        return self._done.done()
+
+    def pause(self) -> None:
+        """Stop feeding lines (what is in flight completes); heaters and fans stay as they are."""
+        self.job.pause()
+
+    def resume(self) -> None:
+        """Feed lines again."""
+        self.job.resume()
+        self._printer._flush()
+
+    async def cancel(self, script: list[str] | tuple[str, ...] = ()) -> PrintProgress:
+        """Stop feeding for good, wait for what is in flight, then send `script` (e.g. heaters off).
+
+        Raises:
+            MarlinError: the print failed before it could be cancelled, or the script failed.
+        """
+        self.job.cancel(self._printer._running_loop().time())
+        self._printer._check_print()
+        progress = await self.wait()
+        for command in script:
+            await self._printer.send(command)
+        return progress
+
+    async def wait(self) -> PrintProgress:
+        """Wait for the print to end; return its final progress.
+
+        Raises:
+            PrintStalledError: the printer stopped answering (the message says where and who was silent).
+            PrinterHaltedError, PrinterResetError, ConnectionLostError: the printer or link failed mid-print.
+            ResendLimitError: the link was too noisy.
+            MarlinError: a line of the file could not be sent.
+        """
+        return await asyncio.shield(self._done)
+
+    def __await__(self) -> Generator[object, None, PrintProgress]:
+        return self.wait().__await__()
 
 
 class Printer:
@@ -114,6 +171,10 @@ class Printer:
         self._line_seen: asyncio.Event | None = None
         self._pollers = 0
         self._halt_notified: PrinterHaltedError | None = None
+        self._print: PrintHandle | None = None
+        self._saved_window: tuple[int, int] | None = None
+        #: While a print streams, polls slow down to this interval so they do not compete with the stream.
+        self.print_poll_interval_s = 1.0
 
     # ------------------------------------------------------------------------------------------- lifecycle
 
@@ -348,7 +409,8 @@ class Printer:
                 return  # subscribers hear about it from the connection
             except PrinterResetError:
                 pass
-            next_poll += interval_s
+            printing = self._print is not None and not self._print.finished
+            next_poll += max(interval_s, self.print_poll_interval_s) if printing else interval_s
             now = loop.time()
             if next_poll < now:
                 # Behind (a long command held the queue): skip the missed slots instead of bursting to catch up.
@@ -457,6 +519,82 @@ class Printer:
                     f"heaters did not reach their targets within {timeout_s:g} s ({state})"
                 ) from None
         raise AssertionError("unreachable")  # pragma: no cover  (mypy cannot see that `async with` returns)
+
+    # ------------------------------------------------------------------------------------------- printing
+
+    async def start_print(
+        self,
+        source: str | Path | Iterable[str],
+        *,
+        send_ahead: bool = True,
+        window_bytes: int | None = None,
+        check: bool = True,
+        timeout_s: float | None = None,
+    ) -> PrintHandle:
+        """Start streaming G-code: a file path, or any iterable of lines (read lazily, so any size streams).
+
+        Every line is numbered with a checksum (after an `M110 N0`), comments and blank lines are dropped, and lines
+        the printer rejects are resent. With `send_ahead` several lines are in flight, never more unanswered bytes
+        than `window_bytes` (default: the printer's receive buffer); without it, one line at a time (ping-pong).
+        Polls and `send()` keep working meanwhile; polls slow to `print_poll_interval_s`.
+
+        Raises:
+            ValueError: with `check`, a line of the file is not a valid command (nothing is sent).
+            OSError: the file cannot be read.
+            RuntimeError: a print is already running.
+            MarlinError: as `send` (for the M110 that starts the print).
+        """
+        if self._print is not None and not self._print.finished:
+            raise RuntimeError(f"a print is already running ({self._print.job.name})")
+        if window_bytes is not None and not 16 < window_bytes <= 65536:
+            raise ValueError(f"window_bytes must be between 17 and 65536, got {window_bytes}")
+        loop = self._running_loop()
+        job = PrintJob.from_path(Path(source), check=check) if isinstance(source, str | Path) else PrintJob(source)
+        await self.send("M110 N0")  # the print's numbering starts fresh
+        job.start_s = loop.time()
+        self._saved_window = (self._conn.max_in_flight, self._conn.rx_buffer_bytes)
+        self._conn.max_in_flight = 64 if send_ahead else 1
+        if window_bytes is not None:
+            self._conn.rx_buffer_bytes = window_bytes
+        self._conn.attach(job, timeout_s=self.timeout_s if timeout_s is None else timeout_s)
+        handle = PrintHandle(self, job, loop.create_future())
+        self._print = handle
+        self._flush()
+        return handle
+
+    async def print_file(
+        self,
+        source: str | Path | Iterable[str],
+        *,
+        send_ahead: bool = True,
+        window_bytes: int | None = None,
+        check: bool = True,
+        timeout_s: float | None = None,
+    ) -> PrintProgress:
+        """Stream G-code to the end (see `start_print`) and return the final progress.
+
+        Raises:
+            The errors of `start_print` and `PrintHandle.wait`.
+        """
+        handle = await self.start_print(
+            source, send_ahead=send_ahead, window_bytes=window_bytes, check=check, timeout_s=timeout_s
+        )
+        return await handle.wait()
+
+    def _check_print(self) -> None:
+        """Resolve the print's future once its job has ended, and give the window back."""
+        handle = self._print
+        if handle is None or handle._done.done() or not handle.job.finished:
+            return
+        if self._saved_window is not None:
+            self._conn.max_in_flight, self._conn.rx_buffer_bytes = self._saved_window
+            self._saved_window = None
+        job = handle.job
+        if job.state is PrintState.FAILED and job.error is not None:
+            handle._done.set_exception(job.error)
+            handle._done.exception()  # a print nobody awaits must not log "exception never retrieved"
+        else:
+            handle._done.set_result(job.progress(self._running_loop().time()))
 
     # ------------------------------------------------------------------------------------------- other helpers
 
@@ -573,6 +711,8 @@ class Printer:
                 future.set_result(outcome)
             else:
                 future.set_exception(outcome)
+        if self._print is not None:
+            self._check_print()
         halted = self._conn.halted
         if halted is not None and halted is not self._halt_notified:
             # Readers of temperatures learn of a halt even when no command was waiting for an answer.

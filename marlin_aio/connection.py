@@ -18,6 +18,7 @@ Nothing here imports asyncio or serial; `marlin_aio.client` is the thin layer th
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -27,6 +28,7 @@ from marlin_aio.errors import (
     MarlinError,
     PrinterHaltedError,
     PrinterResetError,
+    PrintStalledError,
     RemoteProtocolError,
     ResendLimitError,
     ThermalRunawayError,
@@ -46,10 +48,14 @@ from marlin_aio.events import (
     UnrecognisedLine,
 )
 from marlin_aio.parsing import EventParser
+from marlin_aio.printjob import PrintJob
 from marlin_aio.temperatures import Temperatures
 from marlin_aio.trace import Trace
 
 __all__ = ["Command", "Connection", "Reply"]
+
+#: Errors whose only argument is the message, so the print's position can be added to it.
+_PLAIN_ERRORS = (PrinterHaltedError, ThermalRunawayError, PrinterResetError, ResendLimitError, RemoteProtocolError)
 
 #: Commands Marlin's emergency parser acts on as soon as their bytes arrive; they skip the queue here too.
 EMERGENCY_COMMANDS = frozenset({"M108", "M112", "M410", "M876"})
@@ -100,6 +106,10 @@ class Command:
     lines: list[str] = field(default_factory=list)
     sends: int = 0
     orphan: bool = False  # its caller already gave up (timed out); an answer completes nothing
+    job: PrintJob | None = None  # set for the lines of a print job: their answers go to the job, not to a waiter
+    source_line: int = 0
+    source_bytes: int = 0
+    probe: bool = False  # an M105 written to find out whether a stalled stream lost an ok
 
 
 class Connection:
@@ -136,6 +146,14 @@ class Connection:
         self.max_in_flight = max_in_flight
         self.rx_buffer_bytes = rx_buffer_bytes
         self.max_resends = max_resends
+        self._now = 0.0  # the latest time any call was given, for results that happen as a side effect
+        self.job: PrintJob | None = None
+        self._job_next: Command | None = None
+        self.stream_timeout_s = 10.0
+        self.probe_reserve_bytes = 16  # "N12345678 M105*123\n" fits
+        self._probe: Command | None = None
+        self._rtts: deque[float] = deque(maxlen=32)
+        self.probes = 0
         self.resend_timeout_s = resend_timeout_s
         self.trace = Trace(trace_size)
         self._parser = EventParser()
@@ -210,24 +228,74 @@ class Connection:
         return wire
 
     def data_to_send(self, now: float) -> bytes:
-        """Return the bytes to write now: resends first, then queued commands, as far as the window allows."""
+        """Return the bytes to write now: resends first, then queued commands, then print job lines, as far as the
+        window allows."""
+        self._now = now
         chunks: list[bytes] = []
-        while self._queue:
-            command = self._queue[0]
+        # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.
+        limit = self.rx_buffer_bytes - (self.probe_reserve_bytes if self.job is not None else 0)
+        while True:
+            if self._queue:
+                command = self._queue[0]
+            else:
+                job_command = self._next_job_command(now)
+                if job_command is None:
+                    break
+                command = job_command
             if self._in_flight and (
-                len(self._in_flight) >= self.max_in_flight
-                or self._in_flight_bytes + self._wire_size(command) > self.rx_buffer_bytes
+                (len(self._in_flight) >= self.max_in_flight and not command.probe)
+                or self._in_flight_bytes + self._wire_size(command) > (self.rx_buffer_bytes if command.probe else limit)
             ):
                 break
-            self._queue.popleft()
+            if command is self._job_next:
+                self._job_next = None
+            else:
+                self._queue.popleft()
             if not command.wire:
                 if self._wire_size(command) - 1 > MAX_COMMAND_BYTES:
                     # Only possible if the line numbers grew by over a thousand while it waited in the queue.
                     self._finish(command, MarlinError(f"{command.text!r} grew too long for Marlin once numbered"))
                     continue
                 self._assign_wire(command)
+            if command.job is not None and command.sends == 0:
+                command.job.sent()
             chunks.append(self._write(command, now))
         return b"".join(chunks)
+
+    def _next_job_command(self, now: float) -> Command | None:
+        """The job's next line as a command (kept until it fits the window), or None."""
+        if self._job_next is not None:
+            return self._job_next
+        job = self.job
+        if job is None:
+            return None
+        if job.finished:
+            self.job = None
+            return None
+        item = job.next_command()
+        if item is None:
+            job._maybe_finish(now)
+            if job.finished:
+                self.job = None
+            return None
+        text, source_line, source_bytes = item
+        self._next_id += 1
+        command = Command(self._next_id, text, command_code(text), self.numbered, self.stream_timeout_s, now)
+        command.job, command.source_line, command.source_bytes = job, source_line, source_bytes
+        self._job_next = command
+        return command
+
+    def attach(self, job: PrintJob, *, timeout_s: float) -> None:
+        """Stream `job`'s lines from now on, interleaved with submitted commands (which go first).
+
+        Raises:
+            RuntimeError: another job is still running.
+        """
+        if self.job is not None and self.job.active:
+            raise RuntimeError(f"a print is already running ({self.job.name})")
+        self.job = job
+        self.stream_timeout_s = timeout_s
+        self._rtts.clear()
 
     def _wire_size(self, command: Command) -> int:
         if command.wire:
@@ -282,6 +350,7 @@ class Connection:
         Results (answered and failed commands) collect in `take_results()`; call `data_to_send()` afterwards,
         as an answer may open the window for more.
         """
+        self._now = now
         events: list[Event] = []
         for text, event in self._parser.receive_data(data):
             self.trace.received(now, text)
@@ -354,7 +423,13 @@ class Connection:
                 # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
                 self.halted = None
                 self._halt_recoverable = False
-            if not command.orphan:
+            if command.job is not None:
+                if command.sends == 1 and command.sent_s is not None:
+                    self._rtts.append(now - command.sent_s)
+                command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
+            elif command.probe:
+                self._probe = None
+            elif not command.orphan:
                 sent = now if command.sent_s is None else command.sent_s
                 reply = Reply(command.text, tuple(command.lines), ok, sent, now)
                 self._finish(command, reply)
@@ -385,6 +460,8 @@ class Connection:
 
     def _resend(self, line_number: int, now: float) -> None:
         first = self._history.get(line_number)
+        if first is not None and first.job is not None:
+            first.job.resends += 1
         if first is None:
             self._fail_everything(
                 RemoteProtocolError(
@@ -462,8 +539,14 @@ class Connection:
         self._next_line = 1
 
     def _fail_everything(self, error: MarlinError) -> None:
+        if self.job is not None:
+            # Nothing is replayed into a board that reset or halted: the print ends here, at the line it reached.
+            self.job.fail(self._job_error(error), self._now)
+            self.job = None
+        self._job_next = None
+        self._probe = None
         for command in (*self._in_flight, *self._queue):
-            if not command.orphan:
+            if not command.orphan and command.job is None and not command.probe:
                 self._finish(command, error)
         self._in_flight.clear()
         self._queue.clear()
@@ -495,14 +578,18 @@ class Connection:
     # ----------------------------------------------------------------------------------------------- time
 
     def next_deadline(self) -> float | None:
-        """When the oldest command in flight times out unless the printer shows a sign of life first."""
+        """When the oldest command in flight times out (or a stalled stream is probed) unless the printer shows a
+        sign of life first."""
         if not self._in_flight:
             return None
-        head = self._in_flight[0]
+        return min(self._deadlines(self._in_flight[0]))
+
+    def _deadlines(self, head: Command) -> tuple[float, float, float]:
+        """(time out, write again, probe) for the oldest command; inf where that step does not apply."""
         start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
-        if self._resending(head):
-            return start + min(head.timeout_s, self.resend_timeout_s)
-        return start + head.timeout_s
+        resend_at = start + min(head.timeout_s, self.resend_timeout_s) if self._resending(head) else math.inf
+        probe_at = start + self.probe_delay_s() if self._may_probe() else math.inf
+        return start + head.timeout_s, resend_at, probe_at
 
     def _resending(self, head: Command) -> bool:
         return (
@@ -512,20 +599,50 @@ class Connection:
             and head.sends <= self.max_resends
         )
 
+    def _may_probe(self) -> bool:
+        # Only while a job streams: outside prints a probe M105 could answer a user's own M105 (say M105 T9).
+        return self.job is not None and self.job.active and self._probe is None and self.numbered
+
+    def probe_delay_s(self) -> float:
+        """How long a streamed line may wait before a probe asks whether its `ok` was lost.
+
+        Eight times the median round trip of recent lines, within 50 ms to 1 s: quick on a fast link, patient
+        with a slow one. A probe is a numbered M105, harmless if nothing was lost.
+        """
+        if not self._rtts:
+            return 1.0
+        ordered = sorted(self._rtts)
+        return min(max(8 * ordered[len(ordered) // 2], 0.05), 1.0)
+
     def check_timeouts(self, now: float) -> None:
-        """Time out the oldest command if its deadline has passed; the commands behind it go on."""
+        """Time out the oldest command if its deadline has passed; the commands behind it go on.
+
+        While a job streams, a line that waits too long first gets a probe (a numbered M105: its `ok T:` proves
+        every older line was processed, so a lost `ok` costs a moment, not the print). A line that still gets no
+        answer within the timeout, with no busy keepalive, stalls the print: the job fails with a diagnosis.
+        """
+        self._now = now
         while self._in_flight:
             deadline = self.next_deadline()
             if deadline is None or now < deadline:
                 return
             head = self._in_flight[0]
-            # No stale rejection can still be on its way after this much silence.
-            self._stale = 0
-            if self._resending(head) and head.line_number is not None:
+            timeout_at, resend_at, probe_at = self._deadlines(head)
+            if now >= resend_at and head.line_number is not None:
                 # A resent line went unanswered: its rejection was probably taken for a stale one. Resend again.
+                self._stale = 0
                 self._resend(head.line_number, now)
                 continue
+            if now < timeout_at:
+                if now >= probe_at:
+                    self._send_probe(now)
+                return
+            # No stale rejection can still be on its way after this much silence.
+            self._stale = 0
             self.timeouts += 1
+            if head.job is not None or head.probe:
+                self._stall_job(head, now)
+                continue
             error = CommandTimeoutError(self.describe_stall(head, now), command=head.text)
             self._pop_in_flight(now)
             if head.line_number is not None:
@@ -533,6 +650,41 @@ class Connection:
                 # caller is told now, and a late answer completes nothing.
                 head.orphan = True
             self._finish(head, error)
+
+    def _send_probe(self, now: float) -> None:
+        self.probes += 1
+        self._next_id += 1
+        probe = Command(self._next_id, "M105", "M105", True, self.stream_timeout_s, now, probe=True)
+        self._probe = probe
+        self._queue.appendleft(probe)
+
+    def _stall_job(self, head: Command, now: float) -> None:
+        """The stream got no answer within the timeout: end the print with a diagnosis, drop its lines."""
+        job = self.job or head.job
+        summary = self.describe_stall(head, now)
+        where = f"line {head.source_line} of {job.name}" if head.job is not None and job else "a probe"
+        message = f"print stalled at {where}: {summary}"
+        error = PrintStalledError(message, command=head.text, trace=self.trace.format(now))
+        if job is not None:
+            job.fail(error, now)
+        self.job = None
+        self._job_next = None
+        self._probe = None
+        # The stream's lines will not be answered (the printer is silent): take them out so the FIFO stays true
+        # for whatever the user sends next.
+        keep = deque(c for c in self._in_flight if c.job is None and not c.probe)
+        self._in_flight = keep
+        self._in_flight_bytes = sum(len(c.wire) for c in keep)
+        self._queue = deque(c for c in self._queue if c.job is None and not c.probe)
+        if keep:
+            keep[0].head_since_s = now
+
+    def _job_error(self, error: MarlinError) -> MarlinError:
+        job = self.job
+        if job is None:
+            return error
+        where = f"{job.name}, after line {job.last_source_line} ({job.lines_acked} commands acknowledged)"
+        return type(error)(f"{error} [print stopped: {where}]") if type(error) in _PLAIN_ERRORS else error
 
     def describe_stall(self, command: Command, now: float) -> str:
         """One line saying who waits for whom: the command, for how long, and what each side last said."""

@@ -16,6 +16,7 @@ __all__ = [
     "PortBusyError",
     "PortNotFoundError",
     "PortPermissionError",
+    "PrintStalledError",
     "PrinterHaltedError",
     "PrinterResetError",
     "RemoteProtocolError",
@@ -74,6 +75,18 @@ class CommandTimeoutError(MarlinError, TimeoutError):
     def __init__(self, message: str, *, command: str) -> None:
         super().__init__(message)
         self.command = command
+
+
+class PrintStalledError(CommandTimeoutError):
+    """A print got no answer within the timeout while the printer gave no sign of being busy.
+
+    The message names the file line waited for, how long, and which side went silent; `trace` holds the last lines
+    sent and received with their times, one per line.
+    """
+
+    def __init__(self, message: str, *, command: str, trace: str) -> None:
+        super().__init__(message, command=command)
+        self.trace = trace
 
 
 class TemperatureTimeoutError(MarlinError, TimeoutError):
