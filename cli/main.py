@@ -256,6 +256,47 @@ def log(
     raise typer.Exit(int(code))
 
 
+# ------------------------------------------------------------------------------------------- print
+
+
+@app.command("print", epilog=EXIT_CODES_HELP)
+def print_file(
+    path: Annotated[Path, typer.Argument(help="The G-code file to print.", show_default=False)],
+    ping_pong: Annotated[
+        bool, typer.Option("--ping-pong", help="One line at a time, each waiting for its ok (slowest, simplest).")
+    ] = False,
+    window: Annotated[
+        int | None,
+        typer.Option(
+            "--window", help="Send-ahead: bytes of unanswered lines allowed (default: the 128-byte buffer).", min=17
+        ),
+    ] = None,
+    keep_heaters: Annotated[
+        bool, typer.Option("--keep-heaters", help="On cancel, leave heaters and fan as they are.")
+    ] = False,
+    port: PortOption = None,
+    baud: BaudOption = None,
+    sim: SimOption = False,
+    sim_speed: SimSpeedOption = 1.0,
+    timeout: TimeoutOption = 10.0,
+) -> None:
+    """Stream a G-code file with line numbers, checksums and resends, with a progress bar and live temperatures.
+
+    Ctrl-C asks whether to cancel (on a terminal); a cancel lets the printer finish what it has, then turns the
+    heaters and fan off. If the printer stops answering, the print fails with a diagnosis of who went silent.
+    """
+    from .printcmd import PrintSettings, print_gcode
+
+    if not path.is_file():
+        fail(f"no such file: {path}", Exit.USAGE)
+    if ping_pong and window is not None:
+        fail("--ping-pong sends one line at a time; do not combine it with --window", Exit.USAGE)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
+    settings = PrintSettings(path=path, send_ahead=not ping_pong, window_bytes=window, keep_heaters=keep_heaters)
+    code = run(print_gcode(options, settings, Console(highlight=False), _stderr()))
+    raise typer.Exit(int(code))
+
+
 # ------------------------------------------------------------------------------------------- plot
 
 
