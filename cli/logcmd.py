@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import signal
 from pathlib import Path
 
 from rich.console import Console
 
 from .connect import ConnectOptions, Exit, open_printer
 from .logfile import TemperatureLog
+from .signals import on_stop_signals
 
 __all__ = ["log_temperatures"]
 
@@ -25,36 +24,26 @@ async def log_temperatures(
         ValueError: `output` holds other columns than this printer reports.
         OSError: the file cannot be written.
     """
-    loop = asyncio.get_running_loop()
     stop = asyncio.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(signum, stop.set)
-    try:
-        with TemperatureLog(output, fmt) as log:
-            async with open_printer(options, errors) as (printer, label):
-                errors.print(f"logging {label} to {output} every {interval_s:g} s; Ctrl-C stops", style="dim")
+    with on_stop_signals(stop.set), TemperatureLog(output, fmt) as log:
+        async with open_printer(options, errors) as (printer, label):
+            errors.print(f"logging {label} to {output} every {interval_s:g} s; Ctrl-C stops", style="dim")
 
-                async def record() -> None:
-                    async for reading in printer.temperature_readings():
-                        log.add(reading)
+            async def record() -> None:
+                async for reading in printer.temperature_readings():
+                    log.add(reading)
 
-                async with printer.poll_temperatures(interval_s):
-                    recorder = asyncio.create_task(record(), name="marlin-temp log")
-                    stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
-                    try:
-                        done, _ = await asyncio.wait(
-                            {recorder, stopper}, timeout=duration_s, return_when="FIRST_COMPLETED"
-                        )
-                        if recorder in done:
-                            recorder.result()
-                    finally:
-                        for task in (recorder, stopper):
-                            task.cancel()
-                        await asyncio.gather(recorder, stopper, return_exceptions=True)
-                        log.flush()
-                        errors.print(log.summary.line())
-    finally:
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(Exception):
-                loop.remove_signal_handler(signum)
+            async with printer.poll_temperatures(interval_s):
+                recorder = asyncio.create_task(record(), name="marlin-temp log")
+                stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
+                try:
+                    done, _ = await asyncio.wait({recorder, stopper}, timeout=duration_s, return_when="FIRST_COMPLETED")
+                    if recorder in done:
+                        recorder.result()
+                finally:
+                    for task in (recorder, stopper):
+                        task.cancel()
+                    await asyncio.gather(recorder, stopper, return_exceptions=True)
+                    log.flush()
+                    errors.print(log.summary.line())
     return Exit.OK

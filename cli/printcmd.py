@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import signal
 import sys
 import termios
 import time
@@ -25,6 +24,7 @@ from rich.text import Text
 import marlin_aio
 
 from .connect import ConnectOptions, Exit, open_printer
+from .signals import on_stop_signals
 
 __all__ = ["PrintSettings", "print_gcode"]
 
@@ -96,11 +96,8 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
         MarlinError: the print failed (a `PrintStalledError` carries the trace, printed before raising).
         ValueError: a line of the file is not a valid command (nothing was sent).
     """
-    loop = asyncio.get_running_loop()
     interrupted = asyncio.Event()
-    loop.add_signal_handler(signal.SIGINT, interrupted.set)
-    loop.add_signal_handler(signal.SIGTERM, interrupted.set)
-    try:
+    with on_stop_signals(interrupted.set):
         async with open_printer(options, errors) as (printer, label), printer.poll_temperatures(1.0):
             handle = await printer.start_print(
                 settings.path, send_ahead=settings.send_ahead, window_bytes=settings.window_bytes
@@ -130,9 +127,6 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                 f"{final.resends} resends)"
             )
             return Exit.OK
-    finally:
-        loop.remove_signal_handler(signal.SIGINT)
-        loop.remove_signal_handler(signal.SIGTERM)
 
 
 async def _follow(

@@ -11,7 +11,6 @@ import asyncio
 import contextlib
 import json
 import os
-import signal
 import sys
 import termios
 import time
@@ -30,6 +29,7 @@ from .connect import ConnectOptions, Exit, open_printer
 from .logfile import TemperatureLog
 from .model import WatchModel
 from .render import plain_line, watch_view
+from .signals import on_stop_signals
 
 __all__ = ["WatchSettings", "watch_printer"]
 
@@ -171,34 +171,28 @@ async def watch_printer(options: ConnectOptions, settings: WatchSettings, consol
     """
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(signum, stop.set)
     model = WatchModel(settings.window_s, settings.tolerance_c)
     deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
     started = loop.time()
     log = TemperatureLog(settings.log_path) if settings.log_path is not None else None
-    try:
-        with log if log is not None else contextlib.nullcontext():
-            while True:
-                try:
-                    async with open_printer(options, errors) as (printer, label):
-                        await _session(printer, label, model, settings, console, log, stop, deadline)
-                        break
-                except (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError) as exc:
-                    if not settings.reconnect or stop.is_set():
-                        if isinstance(exc, marlin_aio.ConnectionLostError):
-                            raise marlin_aio.ConnectionLostError(
-                                f"{exc} (unplugged? use --reconnect to keep retrying)"
-                            ) from exc
-                        raise
-                    errors.print(f"{exc}; retrying in 2 s (Ctrl-C stops)", style="yellow")
-                    with contextlib.suppress(TimeoutError):
-                        await asyncio.wait_for(stop.wait(), 2.0)
-                    if stop.is_set():
-                        break
-    finally:
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            loop.remove_signal_handler(signum)
+    with on_stop_signals(stop.set), log if log is not None else contextlib.nullcontext():
+        while True:
+            try:
+                async with open_printer(options, errors) as (printer, label):
+                    await _session(printer, label, model, settings, console, log, stop, deadline)
+                    break
+            except (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError) as exc:
+                if not settings.reconnect or stop.is_set():
+                    if isinstance(exc, marlin_aio.ConnectionLostError):
+                        raise marlin_aio.ConnectionLostError(
+                            f"{exc} (unplugged? use --reconnect to keep retrying)"
+                        ) from exc
+                    raise
+                errors.print(f"{exc}; retrying in 2 s (Ctrl-C stops)", style="yellow")
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stop.wait(), 2.0)
+                if stop.is_set():
+                    break
     link = model.link()
     elapsed = loop.time() - started
     summary = f"watched {elapsed:.1f} s: {model.readings} readings, {link.timeouts} timeouts, {link.errors} errors"

@@ -85,8 +85,9 @@ class PrintHandle:
 
     def resume(self) -> None:
         """Feed lines again."""
-        self.job.resume()
+        self.job.resume(self._printer._running_loop().time())
         self._printer._flush()
+        self._printer._check_print()
 
     async def cancel(self, script: list[str] | tuple[str, ...] = ()) -> PrintProgress:
         """Stop feeding for good, wait for what is in flight, then send `script` (e.g. heaters off).

@@ -48,7 +48,7 @@ from marlin_aio.events import (
     UnrecognisedLine,
 )
 from marlin_aio.parsing import EventParser
-from marlin_aio.printjob import PrintJob
+from marlin_aio.printjob import PrintJob, PrintState
 from marlin_aio.temperatures import Temperatures
 from marlin_aio.trace import Trace
 
@@ -264,17 +264,22 @@ class Connection:
 
     def _next_job_command(self, now: float) -> Command | None:
         """The job's next line as a command (kept until it fits the window), or None."""
-        if self._job_next is not None:
-            return self._job_next
         job = self.job
         if job is None:
             return None
+        if self._job_next is not None:
+            if job.cancelling:
+                self._job_next = None  # read from the source but never written: it is simply not sent
+            elif job.state is PrintState.RUNNING:
+                return self._job_next
+            else:
+                return None
         if job.finished:
             self.job = None
             return None
         item = job.next_command()
         if item is None:
-            job._maybe_finish(now)
+            job.finish_if_idle(now)
             if job.finished:
                 self.job = None
             return None

@@ -140,6 +140,7 @@ class PrintJob:
         self.state = PrintState.RUNNING
         self.error: MarlinError | None = None
         self.exhausted = False
+        self.cancelling = False  # cancel() was called; the state turns CANCELLED once nothing is in flight
         self.start_s = start_s
         self.end_s: float | None = None
         self.lines_sent = 0
@@ -205,14 +206,19 @@ class PrintJob:
         self.bytes_acked += wire_bytes
         self.source_bytes_acked += source_bytes
         self.last_source_line = source_line
-        self._maybe_finish(now)
+        self.finish_if_idle(now)
 
-    def _maybe_finish(self, now: float) -> None:
-        if self.in_flight == 0 and self.active and (self.exhausted or self.state is PrintState.CANCELLED):
+    def finish_if_idle(self, now: float) -> None:
+        """End the job once nothing more will be fed and everything sent was answered."""
+        if self.in_flight == 0 and self.active and self.exhausted:
             if self.error is not None:
                 self.state = PrintState.FAILED
+            elif self.cancelling:
+                self.state = PrintState.CANCELLED
             elif self.state is PrintState.RUNNING:
                 self.state = PrintState.DONE
+            else:
+                return  # paused with the source used up: done only once resumed
             self.end_s = now
 
     def fail(self, error: MarlinError, now: float) -> None:
@@ -227,18 +233,18 @@ class PrintJob:
         if self.state is PrintState.RUNNING:
             self.state = PrintState.PAUSED
 
-    def resume(self) -> None:
+    def resume(self, now: float = 0.0) -> None:
         """Feed lines again after `pause()`."""
         if self.state is PrintState.PAUSED:
             self.state = PrintState.RUNNING
+            self.finish_if_idle(now)
 
     def cancel(self, now: float) -> None:
-        """Stop for good; the job ends once what is in flight is answered."""
+        """Stop feeding for good; the job ends (CANCELLED) once what is in flight has been answered."""
         if self.active:
-            self.state = PrintState.CANCELLED
+            self.cancelling = True
             self.exhausted = True
-            if self.in_flight == 0:
-                self.end_s = now
+            self.finish_if_idle(now)
 
     def progress(self, now: float) -> PrintProgress:
         """A snapshot for display."""
