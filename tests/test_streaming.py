@@ -150,7 +150,7 @@ async def test_thermal_runaway_mid_print_stops_it_with_the_printers_message(fast
         await wait_for_progress(handle, 1_000)
         fast_sim.printer.thermal_runaway(fast_sim.now())
         fast_sim.poke()
-        with pytest.raises(marlin_aio.ThermalRunawayError, match="Thermal Runaway.*print stopped"):
+        with pytest.raises(marlin_aio.ThermalRunawayError, match=r"Thermal Runaway.*print stopped"):
             await handle
 
 
