@@ -6,14 +6,19 @@ date and the captured board's machine name differ).
 
 from __future__ import annotations
 
+import itertools
+import math
 import time
+from collections import deque
+from dataclasses import dataclass
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from marlin_aio.commands import number_command
-from marlin_aio.simulator import Faults, SimulatedPrinter, SimulatorConfig
+from marlin_aio.simulator import Faults, SimulatedPrinter, SimulatorConfig, generate_moves
+from marlin_aio.simulator._wire import Wire
 
 IDLE_M105 = "ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0"
 
@@ -742,3 +747,287 @@ def test_next_wakeup_is_none_when_nothing_is_scheduled() -> None:
 def test_impossible_configurations_are_refused(bad: dict[str, int]) -> None:
     with pytest.raises(ValueError, match="must be"):
         SimulatorConfig(**bad)  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------------------ streaming
+
+
+def test_numbered_lines_run_once_and_are_recorded_without_number_or_checksum() -> None:
+    printer = make()
+    commands = ["G1 X1 Y1 F3000", "M117 hello", "G1 X2 Y2"]
+    for number, command in enumerate(commands, start=1):
+        assert send(printer, number_command(command, number)) == ["ok"]
+    # The host missed the ok of line 3 and sends it again: refused, and the next line is asked for.
+    assert send(printer, number_command(commands[2], 3)) == [
+        "Error:Line Number is not Last Line Number+1, Last Line: 3",
+        "Resend: 4",
+        "ok",
+    ]
+    assert send(printer, number_command("G1 X3", 4)) == ["ok"]
+    assert printer.executed == [*commands, "G1 X3"]
+    assert printer.executed_line_numbers == [1, 2, 3, 4]
+    assert send(printer, "M105") == [IDLE_M105]  # unnumbered: run, but no number recorded
+    assert printer.executed_line_numbers == [1, 2, 3, 4]
+
+
+def test_newer_firmware_drops_repeats_of_the_last_two_lines_without_a_word() -> None:
+    printer = make(ignore_duplicate_lines=True)
+    for number in range(1, 4):
+        send(printer, number_command(f"G1 X{number}", number))
+    assert send(printer, number_command("G1 X3", 3)) == []
+    assert send(printer, number_command("G1 X2", 2)) == []
+    assert send(printer, number_command("G1 X1", 1))[:2] == [
+        "Error:Line Number is not Last Line Number+1, Last Line: 3",
+        "Resend: 4",
+    ]
+    assert printer.executed_line_numbers == [1, 2, 3]
+
+
+def test_silent_after_lines_answers_the_last_line_then_stalls() -> None:
+    faults = Faults(silent_after_lines=3)
+    printer = make(faults, advanced_ok=True)
+    assert send(printer, "M155 S1") == ["ok P15 B3"]  # unnumbered lines do not count
+    burst = "".join(number_command(f"G1 X{n} F6000", n) + "\n" for n in range(1, 7))
+    printer.receive(burst.encode(), 0.0)
+    assert lines(printer) == ["ok N1 P14 B0", "ok N2 P13 B0", "ok N3 P12 B0"]  # N4-N6 were read in too
+    assert printer.stalled
+    assert printer.executed_line_numbers == [1, 2, 3]
+    # Hung: no auto-report, no keepalive, no answer; bytes still land in the receive buffer until it is full.
+    assert printer.next_wakeup() is None
+    assert run(printer, 30.0) == []
+    printer.receive(b"M105\n" * 40, 31.0)
+    assert lines(printer) == []
+    assert printer.executed == ["M155 S1", "G1 X1 F6000", "G1 X2 F6000", "G1 X3 F6000"]
+    assert (printer.rx_overflows, printer.rx_dropped_bytes) == (1, 200 - 128)
+    # A reset revives it; with the fault still set, the next numbered line stalls it again.
+    printer.reset(32.0)
+    assert not printer.stalled
+    assert lines(printer)[0] == "start"
+    assert send(printer, number_command("M400", 1), 32.0) == ["ok N1 P15 B3"]
+    assert printer.stalled
+    faults.silent_after_lines = None
+    printer.reset(33.0)
+    lines(printer)
+    assert send(printer, number_command("M400", 1), 33.0) == ["ok N1 P15 B3"]
+    assert send(printer, number_command("M400", 2), 33.0) == ["ok N2 P15 B3"]
+
+
+def test_receive_buffer_overflows_are_counted() -> None:
+    printer = make()
+    # Block the command buffer: a 10 s dwell runs, three lines wait behind it.
+    send(printer, "G4 S10\nM400\nM400\nM400")
+    assert printer.rx_overflows == 0
+    printer.receive(bytes(300), 1.0)
+    assert (printer.rx_overflows, printer.rx_dropped_bytes) == (1, 300 - 128)
+    printer.receive(b"M105\n", 1.5)
+    assert (printer.rx_overflows, printer.rx_dropped_bytes) == (2, 300 - 128 + 5)
+
+
+def test_lines_move_on_while_a_large_read_comes_in() -> None:
+    # 300 bytes in one call are 300 bytes that arrived over time: a board that is not blocked keeps taking
+    # lines out of its receive buffer, so nothing is lost.
+    printer = make()
+    commands = [f"G1 X{n} Y{n} F60000" for n in range(20)]
+    data = "".join(command + "\n" for command in commands).encode()
+    assert len(data) > 200
+    printer.receive(data, 0.0)
+    run(printer, 1.0)
+    assert (printer.rx_overflows, printer.rx_dropped_bytes) == (0, 0)
+    assert printer.executed == commands
+
+
+def test_motion_time_scale_shortens_moves() -> None:
+    def m400_seconds(scale: float) -> float:
+        printer = make(motion_time_scale=scale)
+        send(printer, "G1 X50 F3000")  # 50 mm at 50 mm/s
+        send(printer, "M400")
+        return run_until_ok(printer, 10.0)[-1][0] if scale else 0.0
+
+    assert m400_seconds(1.0) == pytest.approx(1.0)
+    assert m400_seconds(0.1) == pytest.approx(0.1)
+    instant = make(motion_time_scale=0.0)
+    assert send(instant, "G1 X50 F3000\nM400\nM114") == [
+        "ok",
+        "ok",
+        "X:50.00 Y:0.00 Z:0.00 E:0.00 Count X:4000 Y:0 Z:0",
+        "ok",
+    ]
+    with pytest.raises(ValueError, match="motion_time_scale"):
+        SimulatorConfig(motion_time_scale=-1.0)
+
+
+def test_generated_moves_are_short_reproducible_and_on_the_bed() -> None:
+    moves = generate_moves(2000)
+    assert moves == generate_moves(2000)
+    assert moves != generate_moves(2000, seed=1)
+    assert generate_moves(17_000)[:2000] == moves
+    assert moves[0].startswith("G1 X") and moves[0].endswith(" F3000")
+    assert 30 <= sum(len(move) + 1 for move in moves) / len(moves) <= 36
+    points = [(100.0, 100.0)] + [(float(m.split()[1][1:]), float(m.split()[2][1:])) for m in moves]
+    assert all(10.0 <= x <= 190.0 and 10.0 <= y <= 190.0 for x, y in points)
+    steps = [math.dist(a, b) for a, b in itertools.pairwise(points)]
+    assert min(steps) >= 0.39 and max(steps) <= 0.61
+    with pytest.raises(ValueError, match="count"):
+        generate_moves(-1)
+
+
+def test_wire_hands_out_bytes_no_faster_than_the_baud_rate() -> None:
+    wire = Wire(250_000)  # 40 us a byte
+    assert wire.byte_s == pytest.approx(40e-6)
+    wire.put(bytes(range(100)), 1.0)
+    assert wire.take(1.0) == b""
+    assert wire.take(1.0 + 10 * 40e-6) == bytes(range(10))
+    assert wire.take(1.0 + 10.5 * 40e-6) == b""
+    assert wire.next_arrival() == pytest.approx(1.0 + 11 * 40e-6)
+    # Put in while busy: queued behind what is under way, not from the moment it was put in.
+    wire.put(b"xyz", 1.001)
+    assert wire.last_arrival() == pytest.approx(1.0 + 103 * 40e-6)
+    assert wire.pending == 93
+    assert wire.take(1.0 + 102 * 40e-6) == bytes(range(10, 100)) + b"xy"
+    assert wire.take(5.0) == b"z"
+    assert wire.next_arrival() is None and wire.due(5.0, 0.001) is None
+    # An idle wire starts when the bytes come, and a busy one is handed over at most every interval.
+    wire.put(bytes(100), 6.0)
+    assert wire.due(6.0, 0.001) == pytest.approx(6.001)
+    assert wire.due(6.0035, 0.001) == pytest.approx(6.004)  # the end of the burst, not later
+    wire.delay(0.5)
+    assert wire.take(6.004) == b""
+    assert wire.take(6.504) == bytes(100)
+    wire.put(b"a", 7.0)
+    wire.clear()
+    assert wire.pending == 0 and wire.take(8.0) == b""
+    with pytest.raises(ValueError, match="baud_rate"):
+        Wire(0)
+
+
+@dataclass
+class Streamed:
+    seconds: float
+    resends: int
+    timeouts: int
+
+
+def stream(
+    printer: SimulatedPrinter,
+    commands: list[str],
+    *,
+    window_bytes: int,
+    baud_rate: int = 250_000,
+    ok_timeout_s: float = 0.5,
+    start_s: float = 0.0,
+) -> Streamed:
+    """A streaming host against `printer` over an ideal serial line, in simulated time.
+
+    Numbered lines, at most `window_bytes` of them unacknowledged (0: one line at a time, ping-pong); each
+    `ok` acknowledges the oldest line. On `Resend:` it stops, lets the line go quiet, and goes back to the line
+    asked for; when no `ok` comes for `ok_timeout_s` it goes back to the oldest unacknowledged line.
+    """
+    byte_s = 10 / baud_rate
+    quiet_s = 2 * max(window_bytes, 100) * byte_s
+    payloads = [number_command(command, n).encode() + b"\n" for n, command in enumerate(commands, start=1)]
+    to_printer: deque[tuple[float, bytes]] = deque()  # (arrival, line)
+    to_host: deque[tuple[float, str]] = deque()
+    line_free = host_line_free = 0.0
+    unacked: deque[int] = deque()  # sizes, oldest first
+    in_flight = 0
+    next_n = 1
+    rewind_to: int | None = None
+    rewind_at = 0.0
+    progress_at = now = start_s
+    resends = timeouts = 0
+    while True:
+        while (
+            rewind_to is None
+            and next_n <= len(payloads)
+            and (not unacked or (window_bytes and in_flight + len(payloads[next_n - 1]) <= window_bytes))
+        ):
+            payload = payloads[next_n - 1]
+            line_free = max(line_free, now) + len(payload) * byte_s
+            to_printer.append((line_free, payload))
+            unacked.append(len(payload))
+            in_flight += len(payload)
+            next_n += 1
+        due = [
+            t
+            for t in (
+                to_printer[0][0] if to_printer else None,
+                to_host[0][0] if to_host else None,
+                printer.next_wakeup(),
+                rewind_at if rewind_to is not None else None,
+                progress_at + ok_timeout_s if unacked and rewind_to is None else None,
+            )
+            if t is not None
+        ]
+        if not due:
+            return Streamed(now - start_s, resends, timeouts)
+        now = max(now, min(due))
+        assert now < start_s + 3600, "the stream does not end"
+        if to_printer and to_printer[0][0] <= now:
+            printer.receive(to_printer.popleft()[1], now)
+        else:
+            printer.advance(now)
+        for line in lines(printer):
+            host_line_free = max(host_line_free, now) + (len(line) + 1) * byte_s
+            to_host.append((host_line_free, line))
+        while to_host and to_host[0][0] <= now:
+            line = to_host.popleft()[1]
+            if line.startswith("ok") and unacked:
+                in_flight -= unacked.popleft()
+                progress_at = now
+            elif line.startswith("Resend: "):
+                resends += 1
+                rewind_to = int(line[8:])
+                rewind_at = now + quiet_s
+        if rewind_to is not None and now >= rewind_at:
+            next_n, rewind_to = rewind_to, None
+            unacked.clear()
+            in_flight = 0
+            progress_at = now
+        elif unacked and rewind_to is None and now >= progress_at + ok_timeout_s:
+            timeouts += 1
+            rewind_to = next_n - len(unacked)
+            rewind_at = now
+
+
+# An 8N1 line at 250000 baud carries this many of the generated moves a second, numbered.
+_WIRE_LINES_PER_S = 25_000 / (sum(len(number_command(m, n)) + 1 for n, m in enumerate(generate_moves(), 1)) / 17_000)
+
+
+def _at_bed_centre(**config: object) -> SimulatedPrinter:
+    """A printer that has already crossed from 0,0 to where the generated moves start (a 2.8 s move)."""
+    printer = make(None, **config)
+    send(printer, "G1 X100 Y100 F3000\nM400")
+    run_until_ok(printer, 5.0)
+    return printer
+
+
+def test_send_ahead_at_250000_baud_is_planner_bound_unless_moves_are_sped_up() -> None:
+    moves = generate_moves(1500)
+    # Real-time moves: 0.5 mm at 50 mm/s is 10 ms of motion, so about 100 lines a second, far below the
+    # ~570 a second the line carries.
+    real = _at_bed_centre()
+    streamed = stream(real, moves, window_bytes=128, start_s=3.0)
+    assert (streamed.resends, streamed.timeouts) == (0, 0)
+    assert 90 <= len(moves) / streamed.seconds <= 110
+    # A tenth of the motion time leaves the line as the limit, and the receive buffer never overflows.
+    fast = _at_bed_centre(motion_time_scale=0.1)
+    streamed = stream(fast, moves, window_bytes=128, start_s=3.0)
+    assert len(moves) / streamed.seconds >= 0.95 * _WIRE_LINES_PER_S
+    assert fast.rx_dropped_bytes == 0
+    assert fast.executed[2:] == moves
+    # Ping-pong waits for each ok: about 44 bytes one way and 3 back per line.
+    ping_pong = _at_bed_centre(motion_time_scale=0.1)
+    streamed = stream(ping_pong, moves[:300], window_bytes=0, start_s=3.0)
+    assert 0.85 * _WIRE_LINES_PER_S <= 300 / streamed.seconds <= _WIRE_LINES_PER_S
+
+
+@pytest.mark.parametrize("window_bytes", [0, 128])
+def test_numbered_streaming_survives_every_fault_and_runs_each_line_once(window_bytes: int) -> None:
+    faults = Faults(corrupt_rx_ratio=0.05, drop_ok_ratio=0.03, noise_ratio=0.1)
+    printer = make(faults, motion_time_scale=0.0, seed=5)
+    moves = generate_moves(600)
+    streamed = stream(printer, moves, window_bytes=window_bytes, ok_timeout_s=0.2)
+    assert streamed.resends >= 10 and streamed.timeouts >= 1
+    assert printer.executed_line_numbers == list(range(1, len(moves) + 1))
+    assert printer.executed == moves
+    assert printer.rx_dropped_bytes == 0

@@ -4,11 +4,21 @@
 `serve_tcp()` put it behind a pseudo-terminal or a TCP port, where a client opens it like a real board
 (`/dev/pts/N` with pyserial, or `socket://127.0.0.1:PORT`). `marlin-sim` (or `python -m marlin_aio.simulator`)
 does the same from a shell.
+`generate_moves()` writes a reproducible file of short moves for streaming tests and benchmarks.
 """
 
 from __future__ import annotations
 
 from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
 from marlin_aio.simulator._serve import SimulatorServer, serve_pty, serve_tcp
+from marlin_aio.simulator._workload import generate_moves
 
-__all__ = ["Faults", "SimulatedPrinter", "SimulatorConfig", "SimulatorServer", "serve_pty", "serve_tcp"]
+__all__ = [
+    "Faults",
+    "SimulatedPrinter",
+    "SimulatorConfig",
+    "SimulatorServer",
+    "generate_moves",
+    "serve_pty",
+    "serve_tcp",
+]

@@ -22,7 +22,14 @@ How it follows Marlin 2.1 (`gcode/queue.cpp`, `MarlinCore.cpp`, `module/temperat
 - Temperatures come from `_thermal`, integrated lazily on a fixed grid, so they do not depend on call frequency.
 - M112 without the emergency parser halts when its turn comes, as `gcode.cpp` does (`case 112: M112()`); one
   capture shows a board answering it with `ok` instead, which the source does not explain.
-- Moves take distance / feedrate (no acceleration), so streamed moves finish a little sooner than on the board.
+- Moves take distance / feedrate (no acceleration), so streamed moves finish a little sooner than on the board;
+  `motion_time_scale` shortens them further, so a benchmark of the serial link is not bound by the planner.
+- Line-number protection as in 2.1.2: a numbered line is run only when it is the next number, so a line is run
+  once however often the host sends it. A repeat of the last line (the host retransmitted because an `ok` went
+  missing) gets the line-number error and a `Resend:` of the next line; with `ignore_duplicate_lines` the two
+  numbers below the next one are dropped without a word instead, as newer `queue.cpp` sources do.
+- Each kind of random fault draws from a stream of its own (derived from the seed), so which `ok`s are dropped
+  does not depend on how the host's bytes happened to be split into reads.
 """
 
 from __future__ import annotations
@@ -164,6 +171,12 @@ class SimulatorConfig:
     """DEFAULT_KEEPALIVE_INTERVAL: `echo:busy: processing` this often while a command blocks (M113 changes it)."""
     homing_s: float = 6.0
     """How long G28 takes once the planner is empty."""
+    motion_time_scale: float = 1.0
+    """Factor on the time each move takes (distance / feedrate): 0.1 runs moves ten times faster, 0 makes them
+    instant, so a link benchmark measures the link rather than the planner."""
+    ignore_duplicate_lines: bool = False
+    """Drop a numbered line repeating one of the last two numbers without any answer (no error, no `ok`), as
+    newer Marlin `queue.cpp` does; off, such a line gets the line-number error and `Resend:` like 2.1.2."""
     seed: int = 0
     """Seed of the `random.Random` behind every fault decision, so runs are reproducible."""
 
@@ -178,6 +191,8 @@ class SimulatorConfig:
             raise ValueError(f"extruders must be 1 to 8, got {self.extruders}")
         if self.keepalive_interval_s < 0 or self.homing_s < 0:
             raise ValueError("keepalive_interval_s and homing_s must not be negative")
+        if not self.motion_time_scale >= 0 or math.isinf(self.motion_time_scale):
+            raise ValueError(f"motion_time_scale must be a finite number >= 0, got {self.motion_time_scale}")
         if "\n" in self.firmware_name or "\r" in self.firmware_name:
             raise ValueError("firmware_name must be one line")
 
@@ -196,6 +211,11 @@ class Faults:
     noise_ratio: float = 0.0
     """Share of output lines preceded by a line of 1-16 random bytes (never `\\n` or `\\r`; the first byte is
     never printable ASCII, so noise cannot pose as a reply) ending in `\\n`."""
+    silent_after_lines: int | None = None
+    """Stall once this many numbered lines have been run (counting every numbered line run since power-up,
+    `executed_line_numbers`): the `ok` of the last one still goes out, then the board runs and writes nothing
+    more, while its receive buffer keeps filling (and overflowing) as on a hung board. `reset()` revives it,
+    but with the fault still set the next numbered line stalls it again."""
 
 
 @dataclass(slots=True)
@@ -204,6 +224,7 @@ class _Command:
     code: str  # "G1", "M105", ... or "" when it is not a G/M/T command
     args: str  # the text after the command word
     line_label: str | None  # "N5" when the line was numbered (ADVANCED_OK echoes it)
+    line_number: int | None  # 5 for that line
 
 
 def _to_us(seconds: float) -> int:
@@ -242,9 +263,20 @@ class SimulatedPrinter:
         self.faults = faults if faults is not None else Faults()
         self.executed: list[str] = []
         """Every command executed, in order, as received minus line number, checksum and comment."""
+        self.executed_line_numbers: list[int] = []
+        """The number of every numbered line executed, in order (unnumbered commands add nothing)."""
+        self.rx_overflows = 0
+        """How many arrivals of bytes found the receive buffer too full to hold them all."""
+        self.rx_dropped_bytes = 0
+        """How many received bytes were dropped because the receive buffer was full."""
         self.halted = False
         """True after kill() (M112, thermal runaway) until `reset()`: nothing is answered."""
-        self._rng = random.Random(self.config.seed)
+        self.stalled = False
+        """True once `Faults.silent_after_lines` struck, until `reset()`: bytes are buffered, nothing else."""
+        seed = self.config.seed
+        self._corrupt_rng = random.Random(f"{seed}:corrupt-rx")
+        self._drop_ok_rng = random.Random(f"{seed}:drop-ok")
+        self._noise_rng = random.Random(f"{seed}:noise")
         self._out = bytearray()
         self._t = _to_us(now)
         self._thermal_step = self._t // STEP_US
@@ -265,18 +297,37 @@ class SimulatedPrinter:
     # ----------------------------------------------------------------------------------------------- public API
 
     def receive(self, data: bytes, now: float) -> None:
-        """Bytes from the host arriving at `now`."""
+        """Bytes from the host arriving at `now`.
+
+        Whole lines move on into the command buffer while the bytes come in, as the board's main loop keeps
+        reading, so only bytes that find the receive buffer full while the command buffer is full too are lost
+        (counted in `rx_overflows` and `rx_dropped_bytes`).
+        """
         self._run_until(_to_us(now))
         if self.halted or not data:
+            return
+        if self.stalled:
+            self._buffer(data)
             return
         if self.config.emergency_parser:
             self._emergency_parse(data)
             if self.halted:
                 return
-        room = self.config.rx_buffer_size - len(self._rx)
-        if room > 0:
-            self._rx += data[:room]
-        self._settle()
+        size = self.config.rx_buffer_size
+        taken = 0
+        while taken < len(data):
+            room = size - len(self._rx)
+            if room <= 0:
+                self._count_overflow(len(data) - taken)
+                return
+            self._rx += data[taken : taken + room]
+            taken += room
+            self._settle()
+            if self.halted:
+                return
+            if self.stalled:
+                self._buffer(data[taken:])
+                return
 
     def advance(self, now: float) -> None:
         """Let simulated time pass up to `now`."""
@@ -290,7 +341,7 @@ class SimulatedPrinter:
 
     def next_wakeup(self) -> float | None:
         """Simulated time at which `advance()` must next be called, or None while nothing is scheduled."""
-        if self.halted:
+        if self.halted or self.stalled:
             return None
         due = self._next_event_us()
         return None if due is None else due / _US_PER_S
@@ -300,6 +351,7 @@ class SimulatedPrinter:
         self._run_until(_to_us(now))
         self._sync_thermal()
         self.halted = False
+        self.stalled = False
         self._clear_state()
         self._print_banner("External Reset")
 
@@ -312,7 +364,7 @@ class SimulatedPrinter:
         if not heater or "\n" in heater or "\r" in heater:
             raise ValueError(f"heater must be a one-line name such as 'E0' or 'bed', got {heater!r}")
         self._run_until(_to_us(now))
-        if self.halted:
+        if self.halted or self.stalled:
             return
         self._emit(f"Error:Thermal Runaway, system stopped! Heater_ID: {heater}")
         self._kill()
@@ -377,11 +429,11 @@ class SimulatedPrinter:
 
     def _run_until(self, now_us: int) -> None:
         """Process every event up to `now_us` in time order."""
-        if not self.halted:
+        if not (self.halted or self.stalled):
             while True:
                 self._settle()
                 due = self._next_event_us()
-                if self.halted or due is None or due > now_us:
+                if self.halted or self.stalled or due is None or due > now_us:
                     break
                 self._t = max(self._t, due)
                 self._fire_timers()
@@ -399,7 +451,7 @@ class SimulatedPrinter:
 
     def _settle(self) -> None:
         """Run everything that can happen at this instant: resume a due task, take in lines, run commands."""
-        while not self.halted:
+        while not (self.halted or self.stalled):
             if self._task is not None:
                 if self._task_due > self._t and not self._poked:
                     self._intake()
@@ -419,6 +471,19 @@ class SimulatedPrinter:
             self._start_command(self._ring[0])
 
     # ------------------------------------------------------------------------------------------------- intake
+
+    def _buffer(self, data: bytes) -> None:
+        """Store what fits in the receive buffer and nothing more (a stalled board reads no lines out of it)."""
+        room = self.config.rx_buffer_size - len(self._rx)
+        if len(data) > room:
+            self._count_overflow(len(data) - max(room, 0))
+        if room > 0:
+            self._rx += data[:room]
+
+    def _count_overflow(self, dropped: int) -> None:
+        if dropped > 0:
+            self.rx_overflows += 1
+            self.rx_dropped_bytes += dropped
 
     def _emergency_parse(self, data: bytes) -> None:
         """Act on M108/M112/M410 lines as their bytes arrive, before the receive buffer (e_parser.h)."""
@@ -452,7 +517,7 @@ class SimulatedPrinter:
         """Move whole lines from the receive buffer into the command ring while it has room."""
         slots = self.config.command_buffer_size
         rx = self._rx
-        while rx and len(self._ring) < slots and not self.halted:
+        while rx and len(self._ring) < slots and not (self.halted or self.stalled):
             match = _EOL.search(rx)
             if match is None:
                 # Marlin keeps reading characters into its line buffer; beyond MAX_CMD_SIZE they are ignored.
@@ -477,9 +542,10 @@ class SimulatedPrinter:
         if not text:
             return
         ratio = self.faults.corrupt_rx_ratio
-        if ratio > 0.0 and self._rng.random() < ratio:
+        if ratio > 0.0 and self._corrupt_rng.random() < ratio:
             text = self._corrupt(text)
         line_label = None
+        line_number = None
         if text[0] == "N":
             is_m110 = "M110" in text
             number_at = 0
@@ -489,6 +555,8 @@ class SimulatedPrinter:
                     number_at = second_n
             number = _leading_int(text, number_at + 1)
             if number != self._last_line_number + 1 and not is_m110:
+                if self.config.ignore_duplicate_lines and 0 <= self._last_line_number - number <= 1:
+                    return  # "A request-for-resend line was already in transit so we got two"
                 self._line_error("Line Number is not Last Line Number+1, Last Line: ")
                 return
             star = text.rfind("*")
@@ -499,7 +567,8 @@ class SimulatedPrinter:
                 self._line_error("checksum mismatch, Last Line: ")
                 return
             self._last_line_number = number
-            line_label = "N" + str(_leading_int(text, 1))
+            line_number = _leading_int(text, 1)
+            line_label = "N" + str(line_number)
         star = text.find("*")
         body = text if star < 0 else text[:star].rstrip()
         prefix = _LINE_NUMBER_PREFIX.match(body)
@@ -507,9 +576,10 @@ class SimulatedPrinter:
             body = body[prefix.end() :]
         word = _COMMAND_WORD.match(body)
         if word is None:
-            command = _Command(body, "", "", line_label)
+            command = _Command(body, "", "", line_label, line_number)
         else:
-            command = _Command(body, word.group(1) + str(int(word.group(2))), body[word.end() :], line_label)
+            code = word.group(1) + str(int(word.group(2)))
+            command = _Command(body, code, body[word.end() :], line_label, line_number)
             if command.code == "M110" and line_label is None:
                 # Applied on reading, like the numbered form, so lines sent right behind it already match.
                 new_number = _parameters(command.args).get("N")
@@ -520,8 +590,8 @@ class SimulatedPrinter:
     def _corrupt(self, text: str) -> str:
         # Never the leading N: a line that loses it is run unchecked, which no host can guard against.
         first = 1 if text[0] == "N" and len(text) > 1 else 0
-        at = self._rng.randrange(first, len(text))
-        replacement = chr(self._rng.randrange(0x21, 0x7E))
+        at = self._corrupt_rng.randrange(first, len(text))
+        replacement = chr(self._corrupt_rng.randrange(0x21, 0x7E))
         if replacement in (text[at], ";"):
             replacement = "~"
         return text[:at] + replacement + text[at + 1 :]
@@ -538,6 +608,8 @@ class SimulatedPrinter:
 
     def _start_command(self, command: _Command) -> None:
         self.executed.append(command.text)
+        if command.line_number is not None:
+            self.executed_line_numbers.append(command.line_number)
         self._skip_ok = False
         handler = self._handlers.get(command.code)
         if handler is None:
@@ -562,10 +634,13 @@ class SimulatedPrinter:
             self._send_ok(command)
         self._ring.popleft()
         self._next_keepalive = None
+        limit = self.faults.silent_after_lines
+        if limit is not None and command.line_number is not None and len(self.executed_line_numbers) >= limit:
+            self.stalled = True
 
     def _send_ok(self, command: _Command) -> None:
         ratio = self.faults.drop_ok_ratio
-        if ratio > 0.0 and self._rng.random() < ratio:
+        if ratio > 0.0 and self._drop_ok_rng.random() < ratio:
             return
         if not self.config.advanced_ok:
             self._emit("ok")
@@ -592,11 +667,11 @@ class SimulatedPrinter:
 
     def _emit(self, line: str) -> None:
         faults = self.faults
-        if faults.silent:
+        if faults.silent or self.stalled:
             return
         ratio = faults.noise_ratio
-        if ratio > 0.0 and self._rng.random() < ratio:
-            garbage = bytearray(self._rng.randbytes(self._rng.randint(1, 16)))
+        if ratio > 0.0 and self._noise_rng.random() < ratio:
+            garbage = bytearray(self._noise_rng.randbytes(self._noise_rng.randint(1, 16)))
             if 0x20 <= garbage[0] <= 0x7E:
                 garbage[0] |= 0x80  # never a printable start, so noise never looks like "ok" or "echo:"
             self._out += garbage.replace(b"\n", b"\x00").replace(b"\r", b"\xff")
@@ -743,7 +818,7 @@ class SimulatedPrinter:
         while self._moves_free() == 0:
             yield self._planner[0][0]
         begin = self._planner[-1][0] if self._planner else self._t
-        duration = round(length / self._feedrate_mm_s * _US_PER_S)
+        duration = round(length / self._feedrate_mm_s * _US_PER_S * self.config.motion_time_scale)
         self._planner.append((max(begin, self._t) + duration, target[0], target[1], target[2], target[3]))
         self._position = target
 
