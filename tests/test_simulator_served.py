@@ -17,10 +17,13 @@ from pathlib import Path
 import pytest
 import serial
 
-from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty, serve_tcp
+from marlin_aio.commands import number_command
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, generate_moves, serve_pty, serve_tcp
 
 TIME_SCALE = 50.0
 IDLE_M105 = "ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0"
+BAUD = 250_000
+BYTE_S = 10 / BAUD
 
 
 class PtyClient:
@@ -49,7 +52,10 @@ class PtyClient:
         self._arrived.set()
 
     def send(self, text: str) -> None:
-        os.write(self.fd, text.encode() + b"\n")
+        self.write(text.encode() + b"\n")
+
+    def write(self, data: bytes) -> None:
+        assert os.write(self.fd, data) == len(data)  # small enough for the pty's buffer
 
     async def readline(self, timeout_s: float = 5.0) -> str:
         async with asyncio.timeout(timeout_s):
@@ -111,8 +117,12 @@ def host_port(server: SimulatorServer) -> tuple[str, int]:
 # ---------------------------------------------------------------------------------------------------------- pty
 
 
-async def test_pty_serves_the_banner_and_answers_m105() -> None:
-    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
+@pytest.mark.parametrize("baud_rate", [None, BAUD])
+async def test_pty_serves_the_banner_and_answers_m105(baud_rate: int | None) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=TIME_SCALE, baud_rate=baud_rate) as sim,
+        pty_client(sim.url) as host,
+    ):
         assert sim.url.startswith("/dev/")
         banner = await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
         assert banner[:2] == ["start", "PowerUp"]
@@ -121,9 +131,13 @@ async def test_pty_serves_the_banner_and_answers_m105() -> None:
             assert await host.readline() == IDLE_M105
 
 
-async def test_pty_long_commands_keepalives_and_ordered_oks() -> None:
+@pytest.mark.parametrize("baud_rate", [None, BAUD])
+async def test_pty_long_commands_keepalives_and_ordered_oks(baud_rate: int | None) -> None:
     config = SimulatorConfig(advanced_ok=True, homing_s=6.0)
-    async with serve_pty(config, time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
+    async with (
+        serve_pty(config, time_scale=TIME_SCALE, baud_rate=baud_rate) as sim,
+        pty_client(sim.url) as host,
+    ):
         await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
         host.send("G28\nM118 E1 after\nM114")
         replies = await read_until(host.readline, lambda line: line == "echo:after")
@@ -191,8 +205,12 @@ async def test_manual_clock_moves_only_when_poked() -> None:
         assert await host.readline() == IDLE_M105
 
 
-async def test_pause_holds_replies_until_resume() -> None:
-    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
+@pytest.mark.parametrize("baud_rate", [None, BAUD])
+async def test_pause_holds_replies_until_resume(baud_rate: int | None) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=TIME_SCALE, baud_rate=baud_rate) as sim,
+        pty_client(sim.url) as host,
+    ):
         await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
         sim.pause()
         host.send("M105")
@@ -222,9 +240,23 @@ async def test_faults_and_one_shots_while_served() -> None:
         assert (await host.readline(), await host.readline()) == ("start", "External Reset")
 
 
+async def test_a_server_paused_before_it_starts_holds_the_banner_on_the_wire() -> None:
+    sim = serve_pty(SimulatorConfig(), time_scale=TIME_SCALE, baud_rate=BAUD)
+    assert sim.baud_rate == BAUD
+    sim.pause()
+    async with sim, pty_client(sim.url) as host:
+        with pytest.raises(TimeoutError):
+            await host.readline(timeout_s=0.2)
+        sim.resume()
+        banner = await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        assert banner[:2] == ["start", "PowerUp"]
+
+
 def test_server_arguments_are_checked() -> None:
     with pytest.raises(ValueError, match="time_scale"):
         serve_pty(time_scale=0)
+    with pytest.raises(ValueError, match="baud_rate"):
+        serve_tcp(baud_rate=0)
     with pytest.raises(RuntimeError, match="not started"):
         _ = serve_tcp().url
 
@@ -232,8 +264,9 @@ def test_server_arguments_are_checked() -> None:
 # ---------------------------------------------------------------------------------------------------------- tcp
 
 
-async def test_tcp_resets_on_connect_and_answers_m105() -> None:
-    async with serve_tcp(SimulatorConfig(), time_scale=TIME_SCALE) as sim:
+@pytest.mark.parametrize("baud_rate", [None, BAUD])
+async def test_tcp_resets_on_connect_and_answers_m105(baud_rate: int | None) -> None:
+    async with serve_tcp(SimulatorConfig(), time_scale=TIME_SCALE, baud_rate=baud_rate) as sim:
         assert sim.url.startswith("socket://127.0.0.1:")
         reader, writer = await asyncio.open_connection(*host_port(sim))
         try:
@@ -270,6 +303,68 @@ async def test_tcp_accepts_one_client_at_a_time_and_disconnect_drops_it() -> Non
         await writer.wait_closed()
 
 
+# ------------------------------------------------------------------------------------------------- the wire
+
+
+async def test_the_host_bytes_reach_the_printer_at_wire_speed_in_real_time() -> None:
+    # 2,500-odd bytes at 25,000 bytes a second take at least 0.1 s of the loop's clock, however fast the
+    # simulated firmware runs (time scale 50) and however fast the pty could carry them.
+    config = SimulatorConfig(motion_time_scale=0.0)
+    async with (
+        serve_pty(config, time_scale=TIME_SCALE, baud_rate=BAUD) as sim,
+        pty_client(sim.url) as host,
+    ):
+        await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        commands = [*generate_moves(60), "M118 E1 done"]
+        data = "".join(number_command(command, n) + "\n" for n, command in enumerate(commands, start=1)).encode()
+        assert 2500 <= len(data) < 2600
+        loop = asyncio.get_running_loop()
+        started = loop.time()
+        host.write(data)
+        replies = await read_until(host.readline, lambda line: line == "echo:done")
+        assert loop.time() - started >= len(data) * BYTE_S
+        assert replies.count("ok") == len(commands) - 1
+        assert sim.printer.executed == commands
+        assert sim.printer.executed_line_numbers == list(range(1, len(commands) + 1))
+        assert (sim.printer.rx_overflows, sim.printer.rx_dropped_bytes) == (0, 0)
+
+
+async def test_the_printer_replies_reach_the_host_at_wire_speed() -> None:
+    async with serve_tcp(SimulatorConfig(), time_scale=TIME_SCALE, baud_rate=BAUD) as sim:
+        reader, writer = await asyncio.open_connection(*host_port(sim))
+        try:
+            await read_until(lambda: tcp_readline(reader), lambda line: line.startswith("echo:  M301"))
+            loop = asyncio.get_running_loop()
+            started = loop.time()
+            writer.write(b"M115\n")
+            reply = await read_until(lambda: tcp_readline(reader), lambda line: line == "ok")
+            reply_bytes = sum(len(line) + 1 for line in reply)
+            assert reply_bytes > 900
+            assert loop.time() - started >= (5 + reply_bytes) * BYTE_S
+        finally:
+            writer.close()
+            await writer.wait_closed()
+
+
+async def test_a_blocked_printer_overflows_at_wire_speed_and_counts_it() -> None:
+    config = SimulatorConfig(command_buffer_size=1)
+    async with (
+        serve_pty(config, time_scale=TIME_SCALE, baud_rate=BAUD) as sim,
+        pty_client(sim.url) as host,
+    ):
+        await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        # M109 blocks the only command slot until M108, which the emergency parser sees however full the
+        # receive buffer is; meanwhile 304 bytes of lines meet a 128-byte buffer.
+        flood = b"M118 E1 0123456789\n" * 16
+        host.write(b"M109 S200\n" + flood + b"M108\n")
+        await read_until(host.readline, lambda line: line == "ok")
+        replies = [await host.readline() for _ in range(12)]
+        assert replies == ["echo:0123456789", "ok"] * 6  # the 6 whole lines that fitted (114 bytes)
+        assert sim.printer.rx_overflows >= 1
+        assert sim.printer.rx_dropped_bytes == len(flood) + 5 - 128
+        assert sim.printer.executed == ["M109 S200"] + ["M118 E1 0123456789"] * 6
+
+
 # -------------------------------------------------------------------------------------------------- the command
 
 
@@ -283,32 +378,51 @@ async def _start_command(*arguments: str) -> tuple[asyncio.subprocess.Process, s
     return process, first_line
 
 
-async def _stop_command(process: asyncio.subprocess.Process, signum: int) -> None:
+async def _stop_command(process: asyncio.subprocess.Process, signum: int) -> str:
     process.send_signal(signum)
     async with asyncio.timeout(20):
         _, stderr = await process.communicate()
     assert process.returncode == 0
     assert b"Traceback" not in stderr
     assert b"marlin-sim:" in stderr
+    return stderr.decode()
 
 
 async def test_module_command_prints_the_pty_path_first_and_stops_on_sigint() -> None:
-    process, url = await _start_command(sys.executable, "-m", "marlin_aio.simulator", "--time-scale", "20")
+    process, url = await _start_command(
+        sys.executable, "-m", "marlin_aio.simulator", "--time-scale", "20", "--baud", "250000"
+    )
+    stderr = ""
     try:
         assert url.startswith("/dev/")
         async with pty_client(url) as host:
             await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
             host.send("M105")
             assert await host.readline() == IDLE_M105
+            host.send(number_command("M400", 1))
+            assert await host.readline() == "ok"
     finally:
-        await _stop_command(process, signal.SIGINT)
+        stderr = await _stop_command(process, signal.SIGINT)
+    assert ", 250000 baud" in stderr
+    assert "2 commands run, 1 of them numbered; 0 received bytes dropped in 0 overflows" in stderr
 
 
 async def test_console_script_serves_tcp_and_stops_on_sigterm() -> None:
     script = Path(sys.executable).parent / "marlin-sim"
     if not script.exists():
         pytest.skip("the marlin-sim console script is not installed next to this interpreter")
-    process, url = await _start_command(str(script), "--tcp", "0", "--advanced-ok", "--extruders", "2")
+    process, url = await _start_command(
+        str(script),
+        "--tcp",
+        "0",
+        "--advanced-ok",
+        "--extruders",
+        "2",
+        "--motion-time-scale",
+        "0",
+        "--silent-after-lines",
+        "1",
+    )
     try:
         assert url.startswith("socket://127.0.0.1:")
         host, port = url.removeprefix("socket://").rsplit(":", 1)
@@ -318,6 +432,10 @@ async def test_console_script_serves_tcp_and_stops_on_sigterm() -> None:
         identity = await read_until(lambda: tcp_readline(reader), lambda line: line.startswith("ok"))
         assert " EXTRUDER_COUNT:2 " in identity[0]
         assert identity[-1] == "ok P15 B3"
+        writer.write(b"N1 G1 X100 F60*0\nM105\n")  # 100 s of motion made instant, then the stall
+        assert (await tcp_readline(reader)).startswith("ok N1 P15 B")  # B2 when M105 was read in with it
+        with pytest.raises(TimeoutError):
+            await tcp_readline(reader, timeout_s=0.3)
         writer.close()
         await writer.wait_closed()
     finally:

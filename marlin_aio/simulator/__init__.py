@@ -3,7 +3,7 @@
 `SimulatedPrinter` is the firmware itself, sans-I/O: bytes and simulated time in, bytes out. `serve_pty()` and
 `serve_tcp()` put it behind a pseudo-terminal or a TCP port, where a client opens it like a real board
 (`/dev/pts/N` with pyserial, or `socket://127.0.0.1:PORT`). `marlin-sim` (or `python -m marlin_aio.simulator`)
-does the same from a shell.
+does the same from a shell. With `baud_rate` (`--baud`) the link runs at a UART's speed in both directions.
 `generate_moves()` writes a reproducible file of short moves for streaming tests and benchmarks.
 """
 

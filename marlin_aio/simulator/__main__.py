@@ -3,12 +3,17 @@
 The first line on stdout is the URL to open (a device path such as `/dev/pts/3`, or `socket://127.0.0.1:PORT`),
 flushed at once so a script can read it; everything meant for people goes to stderr. Runs until SIGINT or
 SIGTERM and then exits 0. argparse keeps this dependency-free and quick to start.
+
+The event loop runs on `select()` rather than the default epoll: epoll sleeps in whole milliseconds, which would
+hold each short reply of a `--baud` wire back by up to a millisecond, while `select()` wakes to the microsecond.
+With a pty or one TCP client there are only a couple of file descriptors, where select costs no more.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import selectors
 import signal
 import sys
 from collections.abc import Sequence
@@ -39,6 +44,26 @@ def _positive(text: str) -> float:
     return value
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def _not_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
+    return value
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="marlin-sim",
@@ -48,6 +73,19 @@ def _build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--host", default="127.0.0.1", help="TCP address to listen on (default %(default)s)")
     parser.add_argument(
         "--time-scale", type=_positive, default=1.0, help="simulated seconds per real second (default 1)"
+    )
+    parser.add_argument(
+        "--baud",
+        type=_positive_int,
+        metavar="RATE",
+        help="pace both directions like a UART at RATE bits/s, 10 bits a byte, in real time (default: unpaced)",
+    )
+    parser.add_argument(
+        "--motion-time-scale",
+        type=_not_negative,
+        default=1.0,
+        metavar="FACTOR",
+        help="factor on how long moves take; 0 makes them instant (default 1)",
     )
     parser.add_argument("--advanced-ok", action="store_true", help="ok N<line> P<planner> B<buffer> (ADVANCED_OK)")
     parser.add_argument("--extruders", type=int, default=1, choices=range(1, 9), metavar="N", help="hotends (1-8)")
@@ -59,6 +97,12 @@ def _build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--corrupt-rx", type=_ratio, default=0.0, metavar="RATIO", help="share of lines corrupted")
     parser.add_argument("--drop-ok", type=_ratio, default=0.0, metavar="RATIO", help="share of oks not sent")
     parser.add_argument("--noise", type=_ratio, default=0.0, metavar="RATIO", help="share of lines after noise")
+    parser.add_argument(
+        "--silent-after-lines",
+        type=_positive_int,
+        metavar="N",
+        help="stall, answering nothing more, after running N numbered lines",
+    )
     return parser
 
 
@@ -70,34 +114,59 @@ async def _serve(arguments: argparse.Namespace) -> None:
         has_chamber=arguments.chamber,
         emergency_parser=not arguments.no_emergency_parser,
         rx_buffer_size=arguments.rx_buffer,
+        motion_time_scale=arguments.motion_time_scale,
         seed=arguments.seed,
     )
-    faults = Faults(corrupt_rx_ratio=arguments.corrupt_rx, drop_ok_ratio=arguments.drop_ok, noise_ratio=arguments.noise)
+    faults = Faults(
+        corrupt_rx_ratio=arguments.corrupt_rx,
+        drop_ok_ratio=arguments.drop_ok,
+        noise_ratio=arguments.noise,
+        silent_after_lines=arguments.silent_after_lines,
+    )
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
     if arguments.tcp is not None:
-        server = serve_tcp(config, faults, host=arguments.host, port=arguments.tcp, time_scale=arguments.time_scale)
+        server = serve_tcp(
+            config,
+            faults,
+            host=arguments.host,
+            port=arguments.tcp,
+            time_scale=arguments.time_scale,
+            baud_rate=arguments.baud,
+        )
     else:
-        server = serve_pty(config, faults, time_scale=arguments.time_scale)
+        server = serve_pty(config, faults, time_scale=arguments.time_scale, baud_rate=arguments.baud)
     async with server:
         print(server.url, flush=True)
+        baud = f", {arguments.baud} baud" if arguments.baud is not None else ""
         print(
-            f"marlin-sim: {config.firmware_name} on {server.url}, time scale {arguments.time_scale:g}"
+            f"marlin-sim: {config.firmware_name} on {server.url}, time scale {arguments.time_scale:g}{baud}"
             f"{', ADVANCED_OK' if config.advanced_ok else ''}; Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
         )
         await stop.wait()
-    print("marlin-sim: stopped", file=sys.stderr, flush=True)
+    printer = server.printer
+    print(
+        f"marlin-sim: stopped; {len(printer.executed)} commands run, {len(printer.executed_line_numbers)} of them"
+        f" numbered; {printer.rx_dropped_bytes} received bytes dropped in {printer.rx_overflows} overflows",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+def _new_loop() -> asyncio.AbstractEventLoop:
+    return asyncio.SelectorEventLoop(selectors.SelectSelector())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run `marlin-sim` with `argv` (default: the command line); return the exit status."""
     arguments = _build_parser().parse_args(argv)
     try:
-        asyncio.run(_serve(arguments))
+        with asyncio.Runner(loop_factory=_new_loop) as runner:
+            runner.run(_serve(arguments))
     except KeyboardInterrupt:
         pass  # Ctrl-C before the signal handlers were in place: still a clean stop
     except OSError as exc:

@@ -9,6 +9,17 @@ Simulated time is `(loop.time() - start) * time_scale`. A caller can pass `clock
 directly); then time moves only when the caller says so, and the server advances on received bytes and on
 `poke()`, never on its own timer.
 
+With `baud_rate`, both directions run at the speed of a UART (`_wire.Wire`, 10 bits a byte): the host's bytes
+reach the printer's receive buffer, and the printer's replies reach the host, no faster than the wire carries
+them. The wire runs on the loop's real clock whatever `time_scale` or `clock` say, since it is the cable and
+not the firmware. Bytes are handed over in batches from one timer, at most about every millisecond while a
+wire is busy and the moment a burst ends, so a 250000-baud stream costs one or two thousand wakeups a second,
+not 25000. (On asyncio's default epoll loop timers wake in whole milliseconds, so there a short reply can
+come up to a millisecond late, about what a USB-serial bridge adds with its 1 ms USB frames; `marlin-sim`
+runs on a select() loop, which keeps time to the microsecond.) About 10 ms of the host's bytes are read ahead
+of the wire; the rest wait in the pty or socket, where a host that writes too much finds its writes
+blocking, as with a real serial port.
+
 Only os, pty, tty and termios are used for the pseudo-terminal, never the serial package (the client's business).
 """
 
@@ -25,6 +36,7 @@ from types import TracebackType
 from typing import Literal
 
 from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
+from marlin_aio.simulator._wire import Wire
 
 __all__ = ["SimulatorServer", "serve_pty", "serve_tcp"]
 
@@ -32,6 +44,14 @@ _READ_CHUNK = 65536
 # Output the host has not read yet, beyond what the kernel holds. A board's transmit path is not an endless
 # queue either; past this, output is dropped rather than delivered stale minutes later.
 _MAX_PENDING_OUTPUT = 4096
+# With a baud rate: output still waiting for the wire beyond this is dropped, for the same reason.
+_MAX_WIRE_OUTPUT = 16384
+# With a baud rate: how often at most a busy wire hands over what has arrived.
+_WIRE_TICK_S = 0.001
+# With a baud rate: how far ahead of the wire the host's bytes are read (then reading pauses until half of it
+# has gone on), so they mostly wait in the pty or socket and a flood is held back there.
+_READ_AHEAD_S = 0.01
+_MIN_READ_AHEAD = 32
 
 
 class SimulatorServer:
@@ -51,14 +71,17 @@ class SimulatorServer:
         port: int = 0,
         time_scale: float = 1.0,
         clock: Callable[[], float] | None = None,
+        baud_rate: int | None = None,
     ) -> None:
         """Prepare a server; nothing is opened until `start()`.
 
         Raises:
-            ValueError: if `time_scale` is not a positive number.
+            ValueError: if `time_scale` or `baud_rate` is not a positive number.
         """
         if not time_scale > 0:
             raise ValueError(f"time_scale must be positive, got {time_scale!r}")
+        if baud_rate is not None and baud_rate <= 0:
+            raise ValueError(f"baud_rate must be positive, got {baud_rate!r}")
         self.printer = SimulatedPrinter(config, faults, now=0.0, boot=True)
         """The firmware being served."""
         self._kind = kind
@@ -78,6 +101,14 @@ class SimulatorServer:
         self._pending = bytearray()
         self._server: asyncio.Server | None = None
         self._transport: asyncio.Transport | None = None
+        self._reading = False  # the pty reader is registered, or the TCP transport is reading
+        self._baud_rate = baud_rate
+        self._rx_wire = Wire(baud_rate) if baud_rate is not None else None
+        self._tx_wire = Wire(baud_rate) if baud_rate is not None else None
+        self._read_ahead = 0 if baud_rate is None else max(_MIN_READ_AHEAD, int(baud_rate / 10 * _READ_AHEAD_S))
+        self._wire_timer: asyncio.TimerHandle | None = None
+        self._wire_due = 0.0
+        self._paused_at: float | None = None  # loop time of pause(), once the loop is known
 
     # --------------------------------------------------------------------------------------------- lifecycle
 
@@ -91,6 +122,11 @@ class SimulatorServer:
         if self._url is None:
             raise RuntimeError("the simulator is not started yet; use `async with` or await start()")
         return self._url
+
+    @property
+    def baud_rate(self) -> int | None:
+        """The simulated UART's speed in bits per second, or None when bytes pass as fast as they can."""
+        return self._baud_rate
 
     @property
     def connected(self) -> bool:
@@ -108,6 +144,8 @@ class SimulatorServer:
             raise RuntimeError("the simulator was already started")
         self._loop = asyncio.get_running_loop()
         self._started_at = self._loop.time()
+        if self._paused:
+            self._paused_at = self._started_at
         if self._kind == "pty":
             self._open_pty()
         else:
@@ -125,6 +163,7 @@ class SimulatorServer:
             return
         self._closed = True
         self._cancel_timer()
+        self._cancel_wire_timer()
         self._close_pty()
         if self._transport is not None:
             self._transport.close()
@@ -175,6 +214,8 @@ class SimulatorServer:
             self._close_pty()
         elif self._transport is not None:
             transport, self._transport = self._transport, None
+            self._reading = False
+            self._clear_wires()
             transport.close()
 
     def pause(self) -> None:
@@ -183,23 +224,38 @@ class SimulatorServer:
             return
         self._paused = True
         self._cancel_timer()
-        if self._loop is not None and self._master_fd is not None:
-            self._loop.remove_reader(self._master_fd)
-        if self._transport is not None:
-            self._transport.pause_reading()
+        self._cancel_wire_timer()
+        self._paused_at = self._loop.time() if self._loop is not None else None
+        self._update_reading()
 
     def resume(self) -> None:
         """Undo `pause()`: the board catches up on the time that passed, then reads what the host sent."""
         if not self._paused:
             return
         self._paused = False
-        if self._loop is not None and self._master_fd is not None:
-            self._loop.add_reader(self._master_fd, self._on_pty_readable)
-        if self._transport is not None:
-            self._transport.resume_reading()
+        if self._loop is not None and self._paused_at is not None:
+            # The wire stood still too: what was under way arrives as much later as the pause lasted.
+            stood_s = self._loop.time() - self._paused_at
+            for wire in (self._rx_wire, self._tx_wire):
+                if wire is not None:
+                    wire.delay(stood_s)
+        self._paused_at = None
+        self._update_reading()
         self.poke()
+        self._schedule_wire()
 
     # ------------------------------------------------------------------------------------------ the printer
+
+    def _receive_from_host(self, data: bytes) -> None:
+        """Bytes read from the pty or socket: straight to the printer, or onto the wire."""
+        wire = self._rx_wire
+        if wire is None:
+            self._feed(data)
+            return
+        assert self._loop is not None
+        wire.put(data, self._loop.time())
+        self._update_reading()
+        self._schedule_wire()
 
     def _feed(self, data: bytes) -> None:
         self.printer.receive(data, self.now())
@@ -208,13 +264,23 @@ class SimulatorServer:
 
     def _flush(self) -> None:
         data = self.printer.take_output()
-        if not data:
+        if not data or not self.connected:
+            return  # output to nobody goes nowhere, like a board talking to an unplugged cable
+        wire = self._tx_wire
+        if wire is None:
+            self._send_to_host(data)
             return
+        if wire.pending >= _MAX_WIRE_OUTPUT:
+            return
+        assert self._loop is not None
+        wire.put(data, self._loop.time())
+        self._schedule_wire()
+
+    def _send_to_host(self, data: bytes) -> None:
         if self._kind == "pty":
             self._write_pty(data)
         elif self._transport is not None:
             self._transport.write(data)
-        # Otherwise the output goes nowhere, like a board talking to an unplugged cable.
 
     def _reschedule(self) -> None:
         if self._loop is None or self._closed or self._paused or self._clock is not None:
@@ -242,6 +308,78 @@ class SimulatorServer:
         self._flush()
         self._reschedule()
 
+    # ------------------------------------------------------------------------------------------------ wire
+
+    def _schedule_wire(self) -> None:
+        """Keep the wire timer pointing at the next moment either direction has bytes to hand over."""
+        if self._loop is None or self._closed or self._paused:
+            return
+        now = self._loop.time()
+        due: float | None = None
+        for wire in (self._rx_wire, self._tx_wire):
+            if wire is not None and (wire_due := wire.due(now, _WIRE_TICK_S)) is not None:
+                due = wire_due if due is None else min(due, wire_due)
+        if due is None:
+            self._cancel_wire_timer()
+            return
+        if self._wire_timer is not None:
+            if self._wire_due <= due:
+                return  # that earlier wakeup reschedules anyway
+            self._wire_timer.cancel()
+        self._wire_due = due
+        self._wire_timer = self._loop.call_at(due, self._on_wire_timer)
+
+    def _cancel_wire_timer(self) -> None:
+        if self._wire_timer is not None:
+            self._wire_timer.cancel()
+            self._wire_timer = None
+
+    def _on_wire_timer(self) -> None:
+        self._wire_timer = None
+        assert self._loop is not None
+        now = max(self._loop.time(), self._wire_due)
+        if self._rx_wire is not None:
+            arrived = self._rx_wire.take(now)
+            if arrived:
+                self._feed(arrived)
+            self._update_reading()
+        if self._tx_wire is not None:
+            arrived = self._tx_wire.take(now)
+            if arrived:
+                self._send_to_host(arrived)
+        self._schedule_wire()
+
+    def _clear_wires(self) -> None:
+        for wire in (self._rx_wire, self._tx_wire):
+            if wire is not None:
+                wire.clear()
+        self._cancel_wire_timer()
+
+    def _update_reading(self) -> None:
+        """Read from the host unless paused or, with a baud rate, far enough ahead of the wire."""
+        want = not self._paused and not self._closed
+        if want and self._rx_wire is not None:
+            # Hysteresis: stop at the full read-ahead, go on once half of it has been handed over.
+            limit = self._read_ahead if self._reading else self._read_ahead // 2
+            want = self._rx_wire.pending < limit
+        if want == self._reading:
+            return
+        if self._kind == "pty":
+            if self._master_fd is None or self._loop is None:
+                return
+            if want:
+                self._loop.add_reader(self._master_fd, self._on_pty_readable)
+            else:
+                self._loop.remove_reader(self._master_fd)
+        else:
+            if self._transport is None:
+                return
+            if want:
+                self._transport.resume_reading()
+            else:
+                self._transport.pause_reading()
+        self._reading = want
+
     # -------------------------------------------------------------------------------------------------- pty
 
     def _open_pty(self) -> None:
@@ -254,7 +392,8 @@ class SimulatorServer:
         # Held open for the server's life, so the master sees no hang-up while no client has the port open.
         self._slave_fd = slave_fd
         self._url = os.ttyname(slave_fd)
-        self._loop.add_reader(master_fd, self._on_pty_readable)
+        self._reading = False
+        self._update_reading()
 
     def _close_pty(self) -> None:
         if self._master_fd is not None:
@@ -266,13 +405,18 @@ class SimulatorServer:
         if self._slave_fd is not None:
             os.close(self._slave_fd)
             self._slave_fd = None
+        self._reading = False
         self._pending.clear()
+        self._clear_wires()
 
     def _on_pty_readable(self) -> None:
         if self._master_fd is None:
             return
+        size = _READ_CHUNK
+        if self._rx_wire is not None:
+            size = max(1, self._read_ahead - self._rx_wire.pending)
         try:
-            data = os.read(self._master_fd, _READ_CHUNK)
+            data = os.read(self._master_fd, size)
         except (BlockingIOError, InterruptedError):
             return
         except OSError:
@@ -280,7 +424,7 @@ class SimulatorServer:
             self._close_pty()
             return
         if data:
-            self._feed(data)
+            self._receive_from_host(data)
 
     def _write_pty(self, data: bytes) -> None:
         if self._master_fd is None:
@@ -324,12 +468,14 @@ class SimulatorServer:
         if self._transport is not None or self._closed:
             return False  # one client at a time, like a serial port
         self._transport = transport
+        self._reading = True  # a new transport reads until told otherwise
+        self._clear_wires()
         sock = transport.get_extra_info("socket")
         if sock is not None:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._update_reading()
         if self._paused:
-            transport.pause_reading()
             return True
         # Opening the port resets the board (DTR), so each client starts from the banner.
         self.printer.reset(self.now())
@@ -340,6 +486,8 @@ class SimulatorServer:
     def _lost(self, transport: asyncio.Transport) -> None:
         if self._transport is transport:
             self._transport = None
+            self._reading = False
+            self._clear_wires()
 
 
 class _Connection(asyncio.Protocol):
@@ -356,7 +504,7 @@ class _Connection(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         if self._transport is not None and self._server._transport is self._transport:
-            self._server._feed(data)
+            self._server._receive_from_host(data)
 
     def connection_lost(self, exc: Exception | None) -> None:
         if self._transport is not None:
@@ -369,13 +517,18 @@ def serve_pty(
     *,
     time_scale: float = 1.0,
     clock: Callable[[], float] | None = None,
+    baud_rate: int | None = None,
 ) -> SimulatorServer:
     """A simulated printer on a new pseudo-terminal; open `url` (its slave path) with pyserial at any baud rate.
 
+    With `baud_rate` (bits per second, 10 a byte), bytes in both directions go no faster than a UART at that
+    speed, in real time whatever the `time_scale`; without it they pass as fast as the pty carries them. The
+    rate the client opens the port with does not matter either way.
+
     Raises:
-        ValueError: if `time_scale` is not positive.
+        ValueError: if `time_scale` or `baud_rate` is not positive.
     """
-    return SimulatorServer(config, faults, kind="pty", time_scale=time_scale, clock=clock)
+    return SimulatorServer(config, faults, kind="pty", time_scale=time_scale, clock=clock, baud_rate=baud_rate)
 
 
 def serve_tcp(
@@ -386,12 +539,16 @@ def serve_tcp(
     port: int = 0,
     time_scale: float = 1.0,
     clock: Callable[[], float] | None = None,
+    baud_rate: int | None = None,
 ) -> SimulatorServer:
     """A simulated printer on a TCP port (0 picks a free one); open `url`, `socket://HOST:PORT`.
 
-    One client at a time; each new connection resets the board and gets its boot banner.
+    One client at a time; each new connection resets the board and gets its boot banner. `baud_rate` paces
+    both directions as for `serve_pty()`.
 
     Raises:
-        ValueError: if `time_scale` is not positive.
+        ValueError: if `time_scale` or `baud_rate` is not positive.
     """
-    return SimulatorServer(config, faults, kind="tcp", host=host, port=port, time_scale=time_scale, clock=clock)
+    return SimulatorServer(
+        config, faults, kind="tcp", host=host, port=port, time_scale=time_scale, clock=clock, baud_rate=baud_rate
+    )
