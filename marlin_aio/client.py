@@ -26,7 +26,7 @@ from marlin_aio.commands import (
     check_target,
     format_celsius,
 )
-from marlin_aio.connection import Connection, Reply
+from marlin_aio.connection import Command, Connection, Reply
 from marlin_aio.errors import (
     CommandTimeoutError,
     ConnectionLostError,
@@ -170,7 +170,10 @@ class Printer:
         self._closed: asyncio.Future[None] | None = None
         self._lost: MarlinError | None = None
         self._line_seen: asyncio.Event | None = None
-        self._pollers = 0
+        self._poll_intervals: list[float] = []  # one per active poll_temperatures(); the shortest wins
+        self._poll_timer: asyncio.Handle | None = None
+        self._poll_pending: Command | None = None  # the poller's M105 on its way; never more than one
+        self._next_poll = 0.0
         self._halt_notified: PrinterHaltedError | None = None
         self._print: PrintHandle | None = None
         self._saved_window: tuple[int, int] | None = None
@@ -212,6 +215,9 @@ class Printer:
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
+        if self._poll_timer is not None:
+            self._poll_timer.cancel()
+            self._poll_timer = None
         if self._lost is None:
             self._lost = ConnectionLostError(f"the connection to {self.port} was closed")
             self._conn.fail_all(self._lost)
@@ -382,40 +388,44 @@ class Printer:
         use_auto = auto_report and self.capabilities.get("AUTOREPORT_TEMP", False)
         if use_auto:
             await self.send("M155 S1")
-        self._pollers += 1
-        task = asyncio.create_task(self._poll_loop(interval_s), name=f"marlin-aio poller {self.port}")
+        loop = self._running_loop()
+        self._poll_intervals.append(interval_s)
+        if self._poll_timer is None:
+            self._next_poll = loop.time()
+            self._poll_timer = loop.call_soon(self._poll_tick)
         try:
             yield
         finally:
-            self._pollers -= 1
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, MarlinError):
-                await task
+            self._poll_intervals.remove(interval_s)
+            if not self._poll_intervals and self._poll_timer is not None:
+                self._poll_timer.cancel()
+                self._poll_timer = None
             if use_auto and self._lost is None and self._conn.halted is None:
                 with contextlib.suppress(MarlinError):
                     await self.send("M155 S0")
 
-    async def _poll_loop(self, interval_s: float) -> None:
+    def _poll_tick(self) -> None:
+        """One slot of the poll schedule: send an M105 unless the last one is still unanswered.
+
+        Driven by one timer callback rather than a task awaiting each reply: no future, no task switch and no
+        sleep per poll, which halves the event-loop work at 100 Hz (it matters on a Raspberry Pi).
+        """
+        self._poll_timer = None
+        if not self._poll_intervals or self._lost is not None:
+            return
         loop = self._running_loop()
-        next_poll = loop.time()
-        while True:
-            delay = next_poll - loop.time()
-            if delay > 0:
-                await asyncio.sleep(delay)
-            try:
-                await self.send("M105")
-            except CommandTimeoutError:
-                pass  # counted by the connection; the next poll tries again
-            except (ConnectionLostError, PrinterHaltedError):
-                return  # subscribers hear about it from the connection
-            except PrinterResetError:
-                pass
-            printing = self._print is not None and not self._print.finished
-            next_poll += max(interval_s, self.print_poll_interval_s) if printing else interval_s
-            now = loop.time()
-            if next_poll < now:
-                # Behind (a long command held the queue): skip the missed slots instead of bursting to catch up.
-                next_poll = now
+        now = loop.time()
+        if self._poll_pending is None and self._conn.halted is None:
+            self._poll_pending = self._conn.submit("M105", timeout_s=self.timeout_s, now=now, checked=False)
+            self._flush()
+        interval = min(self._poll_intervals)
+        if self._print is not None and not self._print.finished:
+            interval = max(interval, self.print_poll_interval_s)
+        # Deadline-based, so the rate does not drift; slots missed behind a long command are skipped, not repeated.
+        self._next_poll += interval
+        if self._next_poll <= now:
+            self._next_poll = now + interval
+        self._poll_timer = loop.call_at(self._next_poll, self._poll_tick)
 
     async def set_temperatures(
         self,
@@ -506,7 +516,7 @@ class Printer:
                 await readings.aclose()
             raise ConnectionLostError(f"the connection to {self.port} ended while waiting for temperatures")
 
-        poller = self.poll_temperatures(poll_interval_s, auto_report=False) if self._pollers == 0 else None
+        poller = self.poll_temperatures(poll_interval_s, auto_report=False) if not self._poll_intervals else None
         async with contextlib.AsyncExitStack() as stack:
             if poller is not None:
                 await stack.enter_async_context(poller)
@@ -704,6 +714,9 @@ class Printer:
     def _deliver_results(self) -> None:
         results = self._conn.take_results()
         for command, outcome in results:
+            if command is self._poll_pending:
+                self._poll_pending = None  # answered, timed out or failed: the next slot may poll again
+                continue
             future = self._waiters.get(command.id)
             if future is None or future.done():
                 continue

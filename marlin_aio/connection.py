@@ -182,14 +182,26 @@ class Connection:
 
     # ----------------------------------------------------------------------------------------------- commands
 
-    def submit(self, text: str, *, timeout_s: float, now: float, numbered: bool | None = None) -> Command:
+    def submit(
+        self, text: str, *, timeout_s: float, now: float, numbered: bool | None = None, checked: bool = True
+    ) -> Command:
         """Accept a command for sending; it goes out in order with the others.
+
+        `checked=False` skips validation, for commands the caller built itself and knows to be valid (the client's
+        own M105 polls, a hundred times a second).
 
         Raises:
             ValueError: the command is not valid (line break, non-ASCII, too long, empty).
             PrinterHaltedError: the printer halted and answers nothing until it is reset.
         """
         use_numbers = self.numbered if numbered is None else numbered
+        if not checked:
+            if self.halted is not None:
+                raise self.halted
+            self._next_id += 1
+            command = Command(self._next_id, text, command_code(text), use_numbers, timeout_s, now)
+            self._queue.append(command)
+            return command
         # Validate now, so a bad command never reaches the queue: first as given (the clearest message), then
         # with a line number comfortably larger than any it can get while queued.
         encode_command(text)
