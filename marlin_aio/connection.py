@@ -167,6 +167,7 @@ class Connection:
         self._resend_from: int | None = None  # the resend being carried out
         self._stale = 0  # answers still due for lines written before the last resend request
         self._swallow_ok = False  # the ok right after a resend request answers nothing
+        self._after_line_error = False  # the last line was `Error:...Last Line` (a rejection, not an M999 request)
         self._results: list[tuple[Command, Reply | MarlinError]] = []
         self._thermal_message: str | None = None
         self.halted: PrinterHaltedError | None = None
@@ -382,6 +383,10 @@ class Connection:
             self._on_ok(event, now)
             return
         self._swallow_ok = False
+        after_line_error = self._after_line_error
+        self._after_line_error = (
+            kind is ErrorMessage and isinstance(event, ErrorMessage) and event.kind is ErrorKind.LINE
+        )
         head = self._in_flight[0] if self._in_flight else None
         if kind is BusyKeepalive or (
             kind is TemperatureReport and isinstance(event, TemperatureReport) and event.temperatures.waiting
@@ -391,7 +396,7 @@ class Connection:
                 head.alive_s = now
         elif kind is ResendRequest:
             assert isinstance(event, ResendRequest)
-            self._on_resend(event.line_number, now)
+            self._on_resend(event.line_number, now, rejected=after_line_error)
         elif kind is ErrorMessage:
             assert isinstance(event, ErrorMessage)
             self._on_error(event, now)
@@ -458,7 +463,7 @@ class Connection:
             self._in_flight[0].head_since_s = now
         return command
 
-    def _on_resend(self, line_number: int, now: float) -> None:
+    def _on_resend(self, line_number: int, now: float, *, rejected: bool = False) -> None:
         self.resend_requests += 1
         # The ok right after a resend request answers nothing. (M999 prints `Resend:` and `ok` too, then its own ok.)
         self._swallow_ok = True
@@ -470,10 +475,30 @@ class Connection:
             # (If it was in fact the resent line failing again, the shorter resend deadline recovers.)
             self._stale -= 1
             return
+        head = self._in_flight[0] if self._in_flight else None
         if line_number == self._next_line:
-            # The printer has every line we sent (M999 asks this way): nothing to write again.
+            if rejected and head is not None and head.code == "M110":
+                # The M110 itself was damaged: the firmware's counter is not reset, and it asks for the line after
+                # its old one, which happens to be our next. Write the M110 again; it sets the counter whatever
+                # its own number.
+                self._pop_in_flight(now)
+                self._queue.appendleft(head)
+                self._check_resend_limit(head, line_number)
+            # Otherwise the printer has every line we sent (M999 asks this way): nothing to write again.
             return
         self._resend(line_number, now)
+
+    def _check_resend_limit(self, command: Command, line_number: int) -> bool:
+        """Fail everything if `command` was written more often than allowed; return True if so."""
+        if command.sends <= self.max_resends:
+            return False
+        self._fail_everything(
+            ResendLimitError(
+                f"the printer asked for line {line_number} ({command.text!r}) {command.sends} times; "
+                "the link is too noisy (check the cable, baud rate and grounding)"
+            )
+        )
+        return True
 
     def _resend(self, line_number: int, now: float) -> None:
         first = self._history.get(line_number)
@@ -487,13 +512,7 @@ class Connection:
                 )
             )
             return
-        if first.sends > self.max_resends:
-            self._fail_everything(
-                ResendLimitError(
-                    f"the printer asked for line {line_number} ({first.text!r}) {first.sends} times; "
-                    "the link is too noisy (check the cable, baud rate and grounding)"
-                )
-            )
+        if self._check_resend_limit(first, line_number):
             return
         # Marlin rejected one line and threw away its receive buffer: every numbered line from N on that is on
         # the wire will be rejected or lost. Take them out of the in-flight FIFO (all but the one this rejection

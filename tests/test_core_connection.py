@@ -942,3 +942,17 @@ def test_ideal_firmware_with_flush_when_no_resent_line_is_hit_again(
     # again always gets through, so no resend deadline is needed.
     spaced = [hit and not (index and corruptions[index - 1]) for index, hit in enumerate(corruptions)]
     run_session(texts, spaced, max_in_flight=4, flush=True, advanced_ok=advanced_ok)
+
+
+def test_a_damaged_m110_is_written_again() -> None:
+    # Marlin's counter stays where it was, so it asks for its old "last + 1", which equals our next line number;
+    # that is a rejection of the M110 (an error line came first), not M999's "I have everything".
+    conn = Connection()
+    submit_all(conn, "M110 N0", "M105")
+    first = conn.data_to_send(0.0)
+    assert first == b"N0 M110 N0*125\n"
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok")
+    assert conn.take_results() == []
+    assert conn.data_to_send(0.0) == first
+    receive(conn, "ok")
+    assert [text for text, _ in replies(conn)] == ["M110 N0"]

@@ -240,3 +240,30 @@ async def wait_for_progress(handle: marlin_aio.PrintHandle, lines: int) -> None:
             return
         await asyncio.sleep(0.001)  # yield to the loop; progress is the condition, not the time
     raise AssertionError(f"the print never reached {lines} lines: {handle.progress}")
+
+
+async def test_a_long_dwell_in_the_file_does_not_stall_while_keepalives_arrive() -> None:
+    # G4 S20 holds the printer 20 simulated seconds (1 s here) with no ok, far past the 0.3 s timeout; its busy
+    # keepalives every 2 simulated seconds are what keep the print alive.
+    lines = [g1_line(i) for i in range(50)] + ["G4 S20"] + [g1_line(i) for i in range(50, 100)]
+    async with (
+        serve_pty(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=20) as server,
+        marlin_aio.connect(server.url, timeout_s=0.3) as printer,
+    ):
+        progress = await printer.print_file(lines, send_ahead=True)
+        assert printer.connection.timeouts == 0
+    assert progress.lines_acked == 101
+    assert moves(server) == [g1_line(i) for i in range(100)]
+    assert any("busy" in entry.text for entry in printer.trace.entries()) or "G4 S20" in server.printer.executed
+
+
+async def test_a_line_rejected_over_and_over_fails_the_print_clearly() -> None:
+    async with (
+        serve_pty(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=50) as server,
+        marlin_aio.connect(server.url) as printer,
+    ):
+        handle = await printer.start_print(gcode_file(100), send_ahead=False)
+        server.printer.faults.corrupt_rx_ratio = 1.0  # from now on every line arrives damaged
+        with pytest.raises(marlin_aio.ResendLimitError, match=r"asked for line \d+ .* times; the link is too noisy"):
+            await handle
+    assert len(moves(server)) <= 1  # at most the line already on its way before the link turned bad
