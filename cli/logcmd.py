@@ -9,7 +9,7 @@ from rich.console import Console
 
 from .connect import ConnectOptions, Exit, open_printer
 from .logfile import TemperatureLog
-from .signals import on_stop_signals
+from .terminal import on_stop_signals
 
 __all__ = ["log_temperatures"]
 

@@ -297,6 +297,59 @@ def print_file(
     raise typer.Exit(int(code))
 
 
+# ------------------------------------------------------------------------------------------- bench
+
+
+# Typer keeps single line breaks in help paragraphs, so each paragraph is one string.
+_BENCH_HELP = "\n\n".join(
+    (
+        "Check the link to your printer (cable, USB bridge, baud rate, firmware): latency, order, throughput.",
+        "Read-only: sends only M105, M118 (an echo) and G4 P0 (a dwell of 0 ms); nothing moves or heats.",
+        "Latency: --count M105 round trips, one at a time. median, p99 and max are the time from writing the line "
+        "to reading its ok (half, 99 % and all of them took no longer); round trips/s is how many were answered "
+        "per second.",
+        "Order check: --lines numbered 'M118 E1 bench <n>' lines with checksums, several in flight (send-ahead). "
+        "Each reply must carry its own echo and come after the earlier ones: 'oks in order' should equal 'lines "
+        "sent', and 'out of order' be 0. 'resends' counts the lines the printer rejected (corrupted on the way) and "
+        "asked for again; 'timeouts' the commands that got no ok within --timeout.",
+        "Throughput: --lines G4 P0 lines streamed as 'marlin-temp print' streams a file (send-ahead in the "
+        "printer's 128-byte buffer). 'stream lines/s' and 'stream bytes/s' (as on the wire, with line numbers and "
+        "checksums) are compared with the wire limit of the baud rate, baud/10 bytes per second ('wire use'). The "
+        "built-in --sim is not paced, so the limit does not apply there: run 'marlin-sim --baud 250000' and give "
+        "its device as --port to see the ratio.",
+        "Exits 1 with one line when an ok came back out of order or a command timed out.",
+    )
+)
+
+
+@app.command("bench", help=_BENCH_HELP, epilog=EXIT_CODES_HELP)
+def bench(
+    count: Annotated[int, typer.Option("--count", "-n", help="M105 round trips in the latency run.", min=1)] = 500,
+    lines: Annotated[
+        int, typer.Option("--lines", help="Lines in the order check and in the throughput stream.", min=1)
+    ] = 1000,
+    duration: Annotated[
+        float | None,
+        typer.Option("--duration", help="Run each of the three parts this many seconds instead.", min=0.01),
+    ] = None,
+    json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of the table.")] = False,
+    port: PortOption = None,
+    baud: BaudOption = None,
+    sim: SimOption = False,
+    sim_speed: SimSpeedOption = 1.0,
+    timeout: TimeoutOption = 10.0,
+) -> None:
+    """Measure latency, order and throughput of the link to the printer (the help text is `_BENCH_HELP`)."""
+    from .benchcmd import BenchSettings, bench_printer, show_result
+
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
+    settings = BenchSettings(round_trips=count, lines=lines, duration_s=duration)
+    result = run(bench_printer(options, settings, _stderr()))
+    show_result(result, Console(highlight=False), as_json=json_output)
+    if result.problem is not None:
+        fail(result.problem)
+
+
 # ------------------------------------------------------------------------------------------- plot
 
 

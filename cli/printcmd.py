@@ -8,11 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import sys
-import termios
 import time
-import tty
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +20,7 @@ from rich.text import Text
 import marlin_aio
 
 from .connect import ConnectOptions, Exit, open_printer
-from .signals import on_stop_signals
+from .terminal import key_presses, on_stop_signals
 
 __all__ = ["PrintSettings", "print_gcode"]
 
@@ -62,31 +58,6 @@ def _plain_progress(progress: marlin_aio.PrintProgress, printer: marlin_aio.Prin
     line = f"{percent} {progress.lines_acked}/{total} lines {progress.lines_per_s:.0f} lines/s"
     line += f" ETA {'?' if eta is None else time.strftime('%H:%M:%S', time.gmtime(eta))}"
     return line + _temperatures(printer).plain.rstrip()
-
-
-@contextlib.contextmanager
-def _key_reader(pressed: asyncio.Queue[str]) -> Iterator[bool]:
-    """On a terminal, deliver key presses to `pressed`; yields whether keys can be read at all."""
-    if not sys.stdin.isatty():
-        yield False
-        return
-    fd = sys.stdin.fileno()
-    saved = termios.tcgetattr(fd)
-    loop = asyncio.get_running_loop()
-
-    def on_key() -> None:
-        with contextlib.suppress(OSError):
-            data = sys.stdin.read(1)
-            if data:
-                pressed.put_nowait(data.lower())
-
-    try:
-        tty.setcbreak(fd)
-        loop.add_reader(fd, on_key)
-        yield True
-    finally:
-        loop.remove_reader(fd)
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
 async def print_gcode(options: ConnectOptions, settings: PrintSettings, console: Console, errors: Console) -> Exit:
@@ -154,7 +125,7 @@ async def _follow(
     done = asyncio.ensure_future(handle.wait())
     live = Live(Group(bar, Text("")), console=console, auto_refresh=False) if console.is_terminal else None
     last_plain = 0.0
-    with _key_reader(pressed) as keys, live if live is not None else contextlib.nullcontext():
+    with key_presses(pressed.put_nowait) as keys, live if live is not None else contextlib.nullcontext():
         while not done.done():
             waiters = [done, asyncio.ensure_future(interrupted.wait()), asyncio.ensure_future(pressed.get())]
             finished, _ = await asyncio.wait(waiters, timeout=0.25, return_when="FIRST_COMPLETED")

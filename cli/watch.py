@@ -10,12 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import os
-import sys
-import termios
 import time
-import tty
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +24,7 @@ from .connect import ConnectOptions, Exit, open_printer
 from .logfile import TemperatureLog
 from .model import WatchModel
 from .render import plain_line, watch_view
-from .signals import on_stop_signals
+from .terminal import key_presses, on_stop_signals
 
 __all__ = ["WatchSettings", "watch_printer"]
 
@@ -46,30 +41,6 @@ class WatchSettings:
     json_lines: bool = False
     duration_s: float | None = None
     reconnect: bool = False
-
-
-@contextlib.contextmanager
-def _keys_pressed(stop: asyncio.Event) -> Iterator[None]:
-    """While active, `q` on a terminal's stdin sets `stop`; the terminal mode is restored afterwards."""
-    if not sys.stdin.isatty():
-        yield
-        return
-    fd = sys.stdin.fileno()
-    saved = termios.tcgetattr(fd)
-    loop = asyncio.get_running_loop()
-
-    def on_key() -> None:
-        with contextlib.suppress(OSError):
-            if b"q" in os.read(fd, 64).lower():
-                stop.set()
-
-    try:
-        tty.setcbreak(fd)  # keys arrive one at a time, unechoed; Ctrl-C still raises SIGINT
-        loop.add_reader(fd, on_key)
-        yield
-    finally:
-        loop.remove_reader(fd)
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
 def _update_link_stats(model: WatchModel, printer: marlin_aio.Printer, since: float) -> float:
@@ -142,7 +113,10 @@ async def _session(
         stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
         live = Live(console=console, screen=True, auto_refresh=False, transient=True) if live_view else None
         try:
-            with live if live is not None else contextlib.nullcontext(), _keys_pressed(stop):
+            with (
+                live if live is not None else contextlib.nullcontext(),
+                key_presses(lambda key: stop.set() if key == "q" else None),
+            ):
                 while True:
                     timeout = settings.refresh_s
                     if deadline is not None:

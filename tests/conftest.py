@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+import os
+import pty
+import tty
+from collections.abc import AsyncIterator, Iterator
 
 import pytest
 
@@ -33,3 +36,15 @@ async def printer(pty_sim: SimulatorServer) -> AsyncIterator[marlin_aio.Printer]
     """A client connected to `pty_sim`, with a short command timeout so fault tests stay quick."""
     async with marlin_aio.connect(pty_sim.url, timeout_s=2.0) as connected:
         yield connected
+
+
+@pytest.fixture
+def dead_pty() -> Iterator[tuple[int, str]]:
+    """A pty nobody answers on: the master end is the test's, to keep silent or to fill with garbage."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    try:
+        yield master, os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)

@@ -5,14 +5,11 @@ from __future__ import annotations
 import asyncio
 import io
 import os
-import pty
 import shutil
 import signal
 import subprocess
 import sys
 import threading
-import tty
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -33,18 +30,6 @@ def one_line(output: str) -> str:
     assert len(lines) == 1, output
     assert "Traceback" not in output
     return lines[0]
-
-
-@pytest.fixture
-def dead_pty() -> Iterator[tuple[int, str]]:
-    """A pty with nobody behind it: ours to keep silent or to fill with garbage."""
-    master, slave = pty.openpty()
-    tty.setraw(slave)
-    try:
-        yield master, os.ttyname(slave)
-    finally:
-        os.close(master)
-        os.close(slave)
 
 
 async def test_a_busy_port_exits_4() -> None:

@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import pty
-import tty
-from collections.abc import AsyncIterator
 
 import pytest
 from conftest import TIME_SCALE
@@ -279,28 +276,16 @@ async def test_nothing_listening_on_tcp_is_a_connect_error() -> None:
             pass
 
 
-@pytest.fixture
-async def dead_port() -> AsyncIterator[tuple[int, str]]:
-    """A pty nobody answers on: the master end is ours, to stay silent or write garbage into."""
-    master, slave = pty.openpty()
-    tty.setraw(slave)
-    try:
-        yield master, os.ttyname(slave)
-    finally:
-        os.close(master)
-        os.close(slave)
-
-
-async def test_a_silent_port_fails_the_handshake_with_the_step(dead_port: tuple[int, str]) -> None:
-    _, path = dead_port
+async def test_a_silent_port_fails_the_handshake_with_the_step(dead_pty: tuple[int, str]) -> None:
+    _, path = dead_pty
     with pytest.raises(marlin_aio.HandshakeTimeoutError, match="nothing was received") as caught:
         async with marlin_aio.connect(path, timeout_s=0.5):
             pass
     assert caught.value.step == "sync"
 
 
-async def test_garbage_at_the_wrong_baud_rate_suggests_the_other_rate(dead_port: tuple[int, str]) -> None:
-    master, path = dead_port
+async def test_garbage_at_the_wrong_baud_rate_suggests_the_other_rate(dead_pty: tuple[int, str]) -> None:
+    master, path = dead_pty
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
 
