@@ -12,6 +12,11 @@ Three exceptions are handled here, all from Marlin's sources (`gcode/queue.cpp`)
 - A command that gets no `ok` at all (Marlin's `M105 T9` prints an error and nothing more) times out and is
   dropped, so the commands behind it go on.
 
+A print job (`marlin_aio.printjob.PrintJob`) is fed through the same FIFO, after any submitted commands, as far as
+the window allows. While it streams, a line left unanswered for a few round trips gets a probe (a numbered M105)
+so that a lost `ok` costs a moment; a line unanswered for the whole timeout, with no busy keepalive, stalls the
+print with a diagnosis.
+
 Time never comes from a clock here: every call takes `now` (seconds, monotonic), so tests drive it directly.
 Nothing here imports asyncio or serial; `marlin_aio.client` is the thin layer that does I/O.
 """
@@ -150,7 +155,6 @@ class Connection:
         self.job: PrintJob | None = None
         self._job_next: Command | None = None
         self.stream_timeout_s = 10.0
-        self.probe_reserve_bytes = 16  # "N12345678 M105*123\n" fits
         self._probe: Command | None = None
         self._rtts: deque[float] = deque(maxlen=32)
         self.probes = 0
@@ -764,6 +768,14 @@ class Connection:
         """Return and forget the commands finished since the last call, with their reply or error."""
         results, self._results = self._results, []
         return results
+
+    @property
+    def probe_reserve_bytes(self) -> int:
+        """Bytes of the receive buffer kept free while a job streams, so a probe or a user command always fits.
+
+        "N<line> M105*<checksum>\\n" is 11 bytes plus the digits of the line number.
+        """
+        return 11 + len(str(self._next_line))
 
     @property
     def in_flight(self) -> int:
