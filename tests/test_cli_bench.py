@@ -1,0 +1,198 @@
+"""`marlin-temp bench` through CliRunner against the simulated printer, clean and with faults; rendering pure.
+
+Numbers are only checked to exist and be positive: how fast the simulator answers is not what is tested.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import re
+from typing import Any
+
+from rich.console import Console
+from typer.testing import CliRunner
+
+from marlin_aio.simulator import Faults, SimulatorConfig, serve_pty
+from marlin_temp.benchcmd import (
+    BenchResult,
+    CorrectnessResult,
+    LatencyResult,
+    ThroughputResult,
+    bench_json,
+    bench_table,
+)
+from marlin_temp.connect import Exit
+from marlin_temp.main import app
+
+runner = CliRunner()
+FAST = ["--sim", "--sim-speed", "50"]
+SMALL = ["--count", "30", "--lines", "60"]
+METRICS = (
+    "wire limit",
+    "round trips",
+    "latency median",
+    "latency p99",
+    "latency max",
+    "round trips/s",
+    "lines sent",
+    "oks in order",
+    "out of order",
+    "resends",
+    "timeouts",
+    "order check",
+    "stream lines/s",
+    "stream bytes/s",
+    "wire use",
+    "stream resends",
+)
+
+
+def row_value(output: str, metric: str) -> str:
+    """The value column of a table row, e.g. '0' for 'out of order'."""
+    match = re.search(rf"^\s*{re.escape(metric)}\s+(\S+)", output, re.MULTILINE)
+    assert match is not None, f"no row {metric!r} in:\n{output}"
+    return match.group(1)
+
+
+def one_line(output: str) -> str:
+    lines = [line for line in output.splitlines() if line.strip()]
+    assert len(lines) == 1, output
+    return lines[0]
+
+
+# ------------------------------------------------------------------------------------------- against --sim
+
+
+def test_the_table_has_every_metric_and_a_clean_order_check() -> None:
+    result = runner.invoke(app, ["bench", *FAST, *SMALL])
+    assert result.exit_code == Exit.OK, result.output
+    for metric in METRICS:
+        assert metric in result.stdout, f"{metric!r} missing:\n{result.stdout}"
+    assert row_value(result.stdout, "round trips") == "30"
+    assert row_value(result.stdout, "lines sent") == "60"
+    assert row_value(result.stdout, "oks in order") == "60"
+    assert row_value(result.stdout, "out of order") == "0"
+    assert row_value(result.stdout, "timeouts") == "0"
+    assert row_value(result.stdout, "order check") == "clean"
+    assert "--sim is unpaced" in result.stdout
+    assert "error" not in result.output
+
+
+def test_json_is_one_object_with_every_key() -> None:
+    result = runner.invoke(app, ["bench", *FAST, *SMALL, "--json"])
+    assert result.exit_code == Exit.OK, result.output
+    report = json.loads(result.stdout)
+    assert {"port", "firmware", "baud", "paced", "wire_limit_bytes_per_s", "clean", "problem"} <= report.keys()
+    assert report["clean"] is True and report["problem"] is None
+    assert report["paced"] is False and report["wire_limit_bytes_per_s"] == 25_000
+    latency = report["latency"]
+    assert latency["round_trips"] == 30 and latency["timeouts"] == 0
+    for key in ("median_ms", "p99_ms", "max_ms", "round_trips_per_s"):
+        assert latency[key] > 0, key
+    assert latency["median_ms"] <= latency["p99_ms"] <= latency["max_ms"]
+    correctness = report["correctness"]
+    assert correctness["command"] == "M118 E1 bench <n>" and "send-ahead" in correctness["mode"]
+    assert correctness["lines_sent"] == correctness["oks_in_order"] == 60
+    assert correctness["out_of_order"] == 0 and correctness["timeouts"] == 0 and correctness["clean"] is True
+    throughput = report["throughput"]
+    assert throughput["command"] == "G4 P0" and "send-ahead" in throughput["mode"]
+    assert throughput["lines"] == 60
+    assert throughput["bytes_sent"] > 0 and throughput["lines_per_s"] > 0 and throughput["bytes_per_s"] > 0
+    assert throughput["wire_ratio"] is None  # the in-process simulator is not paced
+    assert throughput["stall"] is None
+
+
+def test_duration_runs_each_part_for_that_long() -> None:
+    result = runner.invoke(app, ["bench", *FAST, "--duration", "0.1", "--json"])
+    assert result.exit_code == Exit.OK, result.output
+    report = json.loads(result.stdout)
+    assert report["latency"]["round_trips"] > 0
+    assert report["correctness"]["lines_sent"] > 0 and report["correctness"]["out_of_order"] == 0
+    assert report["throughput"]["lines"] > 0
+
+
+def test_help_explains_the_numbers() -> None:
+    result = runner.invoke(app, ["bench", "--help"])
+    assert result.exit_code == 0
+    text = " ".join(result.output.split())
+    for phrase in ("median", "p99", "round trips/s", "oks in order", "out of order", "resends", "baud/10", "G4 P0"):
+        assert phrase in text, phrase
+
+
+# ------------------------------------------------------------------------------------------- with faults
+
+
+async def invoke_against(faults: Faults, *args: str) -> Any:
+    async with serve_pty(SimulatorConfig(), faults, time_scale=50) as sim:
+        return await asyncio.to_thread(runner.invoke, app, ["bench", "--port", sim.url, *args])
+
+
+async def test_corrupted_lines_are_resent_and_the_order_stays_correct() -> None:
+    result = await invoke_against(Faults(corrupt_rx_ratio=0.05), "--count", "30", "--lines", "200", "--json")
+    assert result.exit_code == Exit.OK, result.output
+    report = json.loads(result.stdout)
+    correctness = report["correctness"]
+    assert correctness["resends"] > 0
+    assert correctness["lines_sent"] == correctness["oks_in_order"] == 200
+    assert correctness["out_of_order"] == 0 and correctness["timeouts"] == 0
+    assert report["throughput"]["lines"] == 200 and report["clean"] is True
+
+
+async def test_lost_oks_are_caught_and_exit_1_with_one_line() -> None:
+    # Without ADVANCED_OK a lost ok makes every later ok answer the command before its own; each reply then
+    # carries the wrong echo, and the last command times out. The fault draws are seeded (SimulatorConfig.seed),
+    # so the same oks are lost every run, none of them the handshake's.
+    faults = Faults(drop_ok_ratio=0.02)
+    result = await invoke_against(faults, "--count", "30", "--lines", "200", "--timeout", "0.5")
+    assert result.exit_code == Exit.ERROR, result.output
+    assert int(row_value(result.stdout, "out of order")) > 0
+    assert row_value(result.stdout, "order check") == "FAILED"
+    error = one_line(result.stderr.split("\n", 1)[1])  # after the "bench on ..." line
+    assert error.startswith("error: link check failed:") and "out of order" in error and "timed out" in error
+
+
+# ------------------------------------------------------------------------------------------- rendering
+
+
+def paced_result(bytes_per_s: float) -> BenchResult:
+    return BenchResult(
+        port="/dev/ttyUSB0",
+        firmware="Marlin 2.1.2.4 (Jan  1 2024 12:00:00)",
+        baud=115_200,
+        paced=True,
+        latency=LatencyResult(100, 0, 2.5, 3.0, 4.0, 0.3),
+        correctness=CorrectnessResult(200, 200, 0, 3, 0, 64, 0.5),
+        throughput=ThroughputResult(1000, int(bytes_per_s), 3000, 1.0, 1, 112),
+    )
+
+
+def test_a_paced_link_shows_its_share_of_the_wire_limit() -> None:
+    result = paced_result(9_216)
+    console = Console(record=True, width=100)
+    console.print(bench_table(result))
+    text = console.export_text()
+    assert "Marlin 2.1.2.4 on /dev/ttyUSB0, 115200 baud" in text
+    assert "11,520 B/s" in text  # 115200 / 10
+    assert row_value(text, "wire use") == "80%"
+    assert bench_json(result)["problem"] is None
+
+
+def test_faster_than_the_wire_says_the_link_is_not_paced() -> None:
+    console = Console(record=True, width=100)
+    console.print(bench_table(paced_result(200_000)))
+    assert "this link is not paced" in console.export_text()
+
+
+def test_the_problem_names_each_failure() -> None:
+    clean = paced_result(9_216)
+    broken = dataclasses.replace(
+        clean,
+        latency=LatencyResult(99, 1, 2.5, 3.0, 4.0, 0.3),
+        correctness=CorrectnessResult(200, 190, 8, 0, 2, 64, 0.5),
+    )
+    assert broken.problem is not None
+    assert "8 of 200 oks came back out of order" in broken.problem
+    assert "3 commands timed out" in broken.problem
+    assert bench_json(broken)["clean"] is False
