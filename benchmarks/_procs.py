@@ -1,0 +1,114 @@
+"""The processes of a run: the simulated printer (`marlin-sim`) and the client worker, each bounded in time.
+
+Every simulator is stopped in a `finally`, SIGTERM first and SIGKILL if it does not go within a few seconds, and
+every worker runs under a timeout after which it is killed; nothing here is ever left behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import re
+import selectors
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from benchmarks._worker import RESULT_MARKER
+
+__all__ = ["BenchmarkRunError", "Simulator", "run_worker", "simulator"]
+
+_START_TIMEOUT_S = 15.0
+_STOP_TIMEOUT_S = 5.0
+_SUMMARY = re.compile(
+    r"stopped; (?P<commands>\d+) commands run, (?P<numbered>\d+) of them numbered; "
+    r"(?P<dropped>\d+) received bytes dropped in (?P<overflows>\d+) overflows"
+)
+
+
+class BenchmarkRunError(RuntimeError):
+    """A simulator or worker process failed, hung, or printed no result."""
+
+
+@dataclass
+class Simulator:
+    """A running `marlin-sim`: `url` to open; after it stopped, `summary` holds its own counters."""
+
+    url: str
+    arguments: list[str]
+    summary: dict[str, int] = field(default_factory=dict)
+
+
+@contextlib.contextmanager
+def simulator(arguments: Sequence[str]) -> Iterator[Simulator]:
+    """Start `python -m marlin_aio.simulator ARGUMENTS` in its own process and yield its URL; always stop it.
+
+    Raises:
+        BenchmarkRunError: it did not print its URL within 15 s.
+    """
+    with tempfile.TemporaryFile(mode="w+") as stderr:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "marlin_aio.simulator", *arguments],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=stderr,
+            text=True,
+        )
+        sim: Simulator | None = None
+        try:
+            assert process.stdout is not None
+            with selectors.DefaultSelector() as selector:
+                selector.register(process.stdout, selectors.EVENT_READ)
+                if not selector.select(_START_TIMEOUT_S):
+                    raise BenchmarkRunError(f"marlin-sim {' '.join(arguments)} printed no URL within 15 s")
+            url = process.stdout.readline().strip()
+            if not url:
+                raise BenchmarkRunError(f"marlin-sim {' '.join(arguments)} exited without a URL")
+            sim = Simulator(url, list(arguments))
+            yield sim
+        finally:
+            process.terminate()
+            try:
+                process.wait(_STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+            if process.stdout is not None:
+                process.stdout.close()
+            stderr.seek(0)
+            match = _SUMMARY.search(stderr.read())
+            if sim is not None and match is not None:
+                sim.summary = {name: int(value) for name, value in match.groupdict().items()}
+
+
+def run_worker(spec: dict[str, Any], timeout_s: float) -> dict[str, Any]:
+    """Run `python -m benchmarks._worker SPEC` and return the result it printed.
+
+    Raises:
+        BenchmarkRunError: the worker failed, printed no result, or ran past `timeout_s` (it is then killed).
+    """
+    command = [sys.executable, "-m", "benchmarks._worker", json.dumps(spec)]
+    try:
+        completed = subprocess.run(
+            command,
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            text=True,
+            timeout=timeout_s,
+            cwd=Path(__file__).resolve().parent.parent,
+        )
+    except subprocess.TimeoutExpired as exc:
+        raise BenchmarkRunError(f"{spec['scenario']}/{spec['label']}: no result within {timeout_s:.0f} s") from exc
+    for line in reversed(completed.stdout.splitlines()):
+        if line.startswith(RESULT_MARKER):
+            result: dict[str, Any] = json.loads(line[len(RESULT_MARKER) :])
+            return result
+    tail = (completed.stderr or completed.stdout).strip().splitlines()[-8:]
+    raise BenchmarkRunError(
+        f"{spec['scenario']}/{spec['label']}: worker exited {completed.returncode} without a result:\n  "
+        + "\n  ".join(tail)
+    )

@@ -1,0 +1,241 @@
+"""What the results file says about the machine, and the tables printed at the end (Markdown, readable as text)."""
+
+from __future__ import annotations
+
+import datetime
+import importlib.metadata
+import math
+import os
+import platform
+import subprocess
+from pathlib import Path
+from typing import Any
+
+__all__ = ["machine_info", "render"]
+
+Json = dict[str, Any]
+MIB = 1024 * 1024
+MB = 1_000_000
+_ROOT = Path(__file__).resolve().parent.parent
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            for line in cpuinfo:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _version(package: str) -> str | None:
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def _git(*arguments: str) -> str:
+    try:
+        completed = subprocess.run(
+            ["git", *arguments], cwd=_ROOT, capture_output=True, text=True, timeout=10, check=False
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return ""
+    return completed.stdout.strip()
+
+
+def machine_info() -> Json:
+    """CPU model, cores, Python, OS, date, the commit measured and the versions of the clients compared."""
+    commit = _git("rev-parse", "--short", "HEAD")
+    if commit and _git("status", "--porcelain", "--", "marlin_aio"):
+        commit += " + uncommitted changes in marlin_aio/"
+    return {
+        "cpu": _cpu_model(),
+        "cores": os.cpu_count(),
+        "python": f"{platform.python_implementation()} {platform.python_version()}",
+        "os": platform.platform(),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "commit": commit or None,
+        "versions": {name: _version(name) for name in ("marlin-aio", "pyserial", "pyserial-asyncio-fast", "printrun")},
+    }
+
+
+def _n(value: float | None, digits: int = 0) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    return f"{value:,.{digits}f}"
+
+
+def _x(value: float | None, digits: int = 2) -> str:
+    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}x"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(" --- " for _ in header) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return lines
+
+
+def _roundtrips(entry: Json) -> list[str]:
+    summary, labels, ratios = entry["summary"], entry["labels"], entry["ratios"]
+    rows = []
+    for key, values in summary.items():
+        runs = " / ".join(_n(v) for v in values["runs_rate_per_s"])
+        ratio = "-" if key == "marlin_aio" else _x(ratios.get(key))
+        rows.append([labels[key], _n(values["rate_per_s"]), runs, _n(values["cpu_us_per_round_trip"]), ratio])
+    seconds = entry["settings"]["seconds_per_run"]
+    return [
+        f"### Round trips: M105 sent and answered back to back ({seconds:g} s per run, unpaced pty)",
+        "",
+        *_table(["client", "round trips/s (median)", "runs", "client CPU us per round trip", "marlin_aio is"], rows),
+    ]
+
+
+def _polling(entry: Json) -> list[str]:
+    summary, labels = entry["summary"], entry["labels"]
+    rows = []
+    for key, v in summary.items():
+        rows.append(
+            [
+                labels[key],
+                _n(v["readings_per_s"], 1),
+                _n(v["interval_median_ms"], 2),
+                _n(v["interval_p99_ms"], 2),
+                _n(v["interval_max_ms"], 1),
+                _n(v["cpu_s_per_min"], 2),
+                _n(v["cpu_ms_per_1000_readings"], 0),
+            ]
+        )
+    seconds = entry["settings"]["seconds_per_run"]
+    lines = [
+        f"### Temperature polling ({seconds:g} s per run, unpaced pty)",
+        "",
+        *_table(
+            [
+                "client",
+                "readings/s",
+                "interval median ms",
+                "interval p99 ms",
+                "interval max ms",
+                "client CPU s/min",
+                "CPU ms per 1000 readings",
+            ],
+            rows,
+        ),
+    ]
+    if "printcore" in summary:
+        lines += [
+            "",
+            "printcore has no poller of its own, so its loop sends M105 as soon as the last one is answered; its "
+            "CPU per reading is the cost of a reading flat out, marlin_aio's includes the timer wakeups of a "
+            "paced 100 Hz schedule.",
+        ]
+    return lines
+
+
+def _streaming(entry: Json) -> list[str]:
+    summary, labels, settings = entry["summary"], entry["labels"], entry["settings"]
+    limit = settings["wire_limit_s"]
+    rows = [["wire limit (file bytes / 25,000 B/s)", _n(limit, 2), "", _n(settings["wire_bytes_per_s"]), "", "", ""]]
+    for key, v in summary.items():
+        rows.append(
+            [
+                labels[key] + ("" if v["all_complete"] else " (INCOMPLETE)"),
+                _n(v["seconds"], 2),
+                " / ".join(_n(s, 2) for s in v["runs_seconds"]),
+                _n(v["file_bytes_per_s"]),
+                f"{_n(v['numbered_bytes_per_s'])} ({v['numbered_share_of_wire'] * 100:.1f}%)",
+                _n(v["cpu_s"], 2),
+                _x(v["seconds"] / limit),
+            ]
+        )
+    return [
+        f"### Streaming {settings['lines']:,} lines ({settings['file_bytes']:,} bytes) at 250000 baud, "
+        "Marlin's buffers (4 commands, 128-byte receive buffer), instant moves",
+        "",
+        *_table(
+            [
+                "client",
+                "seconds (median)",
+                "runs",
+                "file B/s",
+                "numbered B/s on the wire (share of 25,000)",
+                "client CPU s",
+                "time vs wire limit",
+            ],
+            rows,
+        ),
+    ]
+
+
+def _memory(entry: Json) -> list[str]:
+    summary, labels, settings = entry["summary"], entry["labels"], entry["settings"]
+    rows = []
+    for key, v in summary.items():
+        streamed = f"{v['streamed_bytes'] / MB:,.1f} of {v['file_bytes'] / MB:,.1f} MB in {v['stream_s']:.1f} s"
+        if not v["finished"]:
+            streamed += f" (stopped at the {settings['cap_s']:g} s cap)"
+        rows.append(
+            [
+                labels[key],
+                _n(v["peak_rss_bytes"] / MIB, 1),
+                streamed,
+                _n(v["rss_slope_bytes_per_mb"] * 100 / MIB, 2),
+                _n(v["extrapolated_peak_rss_bytes"] / MIB, 1),
+            ]
+        )
+    difference = entry["ratios"]["peak_rss_difference_bytes"] / MB
+    return [
+        "### Memory: peak RSS of a process that only streams (unpaced pty, instant moves)",
+        "",
+        *_table(
+            [
+                "file",
+                "peak RSS MiB (ru_maxrss)",
+                "streamed",
+                "RSS growth MiB per 100 MB streamed",
+                "peak RSS MiB extrapolated to the whole file",
+            ],
+            rows,
+        ),
+        "",
+        f"Peak RSS difference: {difference:+.1f} MB (the whole file is read once up front to validate it; the "
+        "stream itself reads it lazily).",
+    ]
+
+
+_RENDERERS = {"roundtrips": _roundtrips, "polling": _polling, "streaming": _streaming, "memory": _memory}
+
+
+def _measured(target: Json) -> str:
+    value = target["measured"]
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "not measured"
+    unit = target["unit"]
+    text = f"{value:.2f}{unit}" if unit == "x" else f"{value:,.2f} {unit}".rstrip()
+    return text
+
+
+def render(results: Json) -> str:
+    """The Markdown tables for every scenario in `results`, the targets, and the machine they came from."""
+    lines: list[str] = []
+    targets: list[Json] = []
+    for name, entry in results["scenarios"].items():
+        lines += [*_RENDERERS[name](entry), ""]
+        targets += entry["targets"]
+    rows = [
+        [t["name"], t["goal"], _measured(t), {True: "yes", False: "**no**", None: "not measured"}[t["met"]]]
+        for t in targets
+    ]
+    lines += ["### Targets", "", *_table(["target", "goal", "measured", "met"], rows), ""]
+    machine = results["machine"]
+    versions = ", ".join(f"{k} {v}" for k, v in machine["versions"].items() if v)
+    lines.append(
+        f"Measured {machine['date']} on {machine['cpu']}, {machine['cores']} cores, {machine['python']}, "
+        f"{machine['os']}; commit {machine['commit']}; {versions}."
+        + (" Quick smoke run: short runs, not for comparison." if results.get("quick") else "")
+    )
+    return "\n".join(lines)

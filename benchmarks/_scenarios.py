@@ -1,0 +1,487 @@
+"""The four scenarios: who runs, against which simulated printer, and how the runs are summed up into ratios.
+
+Each scenario alternates its contenders run by run (the starting contender rotates, so none always goes first
+after a quiet machine), with a fresh `marlin-sim` process for every run so each contender meets the same
+printer in the same state. Summaries are medians over runs; ratios are taken between medians of one invocation.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from benchmarks._files import write_moves, write_moves_of_size
+from benchmarks._procs import run_worker, simulator
+
+__all__ = ["SCENARIOS", "Contender", "Settings", "run_scenario"]
+
+WIRE_BYTES_PER_S = 25_000  # 250000 baud, 10 bits a byte (start, 8 data, stop)
+MB = 1_000_000
+MIB = 1024 * 1024
+
+Json = dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Contender:
+    """One side of a comparison: `key` in the JSON, `label` in the table, `client` the worker to run."""
+
+    key: str
+    label: str
+    client: str
+    options: Json = field(default_factory=dict)
+
+    @property
+    def needs_printcore(self) -> bool:
+        return self.client == "printcore"
+
+
+@dataclass
+class Settings:
+    """What one invocation measures; `--quick` shrinks the durations and sizes, not the method."""
+
+    quick: bool
+    runs: int
+    workdir: Path
+    printcore: bool
+    profile_dir: Path | None = None
+    log: Callable[[str], None] = field(default=lambda text: print(text, file=sys.stderr, flush=True))
+
+    @property
+    def roundtrip_s(self) -> float:
+        return 3.0 if self.quick else 5.0
+
+    @property
+    def polling_s(self) -> float:
+        return 3.0 if self.quick else 30.0
+
+    @property
+    def streaming_lines(self) -> int:
+        return 2_000 if self.quick else 17_000
+
+    @property
+    def small_file_bytes(self) -> int:
+        return 1 * MB
+
+    @property
+    def big_file_bytes(self) -> int:
+        return 20 * MB if self.quick else 200 * MB
+
+    @property
+    def memory_cap_s(self) -> float:
+        return 3.0 if self.quick else 25.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    title: str
+    run: Callable[[Settings], Json]
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+def _alternate(
+    settings: Settings,
+    scenario: str,
+    contenders: list[Contender],
+    sim_arguments: list[str],
+    spec_for: Callable[[Contender], Json],
+    timeout_for: Callable[[Contender], float],
+    describe: Callable[[Json], str],
+) -> dict[str, list[Json]]:
+    """Run every contender `settings.runs` times, alternating, each against a fresh simulator process."""
+    runs: dict[str, list[Json]] = {c.key: [] for c in contenders}
+    for index in range(settings.runs):
+        shift = index % len(contenders)
+        for contender in contenders[shift:] + contenders[:shift]:
+            spec = {"scenario": scenario, "label": contender.key, "client": contender.client}
+            spec |= contender.options | spec_for(contender)
+            if settings.profile_dir is not None and contender.client == "marlin_aio":
+                settings.profile_dir.mkdir(parents=True, exist_ok=True)
+                spec["profile"] = str(settings.profile_dir / f"{scenario}-{contender.key}-{index + 1}.pstats")
+            with simulator(sim_arguments) as sim:
+                spec["url"] = sim.url
+                result = run_worker(spec, timeout_for(contender))
+            result["simulator"] = sim.summary
+            runs[contender.key].append(result)
+            settings.log(f"  {scenario} run {index + 1}/{settings.runs} {contender.label}: {describe(result)}")
+    return runs
+
+
+def _median(runs: list[Json], key: str) -> float:
+    values = [float(run[key]) for run in runs if run.get(key) is not None]
+    return statistics.median(values) if values else math.nan
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if b and not math.isnan(a) and not math.isnan(b) else math.nan
+
+
+def _target(name: str, goal: str, measured: float | None, met: bool | None, unit: str = "") -> Json:
+    return {"name": name, "goal": goal, "measured": measured, "unit": unit, "met": met}
+
+
+def _available(settings: Settings, contenders: list[Contender]) -> list[Contender]:
+    return [c for c in contenders if settings.printcore or not c.needs_printcore]
+
+
+# ------------------------------------------------------------------------------------------------ 1. round trips
+
+
+def run_roundtrips(settings: Settings) -> Json:
+    contenders = _available(
+        settings,
+        [
+            Contender("marlin_aio", "marlin_aio send()", "marlin_aio"),
+            Contender("floor", "floor: bare asyncio protocol", "floor"),
+            Contender("pyserial", "blocking pyserial", "pyserial"),
+            Contender("printcore", "printcore send_now()", "printcore"),
+        ],
+    )
+    seconds = settings.roundtrip_s
+    runs = _alternate(
+        settings,
+        "roundtrips",
+        contenders,
+        [],
+        lambda c: {"seconds": seconds},
+        lambda c: seconds + 60,
+        lambda r: f"{r['round_trips'] / r['wall_s']:.0f} round trips/s, CPU {r['cpu_s'] / r['wall_s']:.2f} s/s",
+    )
+    for results in runs.values():
+        for result in results:
+            result["rate_per_s"] = result["round_trips"] / result["wall_s"]
+            result["cpu_us_per_round_trip"] = result["cpu_s"] / max(result["round_trips"], 1) * 1e6
+    medians = {key: _median(results, "rate_per_s") for key, results in runs.items()}
+    ours = medians["marlin_aio"]
+    ratios = {key: _ratio(ours, value) for key, value in medians.items() if key != "marlin_aio"}
+    summary = {
+        key: {
+            "rate_per_s": medians[key],
+            "cpu_us_per_round_trip": _median(results, "cpu_us_per_round_trip"),
+            "runs_rate_per_s": [r["rate_per_s"] for r in results],
+        }
+        for key, results in runs.items()
+    }
+    targets = [
+        _target("round trips vs the floor", ">= 0.8x", ratios.get("floor"), _at_least(ratios.get("floor"), 0.8), "x"),
+        _target(
+            "round trips vs printcore", ">= 3x", ratios.get("printcore"), _at_least(ratios.get("printcore"), 3), "x"
+        ),
+    ]
+    return {
+        "settings": {"seconds_per_run": seconds, "simulator": "marlin-sim (unpaced pty)"},
+        "labels": {c.key: c.label for c in contenders},
+        "runs": runs,
+        "summary": summary,
+        "ratios": ratios,
+        "targets": targets,
+    }
+
+
+def _at_least(value: float | None, goal: float) -> bool | None:
+    return None if value is None or math.isnan(value) else value >= goal
+
+
+def _at_most(value: float | None, goal: float) -> bool | None:
+    return None if value is None or math.isnan(value) else value <= goal
+
+
+# ------------------------------------------------------------------------------------------------ 2. polling
+
+
+def run_polling(settings: Settings) -> Json:
+    contenders = _available(
+        settings,
+        [
+            Contender("marlin_aio", "marlin_aio poll_temperatures(0.01)", "marlin_aio", {"interval_s": 0.01}),
+            Contender("printcore", "printcore, M105 back to back", "printcore"),
+        ],
+    )
+    seconds = settings.polling_s
+    runs = _alternate(
+        settings,
+        "polling",
+        contenders,
+        [],
+        lambda c: {"seconds": seconds},
+        lambda c: seconds + 60,
+        lambda r: (
+            f"{r['readings'] / r['wall_s']:.1f} readings/s, interval median {r['interval_median_ms']:.2f} ms "
+            f"p99 {r['interval_p99_ms']:.2f} ms, CPU {r['cpu_s'] / r['wall_s'] * 60:.2f} s/min"
+        ),
+    )
+    for results in runs.values():
+        for result in results:
+            result["readings_per_s"] = result["readings"] / result["wall_s"]
+            result["cpu_s_per_min"] = result["cpu_s"] / result["wall_s"] * 60
+            result["cpu_ms_per_1000_readings"] = result["cpu_s"] / max(result["readings"], 1) * 1e6
+    keys = ("readings_per_s", "interval_median_ms", "interval_p99_ms", "interval_max_ms", "cpu_s_per_min")
+    summary = {
+        key: {name: _median(results, name) for name in (*keys, "cpu_ms_per_1000_readings")}
+        for key, results in runs.items()
+    }
+    ours = summary["marlin_aio"]
+    ratios: Json = {}
+    if "printcore" in summary:
+        theirs = summary["printcore"]
+        ratios = {
+            "printcore_readings_per_s": _ratio(ours["readings_per_s"], theirs["readings_per_s"]),
+            "printcore_cpu_per_reading": _ratio(theirs["cpu_ms_per_1000_readings"], ours["cpu_ms_per_1000_readings"]),
+        }
+    targets = [
+        _target(
+            "100 Hz polling: readings per second",
+            ">= 99",
+            ours["readings_per_s"],
+            _at_least(ours["readings_per_s"], 99),
+            "/s",
+        ),
+        _target(
+            "100 Hz polling: interval p99",
+            "< 12 ms",
+            ours["interval_p99_ms"],
+            None if math.isnan(ours["interval_p99_ms"]) else ours["interval_p99_ms"] < 12,
+            "ms",
+        ),
+        _target(
+            "100 Hz polling: client CPU",
+            "< 1.5 s/min",
+            ours["cpu_s_per_min"],
+            None if math.isnan(ours["cpu_s_per_min"]) else ours["cpu_s_per_min"] < 1.5,
+            "s/min",
+        ),
+    ]
+    return {
+        "settings": {"seconds_per_run": seconds, "interval_s": 0.01, "simulator": "marlin-sim (unpaced pty)"},
+        "labels": {c.key: c.label for c in contenders},
+        "runs": runs,
+        "summary": summary,
+        "ratios": ratios,
+        "targets": targets,
+    }
+
+
+# ------------------------------------------------------------------------------------------------ 3. streaming
+
+
+def run_streaming(settings: Settings) -> Json:
+    path = settings.workdir / f"moves-{settings.streaming_lines}.gcode"
+    file_bytes = write_moves(path, settings.streaming_lines)
+    wire_limit_s = file_bytes / WIRE_BYTES_PER_S
+    contenders = _available(
+        settings,
+        [
+            Contender("send_ahead", "marlin_aio print_file(send_ahead=True)", "marlin_aio", {"send_ahead": True}),
+            Contender("ping_pong", "marlin_aio print_file(send_ahead=False)", "marlin_aio", {"send_ahead": False}),
+            Contender("printcore", "printcore startprint(LightGCode)", "printcore"),
+        ],
+    )
+    timeout_s = wire_limit_s * 4 + 30
+    runs = _alternate(
+        settings,
+        "streaming",
+        contenders,
+        ["--baud", "250000", "--motion-time-scale", "0"],
+        lambda c: {"path": str(path), "timeout_s": timeout_s},
+        lambda c: timeout_s + 30,
+        lambda r: (
+            f"{r['seconds']:.2f} s, {r['file_bytes'] / r['seconds']:.0f} file B/s, "
+            f"{r['wire_bytes'] / r['seconds']:.0f} numbered B/s, CPU {r['cpu_s']:.2f} s, "
+            f"simulator {_sim_counts(r)}"
+        ),
+    )
+    for results in runs.values():
+        for result in results:
+            result["file_bytes_per_s"] = result["file_bytes"] / result["seconds"]
+            result["numbered_bytes_per_s"] = result["wire_bytes"] / result["seconds"]
+            result["numbered_share_of_wire"] = result["numbered_bytes_per_s"] / WIRE_BYTES_PER_S
+            result["complete"] = result["lines"] == settings.streaming_lines and result["state"] == "done"
+    names = ("seconds", "file_bytes_per_s", "numbered_bytes_per_s", "numbered_share_of_wire", "cpu_s", "wire_bytes")
+    summary: Json = {key: {name: _median(results, name) for name in names} for key, results in runs.items()}
+    for key, results in runs.items():
+        summary[key]["runs_seconds"] = [r["seconds"] for r in results]
+        summary[key]["all_complete"] = all(r["complete"] for r in results)
+    ahead = summary["send_ahead"]["seconds"]
+    ratios = {
+        "send_ahead_over_wire_limit": _ratio(ahead, wire_limit_s),
+        "ping_pong_over_send_ahead": _ratio(summary["ping_pong"]["seconds"], ahead),
+    }
+    if "printcore" in summary:
+        ratios["printcore_over_send_ahead"] = _ratio(summary["printcore"]["seconds"], ahead)
+    targets = [
+        _target(
+            "streaming: send-ahead within 15% of the wire limit",
+            f"<= {1.15 * wire_limit_s:.2f} s (1.15x {wire_limit_s:.2f} s)",
+            ratios["send_ahead_over_wire_limit"],
+            _at_most(ratios["send_ahead_over_wire_limit"], 1.15),
+            "x limit",
+        ),
+        _target(
+            "streaming: send-ahead faster than ping-pong",
+            "> 1x",
+            ratios["ping_pong_over_send_ahead"],
+            None if math.isnan(ratios["ping_pong_over_send_ahead"]) else ratios["ping_pong_over_send_ahead"] > 1,
+            "x faster",
+        ),
+    ]
+    if "printcore" in summary:
+        faster = ratios["printcore_over_send_ahead"]
+        targets.append(
+            _target(
+                "streaming: send-ahead faster than printcore",
+                "> 1x",
+                faster,
+                None if math.isnan(faster) else faster > 1,
+                "x faster",
+            )
+        )
+    else:
+        targets.append(_target("streaming: send-ahead faster than printcore", "> 1x", None, None))
+    return {
+        "settings": {
+            "lines": settings.streaming_lines,
+            "file_bytes": file_bytes,
+            "wire_limit_s": wire_limit_s,
+            "wire_bytes_per_s": WIRE_BYTES_PER_S,
+            "simulator": "marlin-sim --baud 250000 --motion-time-scale 0 (4 commands, 128-byte receive buffer)",
+        },
+        "labels": {c.key: c.label for c in contenders},
+        "runs": runs,
+        "summary": summary,
+        "ratios": ratios,
+        "targets": targets,
+    }
+
+
+def _sim_counts(result: Json) -> str:
+    sim = result.get("simulator") or {}
+    if not sim:
+        return "counters not read"
+    return f"ran {sim['numbered']} numbered lines, {sim['overflows']} rx overflows"
+
+
+# ------------------------------------------------------------------------------------------------ 4. memory
+
+
+def run_memory(settings: Settings) -> Json:
+    small = settings.workdir / "small.gcode"
+    big = settings.workdir / "big.gcode"
+    started = time.perf_counter()
+    small_bytes = write_moves_of_size(small, settings.small_file_bytes)
+    big_bytes = write_moves_of_size(big, settings.big_file_bytes)
+    elapsed = time.perf_counter() - started
+    settings.log(f"  memory: wrote {small_bytes / MB:.1f} MB and {big_bytes / MB:.0f} MB in {elapsed:.1f} s")
+    cap_s = settings.memory_cap_s
+    small_label = f"{small_bytes / MB:.0f} MB file"
+    big_label = f"{big_bytes / MB:.0f} MB file"
+    contenders = [
+        Contender("small", small_label, "marlin_aio", {"path": str(small), "file_bytes": small_bytes}),
+        Contender("big", big_label, "marlin_aio", {"path": str(big), "file_bytes": big_bytes}),
+    ]
+    runs = _alternate(
+        settings,
+        "memory",
+        contenders,
+        ["--motion-time-scale", "0"],
+        lambda c: {"cap_s": cap_s},
+        lambda c: cap_s + 120,
+        lambda r: (
+            f"peak RSS {r['peak_rss_bytes'] / MIB:.1f} MiB, streamed {r['streamed_bytes'] / MB:.1f} of "
+            f"{r['file_bytes'] / MB:.1f} MB in {r['stream_s']:.1f} s{'' if r['finished'] else ' (time cap)'}, "
+            f"scan {r['scan_s']:.1f} s"
+        ),
+    )
+    for results in runs.values():
+        for result in results:
+            result.update(_rss_trend(result))
+    summary: Json = {}
+    for key, results in runs.items():
+        summary[key] = {
+            name: _median(results, name)
+            for name in (
+                "peak_rss_bytes",
+                "streamed_bytes",
+                "file_bytes",
+                "stream_s",
+                "rss_slope_bytes_per_mb",
+                "extrapolated_peak_rss_bytes",
+            )
+        }
+        summary[key]["finished"] = all(r["finished"] for r in results)
+    difference = summary["big"]["peak_rss_bytes"] - summary["small"]["peak_rss_bytes"]
+    extrapolated = summary["big"]["extrapolated_peak_rss_bytes"] - summary["small"]["peak_rss_bytes"]
+    ratios = {"peak_rss_difference_bytes": difference, "extrapolated_difference_bytes": extrapolated}
+    worst = max(abs(difference), abs(extrapolated))
+    targets = [
+        _target(
+            f"memory: peak RSS {big_label} vs {small_label}",
+            "within 10 MB",
+            worst / MB,
+            _at_most(worst / MB, 10.0),
+            "MB",
+        )
+    ]
+    return {
+        "settings": {
+            "small_file_bytes": small_bytes,
+            "big_file_bytes": big_bytes,
+            "cap_s": cap_s,
+            "simulator": "marlin-sim --motion-time-scale 0 (unpaced pty)",
+        },
+        "labels": {c.key: c.label for c in contenders},
+        "runs": runs,
+        "summary": summary,
+        "ratios": ratios,
+        "targets": targets,
+    }
+
+
+def _rss_trend(result: Json) -> Json:
+    """Slope of RSS against megabytes streamed over the later 80% of the stream, and where it would end.
+
+    A run stopped by the time cap has not seen the whole file; the slope says what the rest would add if RSS kept
+    growing as it did (a flat RSS gives a slope near 0 and an extrapolation equal to the measured peak).
+    """
+    samples = result["samples"]
+    streamed = result["streamed_bytes"]
+    later = [(b / MB, rss) for _, b, rss in samples if b >= 0.2 * streamed]
+    slope = 0.0
+    if len({x for x, _ in later}) >= 3:
+        slope = statistics.linear_regression([x for x, _ in later], [float(y) for _, y in later]).slope
+    remaining_mb = (result["file_bytes"] - streamed) / MB
+    return {
+        "rss_slope_bytes_per_mb": slope,
+        "extrapolated_peak_rss_bytes": result["peak_rss_bytes"] + max(slope, 0.0) * remaining_mb,
+    }
+
+
+SCENARIOS = {
+    scenario.name: scenario
+    for scenario in (
+        Scenario("roundtrips", "Round trips: M105 back to back", run_roundtrips),
+        Scenario("polling", "100 Hz temperature polling", run_polling),
+        Scenario("streaming", "Streaming the 17,000-line file at 250000 baud", run_streaming),
+        Scenario("memory", "Memory while streaming a 1 MB and a 200 MB file", run_memory),
+    )
+}
+
+
+def run_scenario(name: str, settings: Settings) -> Json:
+    """Run one scenario and return its JSON entry, stamped with the time it was measured."""
+    scenario = SCENARIOS[name]
+    settings.log(f"{scenario.title} ({settings.runs} run{'s' if settings.runs != 1 else ''} each)")
+    started = time.perf_counter()
+    entry: Json = {"title": scenario.title, "measured_at": _now()} | scenario.run(settings)
+    entry["duration_s"] = time.perf_counter() - started
+    return entry

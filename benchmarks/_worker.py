@@ -1,0 +1,437 @@
+"""The client side of one benchmark run, in a process of its own: `python -m benchmarks._worker '<json spec>'`.
+
+The orchestrator starts the simulated printer in one process and this worker in another, so the CPU time and the
+peak RSS a worker reports are the client's alone (`time.process_time()` counts every thread of the process, which
+matters for printcore's reader and sender threads). A worker imports only what its contender needs, prints one
+line `BENCHMARK-RESULT {...}` on stdout at the end and exits; anything else it prints is left to the log.
+
+Every loop here is bounded in time: a contender that stops getting answers fails its run instead of hanging.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import importlib
+import itertools
+import json
+import math
+import os
+import resource
+import statistics
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+RESULT_MARKER = "BENCHMARK-RESULT "
+# Before each measured window: the same short warm-up for every contender (imports, caches, the first replies).
+WARMUP_S = 0.5
+# How long the boot banner of the simulated printer takes to arrive and be thrown away.
+QUIET_S = 0.3
+# A single answer that takes longer than this means the run is broken, not slow.
+ANSWER_TIMEOUT_S = 5.0
+
+Result = dict[str, Any]
+
+
+class RunFailedError(RuntimeError):
+    """The contender could not complete the run (no answer, not online, print failed)."""
+
+
+def cpu_s() -> float:
+    """CPU seconds of this process, all threads, user and system."""
+    return time.process_time()
+
+
+def peak_rss_bytes() -> int:
+    """`ru_maxrss` of this process (kilobytes on Linux)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def current_rss_bytes() -> int:
+    """Resident set size now, from /proc (0 where there is no /proc)."""
+    try:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+def interval_stats(times_s: list[float]) -> dict[str, float]:
+    """Median, 99th percentile (nearest rank) and worst of the gaps between consecutive times, in milliseconds."""
+    gaps = sorted(b - a for a, b in itertools.pairwise(times_s))
+    if not gaps:
+        return {"interval_median_ms": math.nan, "interval_p99_ms": math.nan, "interval_max_ms": math.nan}
+    p99 = gaps[max(0, math.ceil(0.99 * len(gaps)) - 1)]
+    return {
+        "interval_median_ms": statistics.median(gaps) * 1000,
+        "interval_p99_ms": p99 * 1000,
+        "interval_max_ms": gaps[-1] * 1000,
+    }
+
+
+@contextlib.contextmanager
+def profiled(path: str | None) -> Iterator[None]:
+    """cProfile the block into `path` (pstats format) when a path is given; otherwise do nothing."""
+    if not path:
+        yield
+        return
+    import cProfile
+
+    profile = cProfile.Profile()
+    profile.enable()
+    try:
+        yield
+    finally:
+        profile.disable()
+        profile.dump_stats(path)
+
+
+# ------------------------------------------------------------------------------------------------ marlin_aio
+
+
+async def marlin_round_trips(spec: Result) -> Result:
+    import marlin_aio
+
+    async with marlin_aio.connect(spec["url"]) as printer:
+        deadline = time.perf_counter() + WARMUP_S
+        while time.perf_counter() < deadline:
+            await printer.send("M105")
+        count = 0
+        with profiled(spec.get("profile")):
+            cpu_start, start = cpu_s(), time.perf_counter()
+            end = start + spec["seconds"]
+            while time.perf_counter() < end:
+                await printer.send("M105")
+                count += 1
+            wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu}
+
+
+async def marlin_polling(spec: Result) -> Result:
+    import marlin_aio
+
+    async with marlin_aio.connect(spec["url"]) as printer:
+        poll_times: list[float] = []
+        other_readings = 0
+
+        async def collect() -> None:
+            nonlocal other_readings
+            async for reading in printer.temperature_readings():
+                if reading.source == "poll":
+                    poll_times.append(reading.monotonic_s)
+                else:
+                    other_readings += 1
+
+        collector = asyncio.create_task(collect(), name="benchmark collector")
+        await asyncio.sleep(0)  # subscribed before the first poll goes out
+        try:
+            with profiled(spec.get("profile")):
+                cpu_start, start = cpu_s(), time.perf_counter()
+                async with printer.poll_temperatures(interval_s=spec["interval_s"]):
+                    await asyncio.sleep(spec["seconds"])
+                wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+        finally:
+            collector.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await collector
+        timeouts = printer.connection.timeouts
+    return {
+        "readings": len(poll_times),
+        "other_readings": other_readings,
+        "timeouts": timeouts,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        **interval_stats(poll_times),
+    }
+
+
+async def marlin_streaming(spec: Result) -> Result:
+    import marlin_aio
+
+    async with marlin_aio.connect(spec["url"], timeout_s=ANSWER_TIMEOUT_S * 2) as printer:
+        with profiled(spec.get("profile")):
+            cpu_start, start = cpu_s(), time.perf_counter()
+            progress = await printer.print_file(Path(spec["path"]), send_ahead=spec["send_ahead"])
+            wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+    return {
+        "seconds": wall,
+        "cpu_s": cpu,
+        "lines": progress.lines_acked,
+        "file_bytes": progress.source_bytes_acked,
+        "wire_bytes": progress.bytes_acked,
+        "resends": progress.resends,
+        "state": progress.state.value,
+    }
+
+
+async def marlin_memory(spec: Result) -> Result:
+    """Stream a file for at most `cap_s` seconds, sampling RSS against the bytes acknowledged so far."""
+    import marlin_aio
+
+    baseline = peak_rss_bytes()
+    samples: list[tuple[float, int, int]] = []  # (seconds since the stream started, source bytes acked, RSS)
+    async with marlin_aio.connect(spec["url"], timeout_s=ANSWER_TIMEOUT_S * 2) as printer:
+        scan_start = time.perf_counter()
+        handle = await printer.start_print(Path(spec["path"]))  # scans (validates) the whole file first
+        start = time.perf_counter()
+        scan_s = start - scan_start
+        deadline = start + spec["cap_s"]
+        while not handle.finished and time.perf_counter() < deadline:
+            samples.append((time.perf_counter() - start, handle.progress.source_bytes_acked, current_rss_bytes()))
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(handle.wait()), 0.25)
+        finished = handle.finished
+        if not finished:
+            await asyncio.wait_for(handle.cancel(), ANSWER_TIMEOUT_S)
+        progress = await handle.wait()
+        samples.append((time.perf_counter() - start, progress.source_bytes_acked, current_rss_bytes()))
+    return {
+        "finished": finished,
+        "scan_s": scan_s,
+        "stream_s": progress.elapsed_s,
+        "lines": progress.lines_acked,
+        "streamed_bytes": progress.source_bytes_acked,
+        "file_bytes": spec["file_bytes"],
+        "peak_rss_bytes": peak_rss_bytes(),
+        "rss_after_imports_bytes": baseline,
+        "samples": samples,
+    }
+
+
+# ------------------------------------------------------------------------------------------------ baselines
+
+
+async def floor_round_trips(spec: Result) -> Result:
+    """The floor: a bare asyncio protocol on the same transport that writes `M105` and waits for one line."""
+    import serial_asyncio_fast
+
+    loop = asyncio.get_running_loop()
+
+    class LineProtocol(asyncio.Protocol):
+        def __init__(self) -> None:
+            self.buffer = b""
+            self.waiter: asyncio.Future[None] | None = None
+
+        def data_received(self, data: bytes) -> None:
+            self.buffer += data
+            if b"\n" in self.buffer:
+                _, _, self.buffer = self.buffer.partition(b"\n")
+                if self.waiter is not None and not self.waiter.done():
+                    self.waiter.set_result(None)
+
+    transport, protocol = await serial_asyncio_fast.create_serial_connection(
+        loop, LineProtocol, spec["url"], baudrate=250_000
+    )
+    assert isinstance(protocol, LineProtocol)
+    try:
+        await asyncio.sleep(QUIET_S)  # the boot banner arrives and is thrown away
+        protocol.buffer = b""
+
+        async def round_trip() -> None:
+            protocol.waiter = loop.create_future()
+            transport.write(b"M105\n")
+            await asyncio.wait_for(protocol.waiter, ANSWER_TIMEOUT_S)
+
+        deadline = time.perf_counter() + WARMUP_S
+        while time.perf_counter() < deadline:
+            await round_trip()
+        count = 0
+        cpu_start, start = cpu_s(), time.perf_counter()
+        end = start + spec["seconds"]
+        while time.perf_counter() < end:
+            await round_trip()
+            count += 1
+        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+    finally:
+        transport.close()
+        await asyncio.sleep(0.05)  # the port closes in an executor
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu}
+
+
+def pyserial_round_trips(spec: Result) -> Result:
+    """Blocking pyserial: `write(b"M105\\n")`, then `readline()`."""
+    import serial
+
+    port = serial.Serial(spec["url"], 250_000, timeout=ANSWER_TIMEOUT_S)
+    try:
+        time.sleep(QUIET_S)
+        port.reset_input_buffer()
+
+        def round_trip() -> None:
+            port.write(b"M105\n")
+            if not port.readline().endswith(b"\n"):
+                raise RunFailedError("pyserial: no answer to M105")
+
+        deadline = time.perf_counter() + WARMUP_S
+        while time.perf_counter() < deadline:
+            round_trip()
+        count = 0
+        cpu_start, start = cpu_s(), time.perf_counter()
+        end = start + spec["seconds"]
+        while time.perf_counter() < end:
+            round_trip()
+            count += 1
+        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+    finally:
+        port.close()
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu}
+
+
+class PrintcoreSession:
+    """Printrun's `printcore`, driven headless the way Pronterface drives it.
+
+    `printcore(port, baud)` opens the port and starts a reader and a sender thread; `onlinecb` fires once the
+    printer answered its first M105. `send_now()` queues a command for the sender thread; every line read calls
+    `recvcb`, and `ok ... T:` lines also call `tempcb`. `startprint(LightGCode(lines))` streams a file in its own
+    thread, numbered and checksummed, one line per `ok`; `endcb` fires when the last line was answered.
+    """
+
+    def __init__(self, url: str) -> None:
+        self.module = importlib.import_module("printrun.printcore")
+        self.online = threading.Event()
+        self.answered = threading.Event()
+        self.finished = threading.Event()
+        self.on_temperature: Callable[[float], None] | None = None
+        core = self.module.printcore()
+        core.onlinecb = self.online.set
+        core.tempcb = self._tempcb
+        core.endcb = self.finished.set
+        core.errorcb = self._errorcb
+        self.errors: list[str] = []
+        self.core = core
+        core.connect(url, 250_000)
+        if not self.online.wait(10.0):
+            self.close()
+            raise RunFailedError("printcore: the printer did not come online within 10 s")
+        # printcore's own start-up M105 is answered after it went online: let that answer pass before measuring.
+        time.sleep(QUIET_S)
+        self.answered.clear()
+
+    def _tempcb(self, line: str) -> None:
+        if self.on_temperature is not None:
+            self.on_temperature(time.monotonic())
+        self.answered.set()
+
+    def _errorcb(self, message: str) -> None:
+        self.errors.append(str(message)[:200])
+
+    def round_trip(self) -> None:
+        self.answered.clear()
+        self.core.send_now("M105")
+        if not self.answered.wait(ANSWER_TIMEOUT_S):
+            raise RunFailedError(f"printcore: no answer to M105 within {ANSWER_TIMEOUT_S} s; errors: {self.errors}")
+
+    def close(self) -> None:
+        self.core.disconnect()
+
+
+def printcore_round_trips(spec: Result) -> Result:
+    session = PrintcoreSession(spec["url"])
+    try:
+        deadline = time.perf_counter() + WARMUP_S
+        while time.perf_counter() < deadline:
+            session.round_trip()
+        count = 0
+        cpu_start, start = cpu_s(), time.perf_counter()
+        end = start + spec["seconds"]
+        while time.perf_counter() < end:
+            session.round_trip()
+            count += 1
+        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+    finally:
+        session.close()
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu}
+
+
+def printcore_polling(spec: Result) -> Result:
+    """printcore polling as fast as it allows: M105, wait for its `ok T:`, M105 again, for `seconds`."""
+    session = PrintcoreSession(spec["url"])
+    times: list[float] = []
+    try:
+        session.on_temperature = times.append
+        cpu_start, start = cpu_s(), time.perf_counter()
+        end = start + spec["seconds"]
+        while time.perf_counter() < end:
+            session.round_trip()
+        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+        session.on_temperature = None
+    finally:
+        session.close()
+    return {"readings": len(times), "other_readings": 0, "timeouts": 0, "wall_s": wall, "cpu_s": cpu} | (
+        interval_stats(times)
+    )
+
+
+def printcore_streaming(spec: Result) -> Result:
+    gcoder = importlib.import_module("printrun.gcoder")
+    from marlin_aio.commands import encode_command
+
+    with open(spec["path"]) as source:
+        lines = source.read().splitlines()
+    gcode = gcoder.LightGCode(lines)
+    session = PrintcoreSession(spec["url"])
+    try:
+        cpu_start, start = cpu_s(), time.perf_counter()
+        if not session.core.startprint(gcode):
+            raise RunFailedError("printcore: startprint refused (offline or already printing)")
+        # Bounded: three times the slowest plausible rate, as the orchestrator also enforces.
+        if not session.finished.wait(spec["timeout_s"]):
+            raise RunFailedError(f"printcore: the print did not finish within {spec['timeout_s']:.0f} s")
+        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+    finally:
+        session.close()
+    # printcore numbers from N0 after its `M110 N-1`; these are the bytes it put on the wire for the file.
+    wire_bytes = sum(len(encode_command(line, number)) for number, line in enumerate(lines))
+    return {
+        "seconds": wall,
+        "cpu_s": cpu,
+        "lines": len(lines),
+        "file_bytes": sum(len(line) + 1 for line in lines),
+        "wire_bytes": wire_bytes,
+        "resends": 0,
+        "state": "done",
+        "errors": session.errors,
+    }
+
+
+# ------------------------------------------------------------------------------------------------ entry point
+
+ASYNC_TASKS = {
+    ("roundtrips", "marlin_aio"): marlin_round_trips,
+    ("roundtrips", "floor"): floor_round_trips,
+    ("polling", "marlin_aio"): marlin_polling,
+    ("streaming", "marlin_aio"): marlin_streaming,
+    ("memory", "marlin_aio"): marlin_memory,
+}
+THREAD_TASKS = {
+    ("roundtrips", "pyserial"): pyserial_round_trips,
+    ("roundtrips", "printcore"): printcore_round_trips,
+    ("polling", "printcore"): printcore_polling,
+    ("streaming", "printcore"): printcore_streaming,
+}
+
+
+def run(spec: Result) -> Result:
+    """Run one spec ({"scenario", "client", "url", ...}) and return its measurements."""
+    key = (spec["scenario"], spec["client"])
+    if key in ASYNC_TASKS:
+        return asyncio.run(ASYNC_TASKS[key](spec))
+    if key in THREAD_TASKS:
+        return THREAD_TASKS[key](spec)
+    raise ValueError(f"no such benchmark task: {key}")
+
+
+def main(argv: list[str]) -> int:
+    spec = json.loads(argv[1])
+    result = run(spec)
+    result["peak_rss_bytes"] = result.get("peak_rss_bytes", peak_rss_bytes())
+    print(RESULT_MARKER + json.dumps(result), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv))
