@@ -692,6 +692,10 @@ class Connection:
             self._finish(head, error)
 
     def _send_probe(self, now: float) -> None:
+        # A probe follows several round trips of silence: no rejection of a line written before the last resend
+        # can still be on its way, so whatever the printer asks for next is a fresh request, acted on at once
+        # (otherwise a resent line damaged again would be taken for stale, and so would the probe after it).
+        self._stale = 0
         self.probes += 1
         self._next_id += 1
         probe = Command(self._next_id, "M105", "M105", True, self.stream_timeout_s, now, probe=True)

@@ -27,6 +27,7 @@ from marlin_aio.errors import (
 )
 from marlin_aio.events import BusyKeepalive, EchoMessage, Event, Ok, TemperatureReport, UnrecognisedLine
 from marlin_aio.parsing import parse_endstops
+from marlin_aio.printjob import PrintJob
 
 Outcome = Reply | MarlinError
 
@@ -956,3 +957,25 @@ def test_a_damaged_m110_is_written_again() -> None:
     assert conn.data_to_send(0.0) == first
     receive(conn, "ok")
     assert [text for text, _ in replies(conn)] == ["M110 N0"]
+
+
+def test_a_probe_after_a_stale_looking_rejection_gets_the_line_resent_at_once() -> None:
+    # Four lines in flight; line 1 is corrupted and Marlin drops 2..4 silently. Line 1 goes out again and is
+    # corrupted again: that rejection looks stale (three were expected). The probe written after a short silence
+    # is rejected too, and that rejection must bring the resend at once, not after resend_timeout_s.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    texts = [f"G1 X{i}" for i in range(1, 5)]
+    conn.attach(PrintJob(texts), timeout_s=10.0)  # a streaming job: the connection probes, as during a print
+    conn.data_to_send(0.0)
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")
+    assert len(sent(conn.data_to_send(0.0))) == 4
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")  # taken for stale
+    assert conn.data_to_send(0.0) == b""
+    probe_at = conn.next_deadline()
+    assert probe_at is not None and probe_at < conn.resend_timeout_s
+    conn.check_timeouts(probe_at)
+    probe = sent(conn.data_to_send(probe_at))
+    assert len(probe) == 1 and "M105" in probe[0]
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok")
+    again = sent(conn.data_to_send(probe_at))
+    assert again[:4] == [wire(texts[i], i + 1) for i in range(4)]
