@@ -6,6 +6,7 @@ Every way opening can fail becomes one `ConnectError` subclass with a sentence a
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import errno
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -15,7 +16,7 @@ import serial_asyncio_fast
 
 from marlin_aio.errors import ConnectError, PortBusyError, PortNotFoundError, PortPermissionError
 
-__all__ = ["PRINTER_BRIDGES", "PortInfo", "list_ports", "open_link"]
+__all__ = ["PRINTER_BRIDGES", "PortInfo", "flush_input", "list_ports", "open_link"]
 
 
 def _is_url(port: str) -> bool:
@@ -43,6 +44,19 @@ async def open_link(
     except (serial.SerialException, OSError, ValueError) as exc:
         raise _explain(port, baudrate, exc) from exc
     return transport, protocol
+
+
+def flush_input(transport: asyncio.Transport) -> None:
+    """Throw away what the operating system has received but nobody has read yet (a serial port's input buffer).
+
+    A TCP link has no such buffer to drop; there, nothing happens.
+    """
+    port = transport.get_extra_info("serial")
+    reset = getattr(port, "reset_input_buffer", None)
+    if reset is not None and not isinstance(port, str):
+        # A port that cannot flush has nothing worth flushing.
+        with contextlib.suppress(serial.SerialException, OSError, NotImplementedError):
+            reset()
 
 
 def _explain(port: str, baudrate: int, exc: BaseException) -> ConnectError:

@@ -245,6 +245,10 @@ class Printer:
                 await asyncio.wait_for(self._line_seen.wait(), self._boot_quiet_s)
             except TimeoutError:
                 break
+        # Flush: whatever is left of the banner (half a line, noise from the reset) must not prefix the first reply.
+        if self._transport is not None:
+            _serial.flush_input(self._transport)
+        self._conn.discard_partial_input()
         # 2. Synchronise: M105 until one is answered (commands written during a reset are lost, so retry),
         #    then set the line counter with M110 N0. A late answer to an earlier probe is recognised as stray.
         sync_deadline = loop.time() + self.timeout_s

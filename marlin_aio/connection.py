@@ -380,6 +380,10 @@ class Connection:
             events.append(event)
         return events
 
+    def discard_partial_input(self) -> None:
+        """Forget an unfinished line (call after flushing the port's input: its end will never arrive)."""
+        self._parser.clear()
+
     def _handle(self, text: str, event: Event, now: float) -> None:
         kind = type(event)
         if kind is Ok:

@@ -77,6 +77,13 @@ class LineSplitter:
         self._overlong_head = b""
         return line
 
+    def clear(self) -> None:
+        """Forget any unfinished line (after the input was flushed, its rest will never come)."""
+        self._buffer = b""
+        self._skip_lf = False
+        self._discarding = 0
+        self._overlong_head = b""
+
     @property
     def pending_bytes(self) -> int:
         """How many bytes of an unfinished line are held (for diagnostics)."""

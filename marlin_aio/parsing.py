@@ -123,6 +123,10 @@ class EventParser:
     def __init__(self, max_line_bytes: int = DEFAULT_MAX_LINE_BYTES) -> None:
         self._splitter = LineSplitter(max_line_bytes)
 
+    def clear(self) -> None:
+        """Forget any unfinished line."""
+        self._splitter.clear()
+
     def receive_data(self, data: bytes) -> list[tuple[str, Event]]:
         """Feed bytes; return each completed line's text with its event, in order."""
         out: list[tuple[str, Event]] = []

@@ -217,3 +217,11 @@ def test_any_bytes_give_only_clean_lines(chunks: list[bytes]) -> None:
                 assert piece
                 assert not set(piece) & {"\r", "\n", "\x00"}
         assert splitter.pending_bytes <= 32
+
+
+def test_clear_forgets_an_unfinished_line() -> None:
+    splitter = LineSplitter()
+    assert splitter.feed(b"echo: Free Mem") == []
+    splitter.clear()
+    assert splitter.pending_bytes == 0
+    assert splitter.feed(b"ok\n") == ["ok"]
