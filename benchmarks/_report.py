@@ -182,28 +182,33 @@ def _memory(entry: Json) -> list[str]:
             [
                 labels[key],
                 _n(v["peak_rss_bytes"] / MIB, 1),
+                _n(v.get("stream_rss_max_bytes", math.nan) / MIB, 2),
                 streamed,
-                _n(v["rss_slope_bytes_per_mb"] * 100 / MIB, 2),
+                _n(v["rss_slope_bytes_per_mb"] * 100 / MIB, 3),
                 _n(v["extrapolated_peak_rss_bytes"] / MIB, 1),
+                _n(v.get("ru_maxrss_bytes", math.nan) / MIB, 1),
             ]
         )
     difference = entry["ratios"]["peak_rss_difference_bytes"] / MB
+    extrapolated = entry["ratios"]["extrapolated_difference_bytes"] / MB
     return [
         "### Memory: peak RSS of a process that only streams (unpaced pty, instant moves)",
         "",
         *_table(
             [
                 "file",
-                "peak RSS MiB (ru_maxrss)",
+                "peak RSS MiB (VmHWM)",
+                "RSS MiB while streaming (max)",
                 "streamed",
                 "RSS growth MiB per 100 MB streamed",
                 "peak RSS MiB extrapolated to the whole file",
+                "ru_maxrss MiB (includes the parent's, see BENCHMARKS.md)",
             ],
             rows,
         ),
         "",
-        f"Peak RSS difference: {difference:+.1f} MB (the whole file is read once up front to validate it; the "
-        "stream itself reads it lazily).",
+        f"Peak RSS difference: {difference:+.2f} MB measured, {extrapolated:+.2f} MB extrapolated to the whole file. "
+        "Each worker first reads the whole file once to validate it; the stream then reads it lazily.",
     ]
 
 

@@ -411,6 +411,8 @@ def run_memory(settings: Settings) -> Json:
             name: _median(results, name)
             for name in (
                 "peak_rss_bytes",
+                "ru_maxrss_bytes",
+                "stream_rss_max_bytes",
                 "streamed_bytes",
                 "file_bytes",
                 "stream_s",

@@ -46,9 +46,26 @@ def cpu_s() -> float:
     return time.process_time()
 
 
-def peak_rss_bytes() -> int:
-    """`ru_maxrss` of this process (kilobytes on Linux)."""
+def ru_maxrss_bytes() -> int:
+    """`ru_maxrss` of this process (kilobytes on Linux).
+
+    On Linux it is not this program's alone: across fork and exec the kernel keeps the larger of the old and the
+    new address space's high-water mark, so a worker started by a 30 MB orchestrator reports at least 30 MB.
+    """
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def peak_rss_bytes() -> int:
+    """Peak RSS of this process image: `VmHWM` (the high-water mark of the address space exec made), falling back
+    to `ru_maxrss` where there is no /proc."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return ru_maxrss_bytes()
 
 
 def current_rss_bytes() -> int:
@@ -172,22 +189,23 @@ async def marlin_memory(spec: Result) -> Result:
     """Stream a file for at most `cap_s` seconds, sampling RSS against the bytes acknowledged so far."""
     import marlin_aio
 
-    baseline = peak_rss_bytes()
     samples: list[tuple[float, int, int]] = []  # (seconds since the stream started, source bytes acked, RSS)
     async with marlin_aio.connect(spec["url"], timeout_s=ANSWER_TIMEOUT_S * 2) as printer:
         scan_start = time.perf_counter()
         handle = await printer.start_print(Path(spec["path"]))  # scans (validates) the whole file first
         start = time.perf_counter()
         scan_s = start - scan_start
+        baseline = current_rss_bytes()
         deadline = start + spec["cap_s"]
-        while not handle.finished and time.perf_counter() < deadline:
+        # One waiter for the whole stream: a new wait per sample would itself grow the heap by a task each time.
+        done = asyncio.ensure_future(handle.wait())
+        while not done.done() and time.perf_counter() < deadline:
             samples.append((time.perf_counter() - start, handle.progress.source_bytes_acked, current_rss_bytes()))
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(asyncio.shield(handle.wait()), 0.25)
-        finished = handle.finished
+            await asyncio.wait([done], timeout=min(0.25, max(deadline - time.perf_counter(), 0.0)))
+        finished = done.done()
         if not finished:
             await asyncio.wait_for(handle.cancel(), ANSWER_TIMEOUT_S)
-        progress = await handle.wait()
+        progress = await done
         samples.append((time.perf_counter() - start, progress.source_bytes_acked, current_rss_bytes()))
     return {
         "finished": finished,
@@ -197,7 +215,9 @@ async def marlin_memory(spec: Result) -> Result:
         "streamed_bytes": progress.source_bytes_acked,
         "file_bytes": spec["file_bytes"],
         "peak_rss_bytes": peak_rss_bytes(),
-        "rss_after_imports_bytes": baseline,
+        "ru_maxrss_bytes": ru_maxrss_bytes(),
+        "rss_before_stream_bytes": baseline,
+        "stream_rss_max_bytes": max(rss for _, _, rss in samples),
         "samples": samples,
     }
 
@@ -428,7 +448,8 @@ def run(spec: Result) -> Result:
 def main(argv: list[str]) -> int:
     spec = json.loads(argv[1])
     result = run(spec)
-    result["peak_rss_bytes"] = result.get("peak_rss_bytes", peak_rss_bytes())
+    result.setdefault("peak_rss_bytes", peak_rss_bytes())
+    result.setdefault("ru_maxrss_bytes", ru_maxrss_bytes())
     print(RESULT_MARKER + json.dumps(result), flush=True)
     return 0
 
