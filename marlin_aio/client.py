@@ -351,9 +351,10 @@ class Printer:
             MarlinError: as `send`; also if the printer's answer holds no temperatures.
         """
         reply = await self.send("M105")
-        if self.latest is None or reply.temperatures is None:
+        if reply.temperatures is None:
             raise MarlinError(f"M105 was answered without temperatures: {reply.ok.payload!r}")
-        return self.latest
+        # Built from this reply, not `latest`: an auto-report arriving in the same read may already have replaced it.
+        return TemperatureReading(reply.temperatures, reply.answered_s, time.time(), "poll")
 
     async def temperature_readings(self) -> AsyncGenerator[TemperatureReading, None]:
         """Yield every temperature report from now on, whatever produced it (polls, auto-report, wait lines).
