@@ -4,7 +4,7 @@
     python -m benchmarks --quick              # smoke run: ~3 s per run, 1 run each, a 20 MB "big" file
     python -m benchmarks --only polling       # one scenario (repeatable); others in the results file are kept
     python -m benchmarks --report             # print the tables of the results file again, run nothing
-    python -m benchmarks --profile DIR        # also cProfile marlin_aio's measured windows into DIR/*.pstats
+    python -m benchmarks --profile DIR        # also profile marlin_aio's runs (py-spy, else cProfile) into DIR
 
 printcore (Printrun) is a baseline only when it is installed: `pip install --no-deps printrun`.
 """
@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks._procs import BenchmarkRunError
+from benchmarks._profile import py_spy
 from benchmarks._report import machine_info, render
 from benchmarks._scenarios import SCENARIOS, Settings, run_scenario
 
@@ -52,7 +53,13 @@ def _parser() -> argparse.ArgumentParser:
         f"or {QUICK_OUTPUT.relative_to(_HERE.parent)} with --quick)",
     )
     parser.add_argument("--report", action="store_true", help="print the tables of the results file; run nothing")
-    parser.add_argument("--profile", type=Path, metavar="DIR", help="cProfile marlin_aio's runs into DIR")
+    parser.add_argument(
+        "--profile",
+        type=Path,
+        metavar="DIR",
+        help="profile marlin_aio's runs into DIR with py-spy (pip install py-spy) or else cProfile; "
+        "results then go to DIR/results.json",
+    )
     return parser
 
 
@@ -79,6 +86,8 @@ def _finite(value: Any) -> Any:
 def main(argv: Sequence[str] | None = None) -> int:
     arguments = _parser().parse_args(argv)
     output: Path = arguments.output or (QUICK_OUTPUT if arguments.quick else DEFAULT_OUTPUT)
+    if arguments.profile is not None and arguments.output is None:
+        output = arguments.profile / "results.json"  # profiled runs are slower: keep them out of the results
     if arguments.report:
         results = _load(output)
         if results is None:
@@ -93,6 +102,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     printcore = importlib.util.find_spec("printrun") is not None
     if not printcore:
         print("printcore not installed: pip install --no-deps printrun (its baseline is skipped)", file=sys.stderr)
+    if arguments.profile is not None:
+        how = "py-spy" if py_spy() is not None else "cProfile (py-spy not installed: pip install py-spy)"
+        print(f"profiling marlin_aio's runs with {how} into {arguments.profile}", file=sys.stderr)
     names = arguments.only or list(SCENARIOS)
     # Scenarios not run now are kept from the previous results, each with its own date and machine.
     previous = _load(output) if arguments.only else None

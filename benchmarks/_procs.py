@@ -85,13 +85,13 @@ def simulator(arguments: Sequence[str]) -> Iterator[Simulator]:
                 sim.summary = {name: int(value) for name, value in match.groupdict().items()}
 
 
-def run_worker(spec: dict[str, Any], timeout_s: float) -> dict[str, Any]:
-    """Run `python -m benchmarks._worker SPEC` and return the result it printed.
+def run_worker(spec: dict[str, Any], timeout_s: float, prefix: Sequence[str] = ()) -> dict[str, Any]:
+    """Run `python -m benchmarks._worker SPEC` (behind `prefix`, such as a profiler) and return its result.
 
     Raises:
         BenchmarkRunError: the worker failed, printed no result, or ran past `timeout_s` (it is then killed).
     """
-    command = [sys.executable, "-m", "benchmarks._worker", json.dumps(spec)]
+    command = [*prefix, sys.executable, "-m", "benchmarks._worker", json.dumps(spec)]
     try:
         completed = subprocess.run(
             command,

@@ -140,6 +140,19 @@ def _streaming(entry: Json) -> list[str]:
     summary, labels, settings = entry["summary"], entry["labels"], entry["settings"]
     limit = settings["wire_limit_s"]
     rows = [["wire limit (file bytes / 25,000 B/s)", _n(limit, 2), "", _n(settings["wire_bytes_per_s"]), "", "", ""]]
+    numbered = entry["ratios"].get("numbered_wire_limit_s")
+    if numbered:
+        rows.append(
+            [
+                "numbered wire limit (`N..` + `*cs` bytes / 25,000 B/s)",
+                _n(numbered, 2),
+                "",
+                _n(settings["file_bytes"] / numbered),
+                "25,000 (100%)",
+                "",
+                _x(numbered / limit),
+            ]
+        )
     for key, v in summary.items():
         rows.append(
             [

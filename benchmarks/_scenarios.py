@@ -19,6 +19,7 @@ from typing import Any
 
 from benchmarks._files import write_moves, write_moves_of_size
 from benchmarks._procs import run_worker, simulator
+from benchmarks._profile import py_spy, summarise, wrapper
 
 __all__ = ["SCENARIOS", "Contender", "Settings", "run_scenario"]
 
@@ -106,13 +107,21 @@ def _alternate(
         for contender in contenders[shift:] + contenders[:shift]:
             spec = {"scenario": scenario, "label": contender.key, "client": contender.client}
             spec |= contender.options | spec_for(contender)
+            prefix: list[str] = []
+            profile = None
             if settings.profile_dir is not None and contender.client == "marlin_aio":
                 settings.profile_dir.mkdir(parents=True, exist_ok=True)
-                spec["profile"] = str(settings.profile_dir / f"{scenario}-{contender.key}-{index + 1}.pstats")
+                profile = settings.profile_dir / f"{scenario}-{contender.key}-{index + 1}"
+                if py_spy() is not None:
+                    prefix = wrapper(profile.with_suffix(".raw"))
+                else:
+                    spec["profile"] = str(profile.with_suffix(".pstats"))
             with simulator(sim_arguments) as sim:
                 spec["url"] = sim.url
-                result = run_worker(spec, timeout_for(contender))
+                result = run_worker(spec, timeout_for(contender), prefix)
             result["simulator"] = sim.summary
+            if profile is not None and prefix:
+                profile.with_suffix(".txt").write_text(summarise(profile.with_suffix(".raw")))
             runs[contender.key].append(result)
             settings.log(f"  {scenario} run {index + 1}/{settings.runs} {contender.label}: {describe(result)}")
     return runs
@@ -313,8 +322,11 @@ def run_streaming(settings: Settings) -> Json:
         summary[key]["runs_seconds"] = [r["seconds"] for r in results]
         summary[key]["all_complete"] = all(r["complete"] for r in results)
     ahead = summary["send_ahead"]["seconds"]
+    numbered_limit_s = summary["send_ahead"]["wire_bytes"] / WIRE_BYTES_PER_S
     ratios = {
         "send_ahead_over_wire_limit": _ratio(ahead, wire_limit_s),
+        "numbered_wire_limit_s": numbered_limit_s,
+        "send_ahead_over_numbered_wire_limit": _ratio(ahead, numbered_limit_s),
         "ping_pong_over_send_ahead": _ratio(summary["ping_pong"]["seconds"], ahead),
     }
     if "printcore" in summary:
