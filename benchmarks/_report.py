@@ -105,7 +105,7 @@ def _polling(entry: Json) -> list[str]:
                 _n(v["interval_median_ms"], 2),
                 _n(v["interval_p99_ms"], 2),
                 _n(v["interval_max_ms"], 1),
-                _n(v["cpu_s_per_min"], 2),
+                f"{_n(v['cpu_s_per_min'], 2)} ({_n(v.get('cpu_system_s_per_min'), 2)} in the kernel)",
                 _n(v["cpu_ms_per_1000_readings"], 0),
             ]
         )

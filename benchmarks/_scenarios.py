@@ -234,8 +234,16 @@ def run_polling(settings: Settings) -> Json:
         for result in results:
             result["readings_per_s"] = result["readings"] / result["wall_s"]
             result["cpu_s_per_min"] = result["cpu_s"] / result["wall_s"] * 60
+            result["cpu_system_s_per_min"] = result["cpu_system_s"] / result["wall_s"] * 60
             result["cpu_ms_per_1000_readings"] = result["cpu_s"] / max(result["readings"], 1) * 1e6
-    keys = ("readings_per_s", "interval_median_ms", "interval_p99_ms", "interval_max_ms", "cpu_s_per_min")
+    keys = (
+        "readings_per_s",
+        "interval_median_ms",
+        "interval_p99_ms",
+        "interval_max_ms",
+        "cpu_s_per_min",
+        "cpu_system_s_per_min",
+    )
     summary = {
         key: {name: _median(results, name) for name in (*keys, "cpu_ms_per_1000_readings")}
         for key, results in runs.items()

@@ -41,9 +41,24 @@ class RunFailedError(RuntimeError):
     """The contender could not complete the run (no answer, not online, print failed)."""
 
 
-def cpu_s() -> float:
-    """CPU seconds of this process, all threads, user and system."""
-    return time.process_time()
+class Meter:
+    """Wall time and this process's CPU time (all threads) from construction to `stop()`."""
+
+    def __init__(self) -> None:
+        self._times = os.times()
+        self._cpu = time.process_time()
+        self.start = time.perf_counter()
+        self._split = {"cpu_user_s": math.nan, "cpu_system_s": math.nan}
+
+    def stop(self) -> tuple[float, float]:
+        """Return (wall seconds, CPU seconds: user and system, every thread)."""
+        wall, cpu, times = time.perf_counter() - self.start, time.process_time() - self._cpu, os.times()
+        self._split = {"cpu_user_s": times.user - self._times.user, "cpu_system_s": times.system - self._times.system}
+        return wall, cpu
+
+    def split(self) -> dict[str, float]:
+        """The CPU time of the measured window as user and system (kernel) seconds."""
+        return dict(self._split)
 
 
 def ru_maxrss_bytes() -> int:
@@ -119,13 +134,13 @@ async def marlin_round_trips(spec: Result) -> Result:
             await printer.send("M105")
         count = 0
         with profiled(spec.get("profile")):
-            cpu_start, start = cpu_s(), time.perf_counter()
-            end = start + spec["seconds"]
+            meter = Meter()
+            end = meter.start + spec["seconds"]
             while time.perf_counter() < end:
                 await printer.send("M105")
                 count += 1
-            wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
-    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu}
+            wall, cpu = meter.stop()
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
 
 
 async def marlin_polling(spec: Result) -> Result:
@@ -147,10 +162,10 @@ async def marlin_polling(spec: Result) -> Result:
         await asyncio.sleep(0)  # subscribed before the first poll goes out
         try:
             with profiled(spec.get("profile")):
-                cpu_start, start = cpu_s(), time.perf_counter()
+                meter = Meter()
                 async with printer.poll_temperatures(interval_s=spec["interval_s"]):
                     await asyncio.sleep(spec["seconds"])
-                wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+                wall, cpu = meter.stop()
         finally:
             collector.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -162,6 +177,7 @@ async def marlin_polling(spec: Result) -> Result:
         "timeouts": timeouts,
         "wall_s": wall,
         "cpu_s": cpu,
+        **meter.split(),
         **interval_stats(poll_times),
     }
 
@@ -171,12 +187,13 @@ async def marlin_streaming(spec: Result) -> Result:
 
     async with marlin_aio.connect(spec["url"], timeout_s=ANSWER_TIMEOUT_S * 2) as printer:
         with profiled(spec.get("profile")):
-            cpu_start, start = cpu_s(), time.perf_counter()
+            meter = Meter()
             progress = await printer.print_file(Path(spec["path"]), send_ahead=spec["send_ahead"])
-            wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+            wall, cpu = meter.stop()
     return {
         "seconds": wall,
         "cpu_s": cpu,
+        **meter.split(),
         "lines": progress.lines_acked,
         "file_bytes": progress.source_bytes_acked,
         "wire_bytes": progress.bytes_acked,
@@ -260,16 +277,16 @@ async def floor_round_trips(spec: Result) -> Result:
         while time.perf_counter() < deadline:
             await round_trip()
         count = 0
-        cpu_start, start = cpu_s(), time.perf_counter()
-        end = start + spec["seconds"]
+        meter = Meter()
+        end = meter.start + spec["seconds"]
         while time.perf_counter() < end:
             await round_trip()
             count += 1
-        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+        wall, cpu = meter.stop()
     finally:
         transport.close()
         await asyncio.sleep(0.05)  # the port closes in an executor
-    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu}
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
 
 
 def pyserial_round_trips(spec: Result) -> Result:
@@ -290,15 +307,15 @@ def pyserial_round_trips(spec: Result) -> Result:
         while time.perf_counter() < deadline:
             round_trip()
         count = 0
-        cpu_start, start = cpu_s(), time.perf_counter()
-        end = start + spec["seconds"]
+        meter = Meter()
+        end = meter.start + spec["seconds"]
         while time.perf_counter() < end:
             round_trip()
             count += 1
-        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+        wall, cpu = meter.stop()
     finally:
         port.close()
-    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu}
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
 
 
 class PrintcoreSession:
@@ -356,15 +373,15 @@ def printcore_round_trips(spec: Result) -> Result:
         while time.perf_counter() < deadline:
             session.round_trip()
         count = 0
-        cpu_start, start = cpu_s(), time.perf_counter()
-        end = start + spec["seconds"]
+        meter = Meter()
+        end = meter.start + spec["seconds"]
         while time.perf_counter() < end:
             session.round_trip()
             count += 1
-        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+        wall, cpu = meter.stop()
     finally:
         session.close()
-    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu}
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
 
 
 def printcore_polling(spec: Result) -> Result:
@@ -373,17 +390,22 @@ def printcore_polling(spec: Result) -> Result:
     times: list[float] = []
     try:
         session.on_temperature = times.append
-        cpu_start, start = cpu_s(), time.perf_counter()
-        end = start + spec["seconds"]
+        meter = Meter()
+        end = meter.start + spec["seconds"]
         while time.perf_counter() < end:
             session.round_trip()
-        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+        wall, cpu = meter.stop()
         session.on_temperature = None
     finally:
         session.close()
-    return {"readings": len(times), "other_readings": 0, "timeouts": 0, "wall_s": wall, "cpu_s": cpu} | (
-        interval_stats(times)
-    )
+    return {
+        "readings": len(times),
+        "other_readings": 0,
+        "timeouts": 0,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        **meter.split(),
+    } | (interval_stats(times))
 
 
 def printcore_streaming(spec: Result) -> Result:
@@ -395,13 +417,13 @@ def printcore_streaming(spec: Result) -> Result:
     gcode = gcoder.LightGCode(lines)
     session = PrintcoreSession(spec["url"])
     try:
-        cpu_start, start = cpu_s(), time.perf_counter()
+        meter = Meter()
         if not session.core.startprint(gcode):
             raise RunFailedError("printcore: startprint refused (offline or already printing)")
         # Bounded: three times the slowest plausible rate, as the orchestrator also enforces.
         if not session.finished.wait(spec["timeout_s"]):
             raise RunFailedError(f"printcore: the print did not finish within {spec['timeout_s']:.0f} s")
-        wall, cpu = time.perf_counter() - start, cpu_s() - cpu_start
+        wall, cpu = meter.stop()
     finally:
         session.close()
     # printcore numbers from N0 after its `M110 N-1`; these are the bytes it put on the wire for the file.
@@ -409,6 +431,7 @@ def printcore_streaming(spec: Result) -> Result:
     return {
         "seconds": wall,
         "cpu_s": cpu,
+        **meter.split(),
         "lines": len(lines),
         "file_bytes": sum(len(line) + 1 for line in lines),
         "wire_bytes": wire_bytes,
