@@ -256,4 +256,11 @@ def render(results: Json) -> str:
         f"{machine['os']}; commit {machine['commit']}; {versions}."
         + (" Quick smoke run: short runs, not for comparison." if results.get("quick") else "")
     )
+    older = [
+        f"{name} on {entry['machine']['date']} (commit {entry['machine']['commit']})"
+        for name, entry in results["scenarios"].items()
+        if "machine" in entry and entry["machine"]["date"] != machine["date"]
+    ]
+    if older:
+        lines.append("Kept from an earlier invocation: " + "; ".join(older) + ".")
     return "\n".join(lines)
