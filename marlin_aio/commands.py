@@ -18,6 +18,7 @@ __all__ = [
     "format_celsius",
     "number_command",
     "strip_comment",
+    "validate_command",
 ]
 
 #: Marlin's `MAX_CMD_SIZE` is 96 bytes including the terminating NUL, so 95 bytes of text fit.
@@ -44,7 +45,12 @@ def strip_comment(text: str) -> str:
     return text.strip()
 
 
-def _validate(text: str) -> str:
+def validate_command(text: str) -> str:
+    """Return the command as it will be sent (comment and surrounding space removed), or raise.
+
+    Raises:
+        ValueError: a line break, NUL, non-ASCII or `*` in it, or nothing left once the comment is removed.
+    """
     if "\n" in text or "\r" in text:
         raise ValueError(f"command contains a line break: {text!r}; send one command per call")
     if not text.isascii():
@@ -92,7 +98,7 @@ def encode_command(text: str, line_number: int | None = None) -> bytes:
         ValueError: if the command holds a line break, NUL or a non-ASCII character, is empty once its comment
             is removed, or is longer than Marlin's 95-byte command buffer once numbered.
     """
-    command = _validate(text)
+    command = validate_command(text)
     line = command if line_number is None else number_command(command, line_number)
     if len(line) > MAX_COMMAND_BYTES:
         raise ValueError(

@@ -27,7 +27,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from marlin_aio.commands import MAX_COMMAND_BYTES, command_code, encode_command, number_command
+from marlin_aio.commands import MAX_COMMAND_BYTES, command_code, encode_command, number_command, validate_command
 from marlin_aio.errors import (
     CommandTimeoutError,
     MarlinError,
@@ -207,24 +207,22 @@ class Connection:
             command = Command(self._next_id, text, command_code(text), use_numbers, timeout_s, now)
             self._queue.append(command)
             return command
-        # Validate now, so a bad command never reaches the queue: first as given (the clearest message), then
-        # with a line number comfortably larger than any it can get while queued.
-        encode_command(text)
+        # Validate now, so a bad command never reaches the queue: as given (the clearest message), then its length
+        # with a line number comfortably larger than any it can get while queued ("N<n> " and "*<checksum>").
+        stripped = validate_command(text)
         if use_numbers:
-            try:
-                encode_command(text, self._next_line + len(self._queue) + len(self._in_flight) + 1000)
-            except ValueError:
+            longest_number = self._next_line + len(self._queue) + len(self._in_flight) + 1000
+            if len(stripped) + len(str(longest_number)) + 6 > MAX_COMMAND_BYTES:
                 raise ValueError(
                     f"command {text[:40]!r}... is too long: with its line number and checksum it would exceed "
                     f"Marlin's {MAX_COMMAND_BYTES}-byte limit"
-                ) from None
-        code = command_code(text)
+                )
+        code = command_code(stripped)
         if self.halted is not None and code != "M999":
             raise self.halted
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         self._next_id += 1
-        stripped = encode_command(text).decode("ascii").rstrip("\n")
         command = Command(self._next_id, stripped, code, use_numbers, timeout_s, now)
         self._queue.append(command)
         return command
