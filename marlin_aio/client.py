@@ -740,7 +740,7 @@ class Printer:
         self._arm_timer()
 
     def _flush(self) -> None:
-        if self._transport is None or self._lost is not None:
+        if self._transport is None or self._lost is not None or not self._conn.has_data_to_send:
             return
         data = self._conn.data_to_send(self._running_loop().time())
         if data:

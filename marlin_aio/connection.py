@@ -776,6 +776,11 @@ class Connection:
         return results
 
     @property
+    def has_data_to_send(self) -> bool:
+        """True when `data_to_send()` may return something (a queued command or a print job to feed)."""
+        return bool(self._queue) or self.job is not None
+
+    @property
     def probe_reserve_bytes(self) -> int:
         """Bytes of the receive buffer kept free while a job streams, so a probe or a user command always fits.
 
