@@ -105,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if arguments.profile is not None:
         how = "py-spy" if py_spy() is not None else "cProfile (py-spy not installed: pip install py-spy)"
         print(f"profiling marlin_aio's runs with {how} into {arguments.profile}", file=sys.stderr)
-    names = arguments.only or list(SCENARIOS)
+    names = [name for name in SCENARIOS if not arguments.only or name in arguments.only]
     # Scenarios not run now are kept from the previous results, each with its own date and machine.
     previous = _load(output) if arguments.only else None
     scenarios: dict[str, Any] = dict(previous["scenarios"]) if previous and not previous.get("quick") else {}

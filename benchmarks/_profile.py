@@ -42,15 +42,26 @@ def _function(frame: str) -> str:
     return f"{name} ({where.rsplit(':', 1)[0]})" if where else name
 
 
-def summarise(raw: Path, top: int = 40) -> str:
-    """The functions most often on the stack (inclusive) and at its top (self), as shares of all samples.
+# Frames at the top of the stack while a thread waits: the event loop in select/epoll (for the printer's answer
+# or the next timer) and an idle executor thread. py-spy does not always recognise these as idle.
+WAITING = frozenset(
+    {
+        "EpollSelector.select (selectors.py)",
+        "SelectSelector.select (selectors.py)",
+        "PollSelector.select (selectors.py)",
+        "_worker (concurrent/futures/thread.py)",
+    }
+)
 
-    Samples in `select`/`epoll` are the loop waiting for the printer; in a thread pool's `_worker` an idle
-    executor thread; py-spy counts both unless they look idle to it.
+
+def summarise(raw: Path, top: int = 40) -> str:
+    """The functions most often on the stack (inclusive) and at its top (self), as shares of the busy samples.
+
+    Busy samples are those not waiting (see `WAITING`); the waiting share is given once at the head.
     """
     inclusive: collections.Counter[str] = collections.Counter()
     leaf: collections.Counter[str] = collections.Counter()
-    total = 0
+    total = waiting = 0
     for line in raw.read_text().splitlines():
         stack, _, count_text = line.rpartition(" ")
         if not stack or not count_text.isdigit():
@@ -58,13 +69,22 @@ def summarise(raw: Path, top: int = 40) -> str:
         count = int(count_text)
         total += count
         frames = [_function(frame) for frame in stack.split(";")]
+        if frames[-1] in WAITING:
+            waiting += count
+            continue
         leaf[frames[-1]] += count
         for name in set(frames):
             inclusive[name] += count
-    if total == 0:
-        return f"{raw}: no samples\n"
-    lines = [f"{raw.name}: {total} samples", "", "inclusive (on the stack):"]
-    lines += [f"  {n / total:6.1%}  {name}" for name, n in inclusive.most_common(top)]
+    busy = total - waiting
+    if busy == 0:
+        return f"{raw.name}: no busy samples ({total} in all)\n"
+    lines = [
+        f"{raw.name}: {total} samples, {waiting / total:.1%} waiting (select/epoll, idle threads); "
+        f"shares below are of the {busy} busy samples",
+        "",
+        "inclusive (on the stack):",
+    ]
+    lines += [f"  {n / busy:6.1%}  {name}" for name, n in inclusive.most_common(top)]
     lines += ["", "self (top of the stack):"]
-    lines += [f"  {n / total:6.1%}  {name}" for name, n in leaf.most_common(top // 2)]
+    lines += [f"  {n / busy:6.1%}  {name}" for name, n in leaf.most_common(top // 2)]
     return "\n".join(lines) + "\n"

@@ -126,13 +126,16 @@ def _polling(entry: Json) -> list[str]:
             rows,
         ),
     ]
+    lines += [
+        "",
+        f"marlin_aio uses {_x(entry['ratios'].get('floor_cpu'), 1)} the client CPU of the floor polling on the same "
+        "10 ms schedule (a timer, a write, one line read, nothing parsed).",
+    ]
     if "printcore" in summary:
-        lines += [
-            "",
-            "printcore has no poller of its own, so its loop sends M105 as soon as the last one is answered; its "
-            "CPU per reading is the cost of a reading flat out, marlin_aio's includes the timer wakeups of a "
-            "paced 100 Hz schedule.",
-        ]
+        lines[-1] += (
+            " printcore has no poller of its own, so its loop sends M105 as soon as the last one is answered: its "
+            "CPU per reading is the cost of a reading flat out, without the timer wakeups of a paced schedule."
+        )
     return lines
 
 

@@ -214,6 +214,7 @@ def run_polling(settings: Settings) -> Json:
         settings,
         [
             Contender("marlin_aio", "marlin_aio poll_temperatures(0.01)", "marlin_aio", {"interval_s": 0.01}),
+            Contender("floor", "floor: bare asyncio protocol every 10 ms", "floor", {"interval_s": 0.01}),
             Contender("printcore", "printcore, M105 back to back", "printcore"),
         ],
     )
@@ -249,10 +250,10 @@ def run_polling(settings: Settings) -> Json:
         for key, results in runs.items()
     }
     ours = summary["marlin_aio"]
-    ratios: Json = {}
+    ratios: Json = {"floor_cpu": _ratio(ours["cpu_s_per_min"], summary["floor"]["cpu_s_per_min"])}
     if "printcore" in summary:
         theirs = summary["printcore"]
-        ratios = {
+        ratios |= {
             "printcore_readings_per_s": _ratio(ours["readings_per_s"], theirs["readings_per_s"]),
             "printcore_cpu_per_reading": _ratio(theirs["cpu_ms_per_1000_readings"], ours["cpu_ms_per_1000_readings"]),
         }

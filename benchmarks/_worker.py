@@ -22,7 +22,7 @@ import statistics
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -242,37 +242,47 @@ async def marlin_memory(spec: Result) -> Result:
 # ------------------------------------------------------------------------------------------------ baselines
 
 
-async def floor_round_trips(spec: Result) -> Result:
-    """The floor: a bare asyncio protocol on the same transport that writes `M105` and waits for one line."""
+class _LineProtocol(asyncio.Protocol):
+    """Completes `waiter` at the first newline; parses nothing."""
+
+    def __init__(self) -> None:
+        self.buffer = b""
+        self.waiter: asyncio.Future[None] | None = None
+
+    def data_received(self, data: bytes) -> None:
+        self.buffer += data
+        if b"\n" in self.buffer:
+            _, _, self.buffer = self.buffer.partition(b"\n")
+            if self.waiter is not None and not self.waiter.done():
+                self.waiter.set_result(None)
+
+
+@contextlib.asynccontextmanager
+async def floor_link(url: str) -> AsyncIterator[Callable[[], Awaitable[None]]]:
+    """The floor: a bare asyncio protocol on the same transport (pyserial-asyncio-fast), yielding a round trip
+    that writes `M105` and waits for one line, with the same kind of deadline a client needs."""
     import serial_asyncio_fast
 
     loop = asyncio.get_running_loop()
+    transport, protocol = await serial_asyncio_fast.create_serial_connection(loop, _LineProtocol, url, baudrate=250_000)
+    assert isinstance(protocol, _LineProtocol)
 
-    class LineProtocol(asyncio.Protocol):
-        def __init__(self) -> None:
-            self.buffer = b""
-            self.waiter: asyncio.Future[None] | None = None
+    async def round_trip() -> None:
+        protocol.waiter = loop.create_future()
+        transport.write(b"M105\n")
+        await asyncio.wait_for(protocol.waiter, ANSWER_TIMEOUT_S)
 
-        def data_received(self, data: bytes) -> None:
-            self.buffer += data
-            if b"\n" in self.buffer:
-                _, _, self.buffer = self.buffer.partition(b"\n")
-                if self.waiter is not None and not self.waiter.done():
-                    self.waiter.set_result(None)
-
-    transport, protocol = await serial_asyncio_fast.create_serial_connection(
-        loop, LineProtocol, spec["url"], baudrate=250_000
-    )
-    assert isinstance(protocol, LineProtocol)
     try:
         await asyncio.sleep(QUIET_S)  # the boot banner arrives and is thrown away
         protocol.buffer = b""
+        yield round_trip
+    finally:
+        transport.close()
+        await asyncio.sleep(0.05)  # the port closes in an executor
 
-        async def round_trip() -> None:
-            protocol.waiter = loop.create_future()
-            transport.write(b"M105\n")
-            await asyncio.wait_for(protocol.waiter, ANSWER_TIMEOUT_S)
 
+async def floor_round_trips(spec: Result) -> Result:
+    async with floor_link(spec["url"]) as round_trip:
         deadline = time.perf_counter() + WARMUP_S
         while time.perf_counter() < deadline:
             await round_trip()
@@ -283,10 +293,33 @@ async def floor_round_trips(spec: Result) -> Result:
             await round_trip()
             count += 1
         wall, cpu = meter.stop()
-    finally:
-        transport.close()
-        await asyncio.sleep(0.05)  # the port closes in an executor
     return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
+
+
+async def floor_polling(spec: Result) -> Result:
+    """The floor polling at `interval_s` on a deadline schedule, as marlin_aio's poller does, with no parsing."""
+    loop = asyncio.get_running_loop()
+    times: list[float] = []
+    async with floor_link(spec["url"]) as round_trip:
+        meter = Meter()
+        start = next_poll = loop.time()
+        while loop.time() < start + spec["seconds"]:
+            delay = next_poll - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            await round_trip()
+            times.append(loop.time())
+            next_poll = max(next_poll + spec["interval_s"], loop.time())
+        wall, cpu = meter.stop()
+    return {
+        "readings": len(times),
+        "other_readings": 0,
+        "timeouts": 0,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        **meter.split(),
+        **interval_stats(times),
+    }
 
 
 def pyserial_round_trips(spec: Result) -> Result:
@@ -446,6 +479,7 @@ def printcore_streaming(spec: Result) -> Result:
 ASYNC_TASKS = {
     ("roundtrips", "marlin_aio"): marlin_round_trips,
     ("roundtrips", "floor"): floor_round_trips,
+    ("polling", "floor"): floor_polling,
     ("polling", "marlin_aio"): marlin_polling,
     ("streaming", "marlin_aio"): marlin_streaming,
     ("memory", "marlin_aio"): marlin_memory,
