@@ -351,7 +351,7 @@ class Printer:
             MarlinError: as `send`; also if the printer's answer holds no temperatures.
         """
         reply = await self.send("M105")
-        if reply.temperatures is None:
+        if reply.temperatures is None or not reply.temperatures.heaters:
             raise MarlinError(f"M105 was answered without temperatures: {reply.ok.payload!r}")
         # Built from this reply, not `latest`: an auto-report arriving in the same read may already have replaced it.
         return TemperatureReading(reply.temperatures, reply.answered_s, time.time(), "poll")

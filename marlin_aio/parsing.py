@@ -25,7 +25,7 @@ from marlin_aio.events import (
     UnrecognisedLine,
 )
 from marlin_aio.framing import DEFAULT_MAX_LINE_BYTES, LineSplitter
-from marlin_aio.temperatures import looks_like_temperatures, parse_temperatures
+from marlin_aio.temperatures import Temperatures, looks_like_temperatures, parse_temperatures
 
 __all__ = ["EventParser", "classify_line", "parse_endstops", "parse_position"]
 
@@ -48,7 +48,8 @@ def _classify_ok(text: str) -> Ok:
             break
         numbers[match[1]] = int(match[2])
         rest = after.lstrip()
-    temperatures = parse_temperatures(rest) if looks_like_temperatures(rest) else None
+    # Only M105 answers `ok T:...`; its fields are parsed when someone reads them.
+    temperatures = Temperatures.from_text(rest) if looks_like_temperatures(rest) else None
     return Ok(
         line_number=numbers.get("N"),
         planner_free=numbers.get("P"),

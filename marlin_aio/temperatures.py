@@ -28,16 +28,61 @@ class HeaterReading:
         return None if self.power is None else min(max(self.power / 127.0, 0.0), 1.0)
 
 
-@dataclass(frozen=True, slots=True)
 class Temperatures:
     """All sensors of one report, keyed by Marlin's letter: T (active hotend), T0..Tn, B, C, L, P, M, R.
 
     `waiting` is true for M109/M190 wait lines; `wait_remaining_s` is their `W:` countdown (None for `W:?`).
+    A report made with `Temperatures.from_text` parses its text the first time any of these is read: an M105
+    answer nobody looks at (a stream's probe, a bare round trip) costs nothing to parse.
     """
 
-    heaters: dict[str, HeaterReading]
-    waiting: bool = False
-    wait_remaining_s: float | None = None
+    __slots__ = ("_heaters", "_remaining", "_text", "_waiting")
+
+    def __init__(
+        self, heaters: dict[str, HeaterReading], waiting: bool = False, wait_remaining_s: float | None = None
+    ) -> None:
+        self._heaters: dict[str, HeaterReading] | None = heaters
+        self._waiting = waiting
+        self._remaining = wait_remaining_s
+        self._text = ""
+
+    @classmethod
+    def from_text(cls, text: str) -> Temperatures:
+        """A report of the fields in `text`, parsed when first read (no sensor found gives no heaters)."""
+        report = cls.__new__(cls)
+        report._heaters = None
+        report._waiting = False
+        report._remaining = None
+        report._text = text
+        return report
+
+    def _parse(self) -> dict[str, HeaterReading]:
+        parsed = parse_temperatures(self._text)
+        if parsed is None:
+            self._heaters = {}
+        else:
+            self._heaters, self._waiting, self._remaining = parsed.heaters, parsed.waiting, parsed.wait_remaining_s
+        return self._heaters
+
+    @property
+    def heaters(self) -> dict[str, HeaterReading]:
+        """Every sensor reported, by letter."""
+        heaters = self._heaters
+        return heaters if heaters is not None else self._parse()
+
+    @property
+    def waiting(self) -> bool:
+        """True for an M109/M190 wait line (it has `W:`)."""
+        if self._heaters is None:
+            self._parse()
+        return self._waiting
+
+    @property
+    def wait_remaining_s(self) -> float | None:
+        """The `W:` countdown in seconds, None for `W:?` or when not waiting."""
+        if self._heaters is None:
+            self._parse()
+        return self._remaining
 
     @property
     def hotend(self) -> HeaterReading | None:
@@ -53,6 +98,23 @@ class Temperatures:
     def chamber(self) -> HeaterReading | None:
         """The chamber (`C`), if the printer has one."""
         return self.heaters.get("C")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Temperatures):
+            return NotImplemented
+        return (self.heaters, self.waiting, self.wait_remaining_s) == (
+            other.heaters,
+            other.waiting,
+            other.wait_remaining_s,
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # mutable contents (a dict), like the dataclass it replaces
+
+    def __repr__(self) -> str:
+        return (
+            f"Temperatures(heaters={self.heaters!r}, waiting={self.waiting!r}, "
+            f"wait_remaining_s={self.wait_remaining_s!r})"
+        )
 
 
 _NUMBER = r"-?(?:\d+(?:\.\d*)?|\.\d+|inf|nan)"

@@ -206,3 +206,13 @@ def test_round_trip(report: tuple[dict[str, HeaterReading], bool, float | None])
     text = format_report(heaters, waiting, remaining)
     assert parse_temperatures(text) == Temperatures(heaters=heaters, waiting=waiting, wait_remaining_s=remaining)
     assert parse_temperatures("ok" + text) == Temperatures(heaters=heaters, waiting=waiting, wait_remaining_s=remaining)
+
+
+def test_a_report_from_text_parses_on_first_read_and_equals_the_eager_one() -> None:
+    text = "T:21.50 /200.00 B:60.10 /60.00 @:127 B@:40 W:7"
+    lazy = Temperatures.from_text(text)
+    assert lazy._heaters is None  # nothing parsed yet
+    assert lazy.waiting is True and lazy.wait_remaining_s == 7.0
+    assert lazy == parse_temperatures(text)
+    assert lazy.hotend == HeaterReading(actual=21.5, target=200.0, power=127)
+    assert Temperatures.from_text("T:abc").heaters == {}
