@@ -200,7 +200,6 @@ class Printer:
         """
         self._loop = asyncio.get_running_loop()
         self._closed = self._loop.create_future()
-        self._line_seen = asyncio.Event()
         transport, _ = await _serial.open_link(self.port, self.baudrate, lambda: _LinkProtocol(self))
         self._transport = transport
         if self._handshake_enabled:
@@ -235,16 +234,18 @@ class Printer:
 
     async def _handshake(self) -> None:
         loop = self._running_loop()
-        assert self._line_seen is not None
+        # Set by every read while the banner passes; dropped afterwards so reads stop paying for it.
+        line_seen = self._line_seen = asyncio.Event()
         # 1. Let the boot banner pass: many boards reset when the port opens and print for a moment. Wait until
         #    the line stream has been quiet for a short while; a board that does not reset prints nothing.
         boot_deadline = loop.time() + self.timeout_s
         while loop.time() < boot_deadline:
-            self._line_seen.clear()
+            line_seen.clear()
             try:
-                await asyncio.wait_for(self._line_seen.wait(), self._boot_quiet_s)
+                await asyncio.wait_for(line_seen.wait(), self._boot_quiet_s)
             except TimeoutError:
                 break
+        self._line_seen = None
         # Flush: whatever is left of the banner (half a line, noise from the reset) must not prefix the first reply.
         if self._transport is not None:
             _serial.flush_input(self._transport)
@@ -318,17 +319,6 @@ class Printer:
             raise
         finally:
             self._waiters.pop(entry.id, None)
-
-    async def send_many(self, commands: list[str]) -> list[Reply]:
-        """Send several commands in order and return their replies; stops at the first error.
-
-        Raises:
-            The same errors as `send`.
-        """
-        replies = []
-        for command in commands:
-            replies.append(await self.send(command))
-        return replies
 
     def emergency_stop(self) -> None:
         """Write M112 at once, ahead of anything queued; the printer halts and needs a reset.

@@ -15,6 +15,7 @@ import pytest
 from rich.console import Console
 from typer.testing import CliRunner
 
+import marlin_aio
 from marlin_aio import TemperatureReading, parse_temperatures
 from marlin_temp.main import app
 from marlin_temp.model import WatchModel
@@ -246,7 +247,12 @@ def test_plot_png_or_a_clear_message_without_matplotlib(tmp_path: Path) -> None:
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_ports_lists_something_or_says_none() -> None:
+def test_ports_lists_every_port_the_system_knows() -> None:
     result = runner.invoke(app, ["ports"])
     assert result.exit_code == 0
-    assert "port" in result.output
+    known = marlin_aio.list_ports()
+    if not known:
+        assert "no serial ports found" in result.output
+    for port in known:
+        assert port.device in result.output
+        assert (port.bridge or "-") in result.output

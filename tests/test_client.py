@@ -47,36 +47,36 @@ async def test_concurrent_senders_each_get_their_own_reply(sim: SimulatorServer)
     assert executed_codes(sim, "M118") == [f"M118 E1 task {i}" for i in range(60)]
 
 
-async def test_polling_at_100_hz_while_other_commands_run(printer: marlin_aio.Printer) -> None:
+async def test_polling_at_100_hz_while_other_commands_run(
+    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+) -> None:
     readings: list[marlin_aio.TemperatureReading] = []
     enough = asyncio.Event()
 
     async def collect() -> None:
         async for reading in printer.temperature_readings():
             readings.append(reading)
-            if len([r for r in readings if r.source == "poll"]) >= 150:
+            if sum(r.source == "poll" for r in readings) >= 150:
                 enough.set()
 
     collector = asyncio.create_task(collect())
     async with printer.poll_temperatures(interval_s=0.01):
-        moves = [await printer.send(f"G1 X{i} Y{i} F6000") for i in range(1, 20)]
-        dwell = await printer.send("G4 P200")
         await asyncio.wait_for(enough.wait(), 30)
+        moves = [f"G1 X{i} Y{i} F6000" for i in range(1, 20)]
+        replies = [await printer.send(move) for move in moves]
+        # G4 S4 holds the queue 4 simulated seconds (0.2 s here): some 20 poll slots pass behind it. They must be
+        # skipped, not queued up to burst out afterwards: at most the one poll already waiting may remain.
+        await printer.send("G4 S4")
+        assert printer.connection.queued == 0
+        assert printer.connection.in_flight <= 1
+        entries = printer.trace.entries()
     collector.cancel()
-    assert all(reply.ok is not None for reply in moves)
-    assert dwell.latency_s > 0
+    dwell_sent = max(i for i, e in enumerate(entries) if e.direction == "sent" and "G4 S4" in e.text)
+    dwell_ok = next(i for i, e in enumerate(entries) if i > dwell_sent and e.text.startswith("ok"))
+    assert not any(e.direction == "sent" for e in entries[dwell_sent + 1 : dwell_ok]), "a poll went out mid-dwell"
+    assert all(reply.lines == () for reply in replies)
+    assert executed_codes(pty_sim, "G1 ") == moves
     assert printer.connection.timeouts == 0
-    # Never more than one M105 on the wire at once, and none written while the dwell held the queue.
-    outstanding = 0
-    in_dwell = False
-    for entry in printer.trace.entries():
-        if entry.direction == "sent":
-            outstanding += 1
-            in_dwell = in_dwell or "G4 P200" in entry.text
-            assert outstanding <= 1, "two commands were written before the first was answered"
-        elif entry.text.startswith("ok"):
-            outstanding = 0
-            in_dwell = False
     poll_times = [r.monotonic_s for r in readings if r.source == "poll"]
     assert poll_times == sorted(poll_times)
 
@@ -113,7 +113,6 @@ async def test_long_m190_with_keepalives_never_times_out() -> None:
         # The bed needs far longer than the 0.5 s timeout to reach 45 C; keepalives and wait lines keep it alive.
         reply = await printer.send("M190 S45")
         collector.cancel()
-        assert reply.ok is not None
         assert reply.latency_s > 0.5
         assert len(wait_lines) >= 3
         assert printer.connection.timeouts == 0
