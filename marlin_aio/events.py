@@ -22,9 +22,12 @@ __all__ = [
     "HostAction",
     "Ok",
     "OverlongLine",
+    "PrinterLocked",
     "ResendRequest",
     "Start",
+    "TargetTemperature",
     "TemperatureReport",
+    "UnknownCommand",
     "UnrecognisedLine",
 ]
 
@@ -47,14 +50,31 @@ class Ok:
 
 @dataclass(frozen=True, slots=True)
 class TemperatureReport:
-    """A temperature line that is not an ok: an auto-report (M155) or an M109/M190 wait line (with `W:`)."""
+    """A temperature line that is not an ok: an auto-report (M155) or an M109/M190 wait line.
+
+    Marlin ends wait lines with `W:`; some firmwares print them as plain reports, which look like auto-reports.
+    """
 
     temperatures: Temperatures
 
 
 @dataclass(frozen=True, slots=True)
+class TargetTemperature:
+    """A Repetier-style target line (`TargetExtr0:200`, `TargetBed:60`, `TargetChamber:45`): a heater's new target.
+
+    `heater` uses the report letters: "T0", "T1", ... for `TargetExtrN`, "B" for the bed, "C" for the chamber.
+    """
+
+    heater: str
+    celsius: float
+
+
+@dataclass(frozen=True, slots=True)
 class BusyKeepalive:
-    """`echo:busy: processing` (or `paused for user` / `paused for input`): a long command is still running."""
+    """`echo:busy: processing` (or `paused for user` / `paused for input`; some firmwares drop the `echo:`).
+
+    A long command is still running.
+    """
 
     reason: str
 
@@ -70,14 +90,20 @@ class ErrorKind(Enum):
     """What an `Error:` line is about."""
 
     LINE = "line"  # a line number or checksum problem; a resend request follows
+    # The firmware takes only numbered lines with a checksum: the unnumbered command was thrown away, and neither a
+    # resend request nor an ok follows.
+    CHECKSUM_REQUIRED = "checksum_required"
     THERMAL = "thermal"  # thermal protection tripped; the printer halts
     HALTED = "halted"  # the printer stopped (kill() or stop()) and needs a reset or M999
+    # A `!!` line that is not a halt (`!! Lost communication with MCU 'mcu'` from a host-side bridge): the command
+    # that the next ok answers was not run.
+    NOT_EXECUTED = "not_executed"
     OTHER = "other"
 
 
 @dataclass(frozen=True, slots=True)
 class ErrorMessage:
-    """An `Error:` line; `message` is the text after the prefix."""
+    """An `Error:` or `!!` line; `message` is the text after the prefix."""
 
     message: str
     kind: ErrorKind
@@ -85,7 +111,27 @@ class ErrorMessage:
 
 @dataclass(frozen=True, slots=True)
 class EchoMessage:
-    """An `echo:` line other than a busy keepalive; `message` is the text after the prefix."""
+    """An `echo:` line no other event stands for; `message` is the text after the prefix."""
+
+    message: str
+
+
+@dataclass(frozen=True, slots=True)
+class UnknownCommand:
+    """`echo:Unknown command: "G999"`: the firmware does not know the command; its ok still follows.
+
+    `command` is the quoted text without the quotes.
+    """
+
+    command: str
+
+
+@dataclass(frozen=True, slots=True)
+class PrinterLocked:
+    """`echo:Printer locked! (Unlock with M511 or LCD)` (PASSWORD_FEATURE): the command was not run; an ok follows.
+
+    `message` is the text after `echo:`. `M511 P<password>` unlocks the printer.
+    """
 
     message: str
 
@@ -137,10 +183,13 @@ class UnrecognisedLine:
 Event = (
     Ok
     | TemperatureReport
+    | TargetTemperature
     | BusyKeepalive
     | ResendRequest
     | ErrorMessage
     | EchoMessage
+    | UnknownCommand
+    | PrinterLocked
     | Start
     | FirmwareInfo
     | Capability

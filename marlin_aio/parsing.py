@@ -19,9 +19,12 @@ from marlin_aio.events import (
     HostAction,
     Ok,
     OverlongLine,
+    PrinterLocked,
     ResendRequest,
     Start,
+    TargetTemperature,
     TemperatureReport,
+    UnknownCommand,
     UnrecognisedLine,
 )
 from marlin_aio.framing import DEFAULT_MAX_LINE_BYTES, LineSplitter
@@ -33,6 +36,8 @@ __all__ = ["EventParser", "classify_line", "parse_endstops", "parse_position"]
 _ADVANCED_OK = re.compile(r"([NPB])(\d{1,12})")
 _RESEND = re.compile(r"(?:Resend|rs)[: ]\s*N?(\d{1,12})(?!\d)", re.IGNORECASE)
 _FIRMWARE_FIELD = re.compile(r"([A-Z_]+):")
+# Repetier-style targets: `TargetExtr0:200`, `TargetBed:60.5`, `TargetChamber:45`.
+_TARGET = re.compile(r"Target(?:Extr(\d{1,3})|(Bed)|(Chamber))[ \t]*:[ \t]*(-?\d{1,12}(?:\.\d{0,12})?)")
 _THERMAL_WORDS = ("thermal runaway", "thermal malfunction", "heating failed", "maxtemp", "mintemp")
 _HALT_WORDS = ("printer halted", "kill() called", "printer stopped due to errors")
 
@@ -59,15 +64,51 @@ def _classify_ok(text: str) -> Ok:
     )
 
 
-def _error_kind(message: str) -> ErrorKind:
+def _error_kind(message: str, bang: bool) -> ErrorKind:
     lowered = message.lower()
-    if "last line" in lowered or "checksum" in lowered or "line number" in lowered:
-        return ErrorKind.LINE
+    if not bang:
+        if "last line" in lowered:
+            return ErrorKind.LINE
+        # Without `Last Line` no resend follows: a firmware refusing an unnumbered line (`Missing checksum`, or the
+        # `No Checksum with line number` variant some print), not a numbered line that arrived damaged.
+        if "missing checksum" in lowered or "no checksum" in lowered:
+            return ErrorKind.CHECKSUM_REQUIRED
+        if "checksum" in lowered or "line number" in lowered:
+            return ErrorKind.LINE
     if any(word in lowered for word in _THERMAL_WORDS):
         return ErrorKind.THERMAL
     if any(word in lowered for word in _HALT_WORDS):
         return ErrorKind.HALTED
-    return ErrorKind.OTHER
+    # A `!!` line that is not a halt comes from a host-side bridge that did not pass the command on.
+    return ErrorKind.NOT_EXECUTED if bang else ErrorKind.OTHER
+
+
+def _classify_target(text: str) -> TargetTemperature | None:
+    match = _TARGET.fullmatch(text)
+    if match is None:
+        return None
+    extruder, bed, _chamber, celsius = match.groups()
+    # int() normalises `TargetExtr00` to T0, the letter the temperature reports use.
+    heater = f"T{int(extruder)}" if extruder is not None else "B" if bed is not None else "C"
+    return TargetTemperature(heater=heater, celsius=float(celsius))
+
+
+def _classify_echo(message: str) -> Event:
+    if message.startswith("busy:"):
+        return BusyKeepalive(reason=message[5:].strip())
+    if message.startswith("Unknown command:"):
+        command = message[16:].strip()
+        # Marlin quotes the command; strip exactly one pair so quotes inside it survive.
+        if len(command) >= 2 and command[0] == command[-1] == '"':
+            command = command[1:-1]
+        return UnknownCommand(command=command)
+    if message.startswith("Printer locked"):
+        return PrinterLocked(message=message)
+    if message.startswith("Target"):
+        target = _classify_target(message)
+        if target is not None:
+            return target
+    return EchoMessage(message=message)
 
 
 def _classify_firmware(text: str) -> FirmwareInfo:
@@ -87,13 +128,20 @@ def classify_line(text: str) -> Event:
     if head == "ok" and (len(stripped) == 2 or stripped[2] == " "):
         return _classify_ok(stripped)
     if stripped.startswith("echo:"):
-        message = stripped[5:].strip()
-        if message.startswith("busy:"):
-            return BusyKeepalive(reason=message[5:].strip())
-        return EchoMessage(message=message)
-    if stripped.startswith(("Error:", "!!")):
-        message = stripped[6:].strip() if stripped.startswith("Error:") else stripped[2:].strip()
-        return ErrorMessage(message=message, kind=_error_kind(message))
+        return _classify_echo(stripped[5:].strip())
+    if stripped.startswith("Error:"):
+        message = stripped[6:].strip()
+        return ErrorMessage(message=message, kind=_error_kind(message, bang=False))
+    if head == "!!":
+        message = stripped[2:].strip()
+        return ErrorMessage(message=message, kind=_error_kind(message, bang=True))
+    if head == "bu" and stripped.startswith("busy:"):
+        # Some firmwares print the keepalive without `echo:`.
+        return BusyKeepalive(reason=stripped[5:].strip())
+    if head == "Ta":
+        target = _classify_target(stripped)
+        if target is not None:
+            return target
     if head in ("Re", "rs"):
         match = _RESEND.match(stripped)
         if match is not None:

@@ -26,9 +26,12 @@ from marlin_aio.events import (
     HostAction,
     Ok,
     OverlongLine,
+    PrinterLocked,
     ResendRequest,
     Start,
+    TargetTemperature,
     TemperatureReport,
+    UnknownCommand,
     UnrecognisedLine,
 )
 from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
@@ -183,7 +186,6 @@ def test_other_errors(message: str) -> None:
 @pytest.mark.parametrize(
     ("line", "message"),
     [
-        ('echo:Unknown command: "M9999"', 'Unknown command: "M9999"'),
         ("echo:M105 Invalid extruder 9", "M105 Invalid extruder 9"),
         ("echo:  G21 ; (mm)", "G21 ; (mm)"),
         ("echo:M112 Shutdown", "M112 Shutdown"),
@@ -291,6 +293,175 @@ def test_classify_line_is_total_for_huge_numbers(line: str) -> None:
     assert isinstance(classify_line(line), EVENT_TYPES)
 
 
+# ----------------------------------------------------------------------------------------------- dialects
+# The protocol doc's "Dialects a host meets in the field". Each line is classified whole and fed to an EventParser
+# one byte at a time: both must give the same single event.
+
+
+def classify_both_ways(line: str) -> Event:
+    """The event for `line`, after checking that a byte-by-byte EventParser gives exactly the same one."""
+    event = classify_line(line)
+    parser = EventParser()
+    got: list[tuple[str, Event]] = []
+    for byte in (line + "\n").encode():
+        got.extend(parser.receive_data(bytes([byte])))
+    assert got == [(line, event)]
+    return event
+
+
+@pytest.mark.parametrize(
+    ("line", "reason"),
+    [
+        ("busy:processing", "processing"),
+        ("busy: processing", "processing"),
+        ("busy: paused for user", "paused for user"),
+        ("echo:busy:processing", "processing"),
+    ],
+)
+def test_busy_keepalive_without_echo(line: str, reason: str) -> None:
+    assert classify_both_ways(line) == BusyKeepalive(reason=reason)
+
+
+@pytest.mark.parametrize(
+    ("line", "heater", "celsius"),
+    [
+        ("TargetExtr0:200", "T0", 200.0),
+        ("TargetExtr1:0", "T1", 0.0),
+        ("TargetExtr12:215.5", "T12", 215.5),
+        ("TargetBed:60", "B", 60.0),
+        ("TargetBed:60.50", "B", 60.5),
+        ("TargetChamber:45", "C", 45.0),
+        ("echo:TargetExtr0:200", "T0", 200.0),
+        ("echo:TargetBed:60.0", "B", 60.0),
+        ("TargetExtr0: 200", "T0", 200.0),
+    ],
+)
+def test_repetier_target_lines(line: str, heater: str, celsius: float) -> None:
+    assert classify_both_ways(line) == TargetTemperature(heater=heater, celsius=celsius)
+
+
+@pytest.mark.parametrize("line", ["TargetExtr:200", "TargetExtr0:", "TargetBed:hot", "TargetNozzle:200", "Targets"])
+def test_malformed_target_lines_are_not_targets(line: str) -> None:
+    assert not isinstance(classify_both_ways(line), TargetTemperature)
+
+
+def test_printer_locked() -> None:
+    event = classify_both_ways("echo:Printer locked! (Unlock with M511 or LCD)")
+    assert event == PrinterLocked(message="Printer locked! (Unlock with M511 or LCD)")
+
+
+def test_incorrect_password_is_an_echo() -> None:
+    assert classify_both_ways("echo:Incorrect Password") == EchoMessage(message="Incorrect Password")
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ("Error: Missing checksum", "Missing checksum"),
+        ("Error:Missing checksum", "Missing checksum"),
+        # The doc's other spelling of the same refusal: without `Last Line` no resend follows.
+        ("Error:No Checksum with line number", "No Checksum with line number"),
+    ],
+)
+def test_checksum_required(line: str, message: str) -> None:
+    assert classify_both_ways(line) == ErrorMessage(message=message, kind=ErrorKind.CHECKSUM_REQUIRED)
+
+
+@pytest.mark.parametrize(
+    "line",
+    ["Error:No Checksum with line number, Last Line: 41", "Error:Missing checksum, Last Line: 41"],
+)
+def test_checksum_errors_with_a_last_line_stay_line_errors(line: str) -> None:
+    event = classify_both_ways(line)
+    assert isinstance(event, ErrorMessage)
+    assert event.kind is ErrorKind.LINE
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ("!! Lost communication with MCU 'mcu'", "Lost communication with MCU 'mcu'"),
+        ("!!Timer too close", "Timer too close"),
+        ("!! Move out of range: 250.000 0.000 0.000 [0.000]", "Move out of range: 250.000 0.000 0.000 [0.000]"),
+    ],
+)
+def test_bang_lines_are_not_executed(line: str, message: str) -> None:
+    assert classify_both_ways(line) == ErrorMessage(message=message, kind=ErrorKind.NOT_EXECUTED)
+
+
+@pytest.mark.parametrize(
+    ("line", "kind"),
+    [
+        ("!! Thermal Runaway, system stopped! Heater_ID: E0", ErrorKind.THERMAL),
+        ("!! Printer halted. kill() called!", ErrorKind.HALTED),
+    ],
+)
+def test_bang_halts_stay_halts(line: str, kind: ErrorKind) -> None:
+    event = classify_both_ways(line)
+    assert isinstance(event, ErrorMessage)
+    assert event.kind is kind
+
+
+@pytest.mark.parametrize(
+    ("line", "command"),
+    [
+        ('echo:Unknown command: "G999"', "G999"),
+        ('echo:Unknown command: "M9999"', "M9999"),
+        ('echo:Unknown command: "G999 X1"', "G999 X1"),
+        ('echo:Unknown command: "M117 say "hi""', 'M117 say "hi"'),
+        ("echo:Unknown command: G999", "G999"),
+        ('echo:Unknown command: ""', ""),
+    ],
+)
+def test_unknown_command(line: str, command: str) -> None:
+    assert classify_both_ways(line) == UnknownCommand(command=command)
+
+
+def test_plain_wait_line_without_leading_space_or_w() -> None:
+    event = classify_both_ways("T:187.3 /200.0 B:59.1 /60.0 @:127 B@:0")
+    assert isinstance(event, TemperatureReport)
+    assert event.temperatures.heaters == {
+        "T": HeaterReading(actual=187.3, target=200.0, power=127),
+        "B": HeaterReading(actual=59.1, target=60.0, power=0),
+    }
+    assert not event.temperatures.waiting
+
+
+def test_multi_extruder_report_gives_every_hotend_its_power() -> None:
+    event = classify_both_ways("T:200.0 /200.0 B:60.0 /60.0 T0:200.0 /200.0 T1:25.0 /0.0 @:64 B@:0 @0:64 @1:0")
+    assert isinstance(event, TemperatureReport)
+    assert event.temperatures.heaters == {
+        "T": HeaterReading(actual=200.0, target=200.0, power=64),
+        "B": HeaterReading(actual=60.0, target=60.0, power=0),
+        "T0": HeaterReading(actual=200.0, target=200.0, power=64),
+        "T1": HeaterReading(actual=25.0, target=0.0, power=0),
+    }
+
+
+def test_repetier_report_without_targets() -> None:
+    event = classify_both_ways("T:21.50 B:21.30 @:0 B@:0")
+    assert isinstance(event, TemperatureReport)
+    assert event.temperatures.heaters == {
+        "T": HeaterReading(actual=21.5, power=0),
+        "B": HeaterReading(actual=21.3, power=0),
+    }
+
+
+def test_ok_carrying_an_m114_position() -> None:
+    event = classify_both_ways("ok X:10.00 Y:0.00 Z:0.00 E:0.00 Count X:800 Y:0 Z:0")
+    assert isinstance(event, Ok)
+    assert (event.line_number, event.planner_free, event.buffer_free, event.temperatures) == (None, None, None, None)
+    assert event.payload == "X:10.00 Y:0.00 Z:0.00 E:0.00 Count X:800 Y:0 Z:0"
+    assert parse_position((event.payload,)) == {"X": 10.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
+
+
+def test_advanced_ok_carrying_an_m114_position() -> None:
+    event = classify_both_ways("ok N7 P15 B3 X:-1.50 Y:20.00 Z:0.20 E:0.00 Count X:-120 Y:1600 Z:80")
+    assert isinstance(event, Ok)
+    assert (event.line_number, event.planner_free, event.buffer_free) == (7, 15, 3)
+    assert parse_position((event.payload,)) == {"X": -1.5, "Y": 20.0, "Z": 0.2, "E": 0.0}
+
+
 # ----------------------------------------------------------------------------------------------- golden: captures
 
 _RECEIVED = re.compile(r"^\[\s*\d+\.\d+\] << (.*)$")
@@ -346,6 +517,8 @@ def check_capture_line(text: str) -> type:
             assert event.temperatures.wait_remaining_s == expected, text
     elif text.startswith("echo:busy:"):
         assert event == BusyKeepalive(reason=text.removeprefix("echo:busy:").strip()), text
+    elif text.startswith('echo:Unknown command: "'):
+        assert event == UnknownCommand(command=text.removeprefix('echo:Unknown command: "')[:-1]), text
     elif text.startswith("echo:"):
         assert event == EchoMessage(message=text.removeprefix("echo:").strip()), text
     elif text.startswith("Error:"):
@@ -396,6 +569,7 @@ def test_golden_capture_covers_every_kind() -> None:
         TemperatureReport,
         BusyKeepalive,
         EchoMessage,
+        UnknownCommand,
         ErrorMessage,
         ResendRequest,
         FirmwareInfo,
@@ -447,6 +621,16 @@ SAMPLE_LINES = [
     'echo:Unknown command: "M9999"',
     "echo:M112 Shutdown",
     "Error:Printer halted. kill() called!",
+    # The dialects of the protocol doc's last section.
+    "TargetExtr0:200",
+    "TargetBed:60",
+    "busy:processing",
+    " T:187.3 /200.0 B:59.1 /60.0 @:127 B@:0",
+    "T:200.0 /200.0 B:60.0 /60.0 T0:200.0 /200.0 T1:25.0 /0.0 @:64 B@:0 @0:64 @1:0",
+    "ok X:10.00 Y:0.00 Z:0.00 E:0.00 Count X:800 Y:0 Z:0",
+    "Error: Missing checksum",
+    "echo:Printer locked! (Unlock with M511 or LCD)",
+    "!! Lost communication with MCU 'mcu'",
 ]
 
 
@@ -525,6 +709,14 @@ _TOKENS = [
     b"Error:",
     b"echo:",
     b"busy:",
+    b"TargetExtr",
+    b"TargetBed:",
+    b"TargetChamber:",
+    b"!!",
+    b"Unknown command:",
+    b'"',
+    b"Printer locked",
+    b"Missing checksum",
     b"Cap:",
     b"FIRMWARE_NAME:",
     b"//action:",

@@ -48,6 +48,18 @@ def test_all_sensors_on_one_line() -> None:
     }
 
 
+def test_multi_extruder_report_from_the_protocol_doc() -> None:
+    parsed = parse("T:200.0 /200.0 B:60.0 /60.0 T0:200.0 /200.0 T1:25.0 /0.0 @:64 B@:0 @0:64 @1:0")
+    assert parsed.heaters["T0"] == HeaterReading(actual=200.0, target=200.0, power=64)
+    assert parsed.heaters["T1"] == HeaterReading(actual=25.0, target=0.0, power=0)
+    assert parsed.hotend == HeaterReading(actual=200.0, target=200.0, power=64)
+
+
+def test_repetier_report_without_targets() -> None:
+    parsed = parse("T:21.50 B:21.30 @:0 B@:0")
+    assert parsed.heaters == {"T": HeaterReading(21.5, None, 0), "B": HeaterReading(21.3, None, 0)}
+
+
 def test_powers_go_to_the_right_heater() -> None:
     # `@:` is the active hotend, `@0:`/`@1:` the numbered ones, `B@:` the bed, `C@:` the chamber: different numbers
     # for each, so a power given to the wrong heater shows.
