@@ -50,6 +50,7 @@ from marlin_aio.events import (
     ResendRequest,
     Start,
     TemperatureReport,
+    UnknownCommand,
     UnrecognisedLine,
 )
 from marlin_aio.parsing import EventParser
@@ -61,6 +62,9 @@ __all__ = ["Command", "Connection", "Reply"]
 
 #: Errors whose only argument is the message, so the print's position can be added to it.
 _PLAIN_ERRORS = (PrinterHaltedError, ThermalRunawayError, PrinterResetError, ResendLimitError, RemoteProtocolError)
+
+#: How many reply lines one command keeps (M115 prints about 40, M503 about 25); older ones are counted only.
+MAX_REPLY_LINES = 256
 
 #: Commands Marlin's emergency parser acts on as soon as their bytes arrive; they skip the queue here too.
 EMERGENCY_COMMANDS = frozenset({"M108", "M112", "M410", "M876"})
@@ -78,6 +82,8 @@ class Reply:
     ok: Ok
     sent_s: float
     answered_s: float
+    lines_dropped: int = 0
+    """Lines that came before `lines` and were not kept (over `MAX_REPLY_LINES`)."""
 
     @property
     def latency_s(self) -> float:
@@ -109,12 +115,26 @@ class Command:
     head_since_s: float | None = None  # when it became the oldest command waiting for an ok
     alive_s: float | None = None  # last busy keepalive / wait line while it was the oldest
     lines: list[str] = field(default_factory=list)
+    lines_dropped: int = 0  # reply lines beyond MAX_REPLY_LINES, counted, not kept
     sends: int = 0
     orphan: bool = False  # its caller already gave up (timed out); an answer completes nothing
     job: PrintJob | None = None  # set for the lines of a print job: their answers go to the job, not to a waiter
     source_line: int = 0
     source_bytes: int = 0
     probe: bool = False  # an M105 written to find out whether a stalled stream lost an ok
+
+    def add_line(self, text: str) -> None:
+        """Collect one reply line, keeping only the last `MAX_REPLY_LINES` (a chatty or noisy printer must not
+        grow one command's reply without bound)."""
+        self.lines.append(text)
+        if len(self.lines) > MAX_REPLY_LINES:
+            del self.lines[0]
+            self.lines_dropped += 1
+
+
+def _is_garbage(text: str) -> bool:
+    """True for a line no firmware prints: undecodable bytes or control characters (link noise)."""
+    return any(ch == "\ufffd" or (ch < " " and ch != "\t") or "\x7f" <= ch < "\xa0" for ch in text)
 
 
 class Connection:
@@ -131,6 +151,8 @@ class Connection:
         max_resends: how often one line may be requested again before the link is declared too noisy.
         resend_timeout_s: while lines are being resent, how long a resent line may go unanswered before it is
             written again (its rejection may have been taken for a stale one).
+        ok_after_resend: the firmware follows every `Resend:` with an `ok` that answers nothing (Marlin 2.1);
+            False for the 2.0.x builds that omit it.
     """
 
     def __init__(
@@ -142,6 +164,7 @@ class Connection:
         trace_size: int = 64,
         max_resends: int = 10,
         resend_timeout_s: float = 3.0,
+        ok_after_resend: bool = True,
     ) -> None:
         if max_in_flight < 1:
             raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
@@ -151,6 +174,7 @@ class Connection:
         self.max_in_flight = max_in_flight
         self.rx_buffer_bytes = rx_buffer_bytes
         self.max_resends = max_resends
+        self.ok_after_resend = ok_after_resend
         self._now = 0.0  # the latest time any call was given, for results that happen as a side effect
         self.job: PrintJob | None = None
         self._job_next: Command | None = None
@@ -179,6 +203,7 @@ class Connection:
         self.resets = 0
         self.resend_requests = 0
         self.stray_oks = 0
+        self.garbage_lines = 0  # lines of noise received (not given to any command)
         self.timeouts = 0
         # Every submitted command ends up counted once: answered + failed + cancelled + still queued or in flight.
         self.answered = 0
@@ -388,7 +413,8 @@ class Connection:
             assert isinstance(event, Ok)
             self._on_ok(event, now)
             return
-        self._swallow_ok = False
+        # A noise line between `Resend:` and its `ok` does not end the wait for that ok: both are printed by one
+        # call in Marlin's queue.cpp, so any line between them came from the link, not from the firmware.
         after_line_error = self._after_line_error
         self._after_line_error = (
             kind is ErrorMessage and isinstance(event, ErrorMessage) and event.kind is ErrorKind.LINE
@@ -408,8 +434,11 @@ class Connection:
             self._on_error(event, now)
         elif kind is Start:
             self._on_start()
-        elif head is not None and kind in (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability):
-            head.lines.append(text)
+        elif kind is UnrecognisedLine and _is_garbage(text):
+            # Noise from the link (a baud glitch, a reset) is nobody's reply.
+            self.garbage_lines += 1
+        elif head is not None and kind in (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability, UnknownCommand):
+            head.add_line(text)
 
     def _on_ok(self, ok: Ok, now: float) -> None:
         if self._swallow_ok:
@@ -459,7 +488,7 @@ class Connection:
                 self._probe = None
             elif not command.orphan:
                 sent = now if command.sent_s is None else command.sent_s
-                reply = Reply(command.text, tuple(command.lines), ok, sent, now)
+                reply = Reply(command.text, tuple(command.lines), ok, sent, now, command.lines_dropped)
                 self._finish(command, reply)
 
     def _pop_in_flight(self, now: float) -> Command:
@@ -472,7 +501,7 @@ class Connection:
     def _on_resend(self, line_number: int, now: float, *, rejected: bool = False) -> None:
         self.resend_requests += 1
         # The ok right after a resend request answers nothing. (M999 prints `Resend:` and `ok` too, then its own ok.)
-        self._swallow_ok = True
+        self._swallow_ok = self.ok_after_resend
         if line_number != self._resend_from:
             # A request for another line means the firmware has got past every stale line.
             self._stale = 0
@@ -562,7 +591,7 @@ class Connection:
             else:
                 self._halt(PrinterHaltedError(f"the printer halted: {event.message}"))
         elif event.kind is ErrorKind.OTHER and self._in_flight:
-            self._in_flight[0].lines.append(f"Error:{event.message}")
+            self._in_flight[0].add_line(f"Error:{event.message}")
 
     def _halt(self, error: PrinterHaltedError) -> None:
         if self.halted is None or isinstance(error, ThermalRunawayError):
@@ -685,13 +714,45 @@ class Connection:
             if head.job is not None or head.probe:
                 self._stall_job(head, now)
                 continue
-            error = CommandTimeoutError(self.describe_stall(head, now), command=head.text)
+            if head.orphan:
+                # Its caller was told already (it timed out behind another command, or gave up): drop it quietly.
+                self._pop_in_flight(now)
+                continue
+            summary = self.describe_stall(head, now)
+            error = CommandTimeoutError(summary, command=head.text)
             self._pop_in_flight(now)
             if head.line_number is not None:
                 # Marlin may still hold it (as with M105 T9, which never answers): keep it for resends, but its
                 # caller is told now, and a late answer completes nothing.
                 head.orphan = True
             self._finish(head, error)
+            self._give_up_behind(head, summary)
+
+    def _give_up_behind(self, dead: Command, summary: str) -> None:
+        """The oldest command got no answer for its whole timeout: fail everything behind it at once.
+
+        Commands never written are dropped, so a printer that wakes up later does not run a backlog nobody waits
+        for. If the printer has been silent all that time, commands already written fail too; they stay in the FIFO (their late `ok`s must land on them, not on a newer
+        command) but their callers are told now instead of one timeout after another.
+        """
+        last_in = self.trace.last_received
+        silent = last_in is None or self._now - last_in.time_s >= dead.timeout_s
+        for command in self._in_flight if silent else ():
+            if not command.orphan and command.job is None and not command.probe:
+                command.orphan = True
+                self._finish(
+                    command, CommandTimeoutError(f"gave up behind {dead.text!r}: {summary}", command=command.text)
+                )
+        keep: deque[Command] = deque()
+        for command in self._queue:
+            if command.job is None and not command.probe:
+                self._finish(
+                    command,
+                    CommandTimeoutError(f"not sent: the printer stopped answering ({summary})", command=command.text),
+                )
+            else:
+                keep.append(command)
+        self._queue = keep
 
     def _send_probe(self, now: float) -> None:
         # A probe follows several round trips of silence: no rejection of a line written before the last resend

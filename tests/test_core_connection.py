@@ -15,7 +15,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from marlin_aio.commands import checksum, encode_command, number_command
-from marlin_aio.connection import Command, Connection, Reply
+from marlin_aio.connection import MAX_REPLY_LINES, Command, Connection, Reply
 from marlin_aio.errors import (
     CommandTimeoutError,
     MarlinError,
@@ -325,11 +325,13 @@ def test_stray_ok_with_temperatures_completes_nothing() -> None:
 
 def test_late_advanced_ok_of_a_timed_out_command_completes_nothing() -> None:
     conn = Connection(max_in_flight=4)
-    submit_all(conn, "G28", "M114")
+    submit_all(conn, "G28")
     conn.data_to_send(0.0)
     conn.check_timeouts(5.0)
     [(text, error)] = outcomes(conn)
     assert (text, type(error)) == ("G28", CommandTimeoutError)
+    submit_all(conn, "M114", now=5.0)
+    conn.data_to_send(5.0)
     receive(conn, "ok N1 P15 B3", now=6.0)  # G28 (line 1) finished after all
     assert conn.take_results() == []
     assert conn.in_flight == 1
@@ -401,14 +403,64 @@ def test_every_line_error_and_resend_form(error: str, resend: str) -> None:
 
 
 def test_resend_without_the_ok_of_older_firmware() -> None:
-    # Some 2.0.x builds print no ok after `Resend:`; the next line the printer prints is then a real answer.
-    conn = Connection()
+    # Some 2.0.x builds print no ok after `Resend:`; told so, the connection takes the next ok as a real answer.
+    conn = Connection(ok_after_resend=False)
     submit_all(conn, "M105")
     first = conn.data_to_send(0.0)
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1")
     assert conn.data_to_send(0.0) == first
     receive(conn, "echo:busy: processing", "ok")
     assert [text for text, _ in replies(conn)] == ["M105"]
+
+
+def test_a_noise_line_between_resend_and_its_ok_does_not_make_that_ok_an_answer() -> None:
+    # Defect: any non-ok line used to end the wait for the ok that follows `Resend:`, so that ok answered the
+    # rejected line and the print's count ran one ahead of the printer.
+    conn = Connection()
+    submit_all(conn, "G1 X1")
+    first = conn.data_to_send(0.0)
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "\x93\x01garbage", "ok")
+    assert conn.take_results() == []
+    assert conn.data_to_send(0.1) == first
+    receive(conn, "ok", now=0.2)
+    assert [text for text, _ in replies(conn)] == ["G1 X1"]
+    assert conn.garbage_lines == 1
+
+
+def test_reply_lines_are_bounded_and_counted() -> None:
+    conn = Connection()
+    submit_all(conn, "M503")
+    conn.data_to_send(0.0)
+    receive(conn, *(f"echo:line {i}" for i in range(MAX_REPLY_LINES + 50)), "ok")
+    [(_, reply)] = replies(conn)
+    assert len(reply.lines) == MAX_REPLY_LINES
+    assert reply.lines[-1] == f"echo:line {MAX_REPLY_LINES + 49}"
+    assert reply.lines_dropped == 50
+
+
+def test_noise_is_not_a_reply_line() -> None:
+    conn = Connection()
+    submit_all(conn, "M119")
+    conn.data_to_send(0.0)
+    receive(conn, "\xff\xfe\x01", "x_min: open", "ok")
+    [(_, reply)] = replies(conn)
+    assert reply.lines == ("x_min: open",)
+
+
+def test_a_dead_head_fails_everything_queued_behind_it_at_once_and_writes_none_of_it() -> None:
+    # Defect: 20 commands queued behind a silent printer failed one timeout after another (10 s for all) and were
+    # still written, so the printer ran them all when it woke up.
+    conn = Connection()
+    commands = submit_all(conn, *(f"G1 X{i}" for i in range(20)), timeout_s=0.5)
+    written = sent(conn.data_to_send(0.0))
+    assert len(written) == 1
+    conn.check_timeouts(0.5)
+    results = outcomes(conn)
+    assert [text for text, _ in results] == [c.text for c in commands]
+    assert all(isinstance(error, CommandTimeoutError) for _, error in results)
+    assert "not sent" in str(results[1][1])
+    assert conn.queued == 0
+    assert conn.data_to_send(1.0) == b""
 
 
 def test_stale_rejections_cause_no_extra_resends() -> None:
@@ -582,7 +634,7 @@ def test_timeout_message_when_the_printer_is_silent() -> None:
 
 def test_m105_t9_never_answered_times_out_and_the_queue_goes_on() -> None:
     conn = Connection()
-    submit_all(conn, "M105 T9", "M105", timeout_s=2.0)
+    submit_all(conn, "M105 T9", timeout_s=2.0)
     assert sent(conn.data_to_send(0.0)) == [wire("M105 T9", 1)]
     receive(conn, "echo:M105 Invalid extruder 9", now=0.01)  # and no ok, ever
     assert conn.data_to_send(1.0) == b""
@@ -593,6 +645,7 @@ def test_m105_t9_never_answered_times_out_and_the_queue_goes_on() -> None:
     assert isinstance(error, CommandTimeoutError)
     assert "echo:M105 Invalid extruder 9" in str(error)
 
+    submit_all(conn, "M105", timeout_s=2.0, now=2.0)
     assert sent(conn.data_to_send(2.0)) == [wire("M105", 2)]
     assert conn.next_deadline() == 4.0
     receive(conn, M105_OK, now=2.01)
