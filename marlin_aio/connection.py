@@ -732,8 +732,9 @@ class Connection:
         """The oldest command got no answer for its whole timeout: fail everything behind it at once.
 
         Commands never written are dropped, so a printer that wakes up later does not run a backlog nobody waits
-        for. If the printer has been silent all that time, commands already written fail too; they stay in the FIFO (their late `ok`s must land on them, not on a newer
-        command) but their callers are told now instead of one timeout after another.
+        for. If the printer has been silent all that time, commands already written fail too: they stay in the
+        FIFO (their late `ok`s must land on them, not on a newer command), but their callers are told now instead
+        of one timeout after another.
         """
         last_in = self.trace.last_received
         silent = last_in is None or self._now - last_in.time_s >= dead.timeout_s
