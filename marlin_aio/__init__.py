@@ -16,6 +16,8 @@ from marlin_aio.client import DEFAULT_BAUDRATE, Printer, PrintHandle, connect
 from marlin_aio.commands import checksum, encode_command, number_command, strip_comment
 from marlin_aio.connection import Command, Connection, Reply
 from marlin_aio.errors import (
+    ChecksumRequiredError,
+    CommandNotExecutedError,
     CommandTimeoutError,
     ConnectError,
     ConnectionLostError,
@@ -26,6 +28,7 @@ from marlin_aio.errors import (
     PortNotFoundError,
     PortPermissionError,
     PrinterHaltedError,
+    PrinterLockedError,
     PrinterResetError,
     PrintStalledError,
     RemoteProtocolError,
@@ -61,7 +64,9 @@ __all__ = [
     "DEFAULT_BAUDRATE",
     "BusyKeepalive",
     "Capability",
+    "ChecksumRequiredError",
     "Command",
+    "CommandNotExecutedError",
     "CommandTimeoutError",
     "ConnectError",
     "Connection",
@@ -91,6 +96,7 @@ __all__ = [
     "PrintState",
     "Printer",
     "PrinterHaltedError",
+    "PrinterLockedError",
     "PrinterResetError",
     "RemoteProtocolError",
     "Reply",

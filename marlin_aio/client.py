@@ -28,12 +28,14 @@ from marlin_aio.commands import (
 )
 from marlin_aio.connection import Command, Connection, Reply
 from marlin_aio.errors import (
+    ChecksumRequiredError,
     CommandTimeoutError,
     ConnectionLostError,
     HandshakeError,
     HandshakeTimeoutError,
     MarlinError,
     PrinterHaltedError,
+    PrinterLockedError,
     PrinterResetError,
     TemperatureTimeoutError,
 )
@@ -143,6 +145,7 @@ class Printer:
         max_hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS,
         max_bed_celsius: float = DEFAULT_MAX_BED_CELSIUS,
         max_chamber_celsius: float = DEFAULT_MAX_CHAMBER_CELSIUS,
+        password: str | None = None,
     ) -> None:
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be positive, got {timeout_s}")
@@ -154,6 +157,12 @@ class Printer:
         self.max_chamber_celsius = max_chamber_celsius
         self._handshake_enabled = handshake
         self._boot_quiet_s = boot_quiet_s
+        if password is not None and (
+            not password or not password.isascii() or any(c.isspace() or c in ";*" for c in password)
+        ):
+            # It travels as one word of `M511 P<password>`: no blanks, and no comment or checksum mark.
+            raise ValueError("password must be one word of ASCII without ';' or '*'")
+        self._password = password
         self._conn = Connection(numbered=numbered, max_in_flight=max_in_flight, rx_buffer_bytes=rx_buffer_bytes)
         self.latest: TemperatureReading | None = None
         self.firmware: FirmwareInfo | None = None
@@ -258,13 +267,24 @@ class Printer:
             if remaining <= 0:
                 raise HandshakeTimeoutError(self._silence_explanation(), step="sync")
             try:
-                await self.send("M105", timeout_s=min(1.0, remaining), numbered=False)
+                if self._conn.requires_numbers:
+                    # This firmware runs only numbered lines; M110 is the one numbered line it accepts whatever
+                    # its line counter says, and it sets the counter for what follows.
+                    await self.send("M110 N0", timeout_s=min(1.0, remaining))
+                else:
+                    await self.send("M105", timeout_s=min(1.0, remaining), numbered=False)
                 break
-            except (CommandTimeoutError, PrinterResetError):
+            except (CommandTimeoutError, PrinterResetError, ChecksumRequiredError):
+                continue
+            except PrinterLockedError:
+                await self._unlock()
                 continue
             except PrinterHaltedError as exc:
                 raise HandshakeError(f"{exc}; reset the printer (power cycle or reset button)", step="sync") from exc
         try:
+            await self.send("M110 N0", timeout_s=self.timeout_s)
+        except PrinterLockedError:
+            await self._unlock()
             await self.send("M110 N0", timeout_s=self.timeout_s)
         except CommandTimeoutError as exc:
             raise HandshakeTimeoutError(f"the printer did not answer M110 N0: {exc}", step="sync") from exc
@@ -273,6 +293,20 @@ class Printer:
             await self.send("M115", timeout_s=self.timeout_s)
         except CommandTimeoutError as exc:
             raise HandshakeTimeoutError(f"the printer did not answer M115: {exc}", step="identify") from exc
+
+    async def _unlock(self) -> None:
+        """Unlock a PASSWORD_FEATURE printer with the password given to `connect()`, or fail clearly."""
+        if self._password is None:
+            raise PrinterLockedError(
+                f"the printer on {self.port} is locked (it said 'Printer locked! (Unlock with M511 or LCD)'): "
+                "connect with password=... (marlin-temp --password) to send M511 P<password>, "
+                "or unlock it on its screen"
+            )
+        reply = await self.send(f"M511 P{self._password}", timeout_s=self.timeout_s)
+        if any("incorrect" in line.lower() for line in reply.lines):
+            raise PrinterLockedError(
+                f"the printer on {self.port} refused the password ({' '.join(reply.lines)}); it stays locked"
+            )
 
     def _silence_explanation(self) -> str:
         if self.bytes_received == 0:
@@ -286,7 +320,11 @@ class Printer:
                 f"no answer from {self.port} within {self.timeout_s:g} s: {self.bytes_received} bytes of garbage "
                 f"received; wrong baud rate? {self.baudrate} is set, try {other}"
             )
-        return f"no 'ok' from {self.port} within {self.timeout_s:g} s, though it sent {self.bytes_received} bytes"
+        said = [entry.text for entry in self._conn.trace.entries() if entry.direction == "received"][-3:]
+        quoted = "; it said: " + " | ".join(repr(line) for line in said) if said else ""
+        return (
+            f"no 'ok' from {self.port} within {self.timeout_s:g} s, though it sent {self.bytes_received} bytes{quoted}"
+        )
 
     # ------------------------------------------------------------------------------------------- commands
 
@@ -619,7 +657,8 @@ class Printer:
             MarlinError: as `send`; also if the reply holds no position.
         """
         reply = await self.send("M114")
-        position = parse_position(reply.lines)
+        # Some firmwares answer on the ok line itself (`ok X:10.00 Y:0.00 ...`).
+        position = parse_position(reply.lines) or parse_position((reply.ok.payload,))
         if position is None:
             raise MarlinError(f"M114 was answered without a position: {reply.lines!r}")
         return position
@@ -793,11 +832,14 @@ def connect(
     max_hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS,
     max_bed_celsius: float = DEFAULT_MAX_BED_CELSIUS,
     max_chamber_celsius: float = DEFAULT_MAX_CHAMBER_CELSIUS,
+    password: str | None = None,
 ) -> Printer:
     """Return a `Printer` for `port` (a device path or a pyserial URL); open it with `async with`.
 
     `timeout_s` bounds each handshake step and, by default, the wait for each command's `ok` (busy keepalives
     extend it). `numbered` sends every command with a line number and checksum, so corrupted lines are resent.
+    `password` unlocks a printer with Marlin's PASSWORD_FEATURE during the handshake (M511); without it, a locked
+    printer fails the handshake with `PrinterLockedError`.
     """
     return Printer(
         port,
@@ -810,4 +852,5 @@ def connect(
         max_hotend_celsius=max_hotend_celsius,
         max_bed_celsius=max_bed_celsius,
         max_chamber_celsius=max_chamber_celsius,
+        password=password,
     )

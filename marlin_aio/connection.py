@@ -29,9 +29,12 @@ from dataclasses import dataclass, field
 
 from marlin_aio.commands import MAX_COMMAND_BYTES, command_code, encode_command, number_command, validate_command
 from marlin_aio.errors import (
+    ChecksumRequiredError,
+    CommandNotExecutedError,
     CommandTimeoutError,
     MarlinError,
     PrinterHaltedError,
+    PrinterLockedError,
     PrinterResetError,
     PrintStalledError,
     RemoteProtocolError,
@@ -47,6 +50,7 @@ from marlin_aio.events import (
     Event,
     FirmwareInfo,
     Ok,
+    PrinterLocked,
     ResendRequest,
     Start,
     TemperatureReport,
@@ -62,6 +66,9 @@ __all__ = ["Command", "Connection", "Reply"]
 
 #: Errors whose only argument is the message, so the print's position can be added to it.
 _PLAIN_ERRORS = (PrinterHaltedError, ThermalRunawayError, PrinterResetError, ResendLimitError, RemoteProtocolError)
+
+#: Commands that wait for heaters; every temperature report while they run shows the printer is alive.
+_HEATER_WAITS = frozenset({"M109", "M190", "M191"})
 
 #: How many reply lines one command keeps (M115 prints about 40, M503 about 25); older ones are counted only.
 MAX_REPLY_LINES = 256
@@ -122,6 +129,7 @@ class Command:
     source_line: int = 0
     source_bytes: int = 0
     probe: bool = False  # an M105 written to find out whether a stalled stream lost an ok
+    refusal: str | None = None  # the printer's line saying it did not run this command (locked, not executed)
 
     def add_line(self, text: str) -> None:
         """Collect one reply line, keeping only the last `MAX_REPLY_LINES` (a chatty or noisy printer must not
@@ -203,6 +211,8 @@ class Connection:
         self.resets = 0
         self.resend_requests = 0
         self.stray_oks = 0
+        self.locked = False  # the printer said "Printer locked!" and has not run a command since
+        self.requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
         self.garbage_lines = 0  # lines of noise received (not given to any command)
         self.timeouts = 0
         # Every submitted command ends up counted once: answered + failed + cancelled + still queued or in flight.
@@ -224,7 +234,7 @@ class Connection:
             ValueError: the command is not valid (line break, non-ASCII, too long, empty).
             PrinterHaltedError: the printer halted and answers nothing until it is reset.
         """
-        use_numbers = self.numbered if numbered is None else numbered
+        use_numbers = (self.numbered if numbered is None else numbered) or self.requires_numbers
         if not checked:
             if self.halted is not None:
                 raise self.halted
@@ -421,7 +431,10 @@ class Connection:
         )
         head = self._in_flight[0] if self._in_flight else None
         if kind is BusyKeepalive or (
-            kind is TemperatureReport and isinstance(event, TemperatureReport) and event.temperatures.waiting
+            kind is TemperatureReport
+            and isinstance(event, TemperatureReport)
+            # Marlin marks its wait lines with W:; other firmwares send plain reports while M109/M190 wait.
+            and (event.temperatures.waiting or (head is not None and head.code in _HEATER_WAITS))
         ):
             # Proof that the printer is alive and working on the oldest command: push its deadline out.
             if head is not None:
@@ -437,7 +450,16 @@ class Connection:
         elif kind is UnrecognisedLine and _is_garbage(text):
             # Noise from the link (a baud glitch, a reset) is nobody's reply.
             self.garbage_lines += 1
-        elif head is not None and kind in (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability, UnknownCommand):
+        elif kind is PrinterLocked or kind is UnknownCommand:
+            if head is not None:
+                head.add_line(text)
+                if kind is PrinterLocked:
+                    # The ok that follows answers a command that was refused, not run.
+                    head.refusal = text
+                    self.locked = True
+                elif head.job is not None:
+                    head.refusal = text  # a print line the firmware did not understand was not printed
+        elif head is not None and kind in (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability):
             head.add_line(text)
 
     def _on_ok(self, ok: Ok, now: float) -> None:
@@ -480,7 +502,11 @@ class Connection:
                 # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
                 self.halted = None
                 self._halt_recoverable = False
-            if command.job is not None:
+            if command.refusal is None and self.locked and not command.orphan and command.code != "M511":
+                self.locked = False  # a command ran normally: the printer was unlocked (M511 or its screen)
+            if command.refusal is not None and not command.orphan and not command.probe:
+                self._refused(command, now)
+            elif command.job is not None:
                 if command.sends == 1 and command.sent_s is not None:
                     self._rtts.append(now - command.sent_s)
                 command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
@@ -490,6 +516,38 @@ class Connection:
                 sent = now if command.sent_s is None else command.sent_s
                 reply = Reply(command.text, tuple(command.lines), ok, sent, now, command.lines_dropped)
                 self._finish(command, reply)
+
+    def _refused(self, command: Command, now: float) -> None:
+        """The printer answered `command` with an ok but said it did not run it."""
+        said = command.refusal or ""
+        error: MarlinError
+        if "locked" in said.lower():
+            error = PrinterLockedError(
+                f"the printer is locked and refused {command.text!r} ({said.removeprefix('echo:')}): "
+                "unlock it with M511 P<password> (connect with password=..., or --password) or on its screen"
+            )
+        else:
+            error = CommandNotExecutedError(f"the printer did not run {command.text!r}: it said {said!r}")
+        if command.job is not None:
+            job = command.job
+            job.in_flight -= 1
+            where = f"line {command.source_line} of {job.name}"
+            # Nothing after the refused line may run in its place: the print stops here, with the printer's words.
+            self._fail_everything_of_job(type(error)(f"print stopped at {where}: {error}"), now)
+            return
+        self._finish(command, error)
+
+    def _fail_everything_of_job(self, error: MarlinError, now: float) -> None:
+        job = self.job
+        if job is not None:
+            job.fail(error, now)
+        self.job = None
+        self._job_next = None
+        # Lines of the job already written stay in the FIFO as orphans (their oks are still due); unwritten ones go.
+        for queued in self._in_flight:
+            if queued.job is not None:
+                queued.orphan = True
+        self._queue = deque(c for c in self._queue if c.job is None)
 
     def _pop_in_flight(self, now: float) -> Command:
         command = self._in_flight.popleft()
@@ -590,8 +648,32 @@ class Connection:
                 self._halt(ThermalRunawayError(message))
             else:
                 self._halt(PrinterHaltedError(f"the printer halted: {event.message}"))
+        elif event.kind is ErrorKind.NOT_EXECUTED and self._in_flight:
+            head = self._in_flight[0]
+            head.add_line(f"!! {event.message}")
+            head.refusal = f"!! {event.message}"
+        elif event.kind is ErrorKind.CHECKSUM_REQUIRED:
+            self._on_checksum_required(event.message, now)
         elif event.kind is ErrorKind.OTHER and self._in_flight:
             self._in_flight[0].add_line(f"Error:{event.message}")
+
+    def _on_checksum_required(self, message: str, now: float) -> None:
+        # The firmware ran nothing and will send no ok for the oldest unnumbered command: fail it now, and number
+        # every command from here on.
+        self.requires_numbers = True
+        for index, command in enumerate(self._in_flight):
+            if command.line_number is None:
+                del self._in_flight[index]
+                self._in_flight_bytes -= len(command.wire)
+                if index == 0 and self._in_flight:
+                    self._in_flight[0].head_since_s = now
+                if not command.orphan and command.job is None and not command.probe:
+                    error = ChecksumRequiredError(
+                        f"the printer refused {command.text!r} without a line number and checksum "
+                        f"('Error:{message}'); it needs numbered commands"
+                    )
+                    self._finish(command, error)
+                return
 
     def _halt(self, error: PrinterHaltedError) -> None:
         if self.halted is None or isinstance(error, ThermalRunawayError):

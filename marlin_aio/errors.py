@@ -7,6 +7,8 @@ those built-ins keeps working. Bad arguments raise plain `ValueError` before any
 from __future__ import annotations
 
 __all__ = [
+    "ChecksumRequiredError",
+    "CommandNotExecutedError",
     "CommandTimeoutError",
     "ConnectError",
     "ConnectionLostError",
@@ -18,6 +20,7 @@ __all__ = [
     "PortPermissionError",
     "PrintStalledError",
     "PrinterHaltedError",
+    "PrinterLockedError",
     "PrinterResetError",
     "RemoteProtocolError",
     "ResendLimitError",
@@ -118,3 +121,18 @@ class ThermalRunawayError(PrinterHaltedError):
 
 class ResendLimitError(MarlinError):
     """The printer asked for the same line again and again; the link is too noisy to go on."""
+
+
+class PrinterLockedError(MarlinError):
+    """The printer is locked (Marlin's PASSWORD_FEATURE) and refuses every command until `M511 P<password>`.
+
+    Connect with `password=` (the CLI's `--password`) or unlock it on the printer's screen.
+    """
+
+
+class CommandNotExecutedError(MarlinError):
+    """The printer answered a command with `ok` but said it did not run it (`!! Lost communication ...`)."""
+
+
+class ChecksumRequiredError(MarlinError):
+    """The firmware runs only lines with a line number and checksum (`Error: Missing checksum`)."""

@@ -17,9 +17,12 @@ from hypothesis import strategies as st
 from marlin_aio.commands import checksum, encode_command, number_command
 from marlin_aio.connection import MAX_REPLY_LINES, Command, Connection, Reply
 from marlin_aio.errors import (
+    ChecksumRequiredError,
+    CommandNotExecutedError,
     CommandTimeoutError,
     MarlinError,
     PrinterHaltedError,
+    PrinterLockedError,
     PrinterResetError,
     RemoteProtocolError,
     ResendLimitError,
@@ -578,14 +581,93 @@ def test_keepalives_and_wait_lines_push_the_deadline_auto_reports_do_not() -> No
     assert conn.next_deadline() == 12.0
     receive(conn, " T:199.09 /200.00 B:39.00 /60.00 @:24 B@:127 W:8", now=8.0)
     assert conn.next_deadline() == 13.0
-    receive(conn, AUTO_REPORT, now=12.0)
-    assert conn.next_deadline() == 13.0
-    receive(conn, "echo:busy: paused for user", now=12.5)
+    # Firmwares that print their wait lines without W: (plain reports) show life the same way while M109 waits.
+    receive(conn, "T:199.50 /200.00 B:39.10 /60.00 @:24 B@:127", now=12.0)
+    assert conn.next_deadline() == 17.0
+    receive(conn, "busy:processing", now=12.5)  # the bare keepalive of the same firmwares
     assert conn.next_deadline() == 17.5
     conn.check_timeouts(17.4)
     assert conn.take_results() == []
     receive(conn, "ok P15 B3", now=17.4)
     assert [text for text, _ in replies(conn)] == ["M109 S200"]
+
+
+def test_auto_reports_do_not_push_the_deadline_of_a_command_that_is_not_a_heater_wait() -> None:
+    conn = Connection()
+    submit_all(conn, "G28", timeout_s=5.0)
+    conn.data_to_send(0.0)
+    receive(conn, AUTO_REPORT, now=3.0)
+    assert conn.next_deadline() == 5.0
+    receive(conn, "echo:busy: paused for user", now=4.0)
+    assert conn.next_deadline() == 9.0
+
+
+def test_a_locked_printer_refuses_commands_with_its_own_error() -> None:
+    conn = Connection()
+    submit_all(conn, "M115")
+    conn.data_to_send(0.0)
+    receive(conn, "echo:Printer locked! (Unlock with M511 or LCD)", "ok")
+    [(_, error)] = outcomes(conn)
+    assert isinstance(error, PrinterLockedError)
+    assert "M511" in str(error)
+    assert conn.locked
+    submit_all(conn, "M511 P1234", "M115")
+    conn.data_to_send(0.1)
+    receive(conn, "ok", now=0.1)
+    assert [text for text, _ in replies(conn)] == ["M511 P1234"]
+    assert conn.locked  # M511's own ok says nothing: a wrong password is answered with an ok too
+    conn.data_to_send(0.2)
+    receive(conn, "ok", now=0.2)
+    assert [text for text, _ in replies(conn)] == ["M115"]
+    assert not conn.locked
+
+
+def test_a_print_line_the_printer_did_not_run_stops_the_print_with_its_message() -> None:
+    conn = Connection(max_in_flight=8)
+    job = PrintJob([f"G1 X{i}" for i in range(10)])
+    conn.attach(job, timeout_s=5.0)
+    written = sent(conn.data_to_send(0.0))
+    assert len(written) > 2
+    receive(conn, "ok", "!! Lost communication with MCU 'mcu'", "ok", now=0.1)
+    assert job.error is not None
+    assert isinstance(job.error, CommandNotExecutedError)
+    assert "line 2 of" in str(job.error) and "Lost communication" in str(job.error)
+    assert job.lines_acked == 1
+    assert conn.data_to_send(0.2) == b""  # nothing more of the file is written
+
+
+def test_an_unknown_command_in_a_print_stops_it_but_a_users_own_gets_its_reply() -> None:
+    conn = Connection()
+    submit_all(conn, "G999")
+    conn.data_to_send(0.0)
+    receive(conn, 'echo:Unknown command: "G999"', "ok")
+    [(_, reply)] = replies(conn)
+    assert reply.lines == ('echo:Unknown command: "G999"',)
+    job = PrintJob(["G1 X1", "G999", "G1 X2"])
+    conn.attach(job, timeout_s=5.0)
+    conn.data_to_send(0.1)
+    receive(conn, "ok", now=0.2)
+    conn.data_to_send(0.2)
+    receive(conn, 'echo:Unknown command: "G999"', "ok", now=0.3)
+    assert job.error is not None and "G999" in str(job.error)
+    assert job.lines_acked == 1
+
+
+def test_a_firmware_that_requires_checksums_fails_the_unnumbered_command_and_numbers_the_rest() -> None:
+    conn = Connection()
+    submit_all(conn, "M105")
+    conn.submit("M105", timeout_s=5.0, now=0.0, numbered=False)
+    assert sent(conn.data_to_send(0.0)) == [wire("M105", 1)]
+    receive(conn, M105_OK, now=0.01)
+    replies(conn)
+    assert sent(conn.data_to_send(0.01)) == ["M105"]
+    receive(conn, "Error: Missing checksum", now=0.02)
+    [(_, error)] = outcomes(conn)
+    assert isinstance(error, ChecksumRequiredError)
+    assert "Missing checksum" in str(error)
+    assert conn.in_flight == 0
+    conn.submit("M105", timeout_s=5.0, now=0.1, numbered=False)
+    assert sent(conn.data_to_send(0.1)) == [wire("M105", 2)]
 
 
 def test_check_timeouts_fails_only_the_head() -> None:

@@ -1,0 +1,69 @@
+"""The client against firmware dialects real boards speak, each switched on in the simulator and served on a pty."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+import pytest
+from conftest import TIME_SCALE
+
+import marlin_aio
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
+
+
+@asynccontextmanager
+async def served(config: SimulatorConfig, faults: Faults | None = None) -> AsyncIterator[SimulatorServer]:
+    async with serve_pty(config, faults or Faults(), time_scale=TIME_SCALE) as server:
+        yield server
+
+
+async def test_a_firmware_that_requires_checksums_connects_and_numbers_everything() -> None:
+    async with (
+        served(SimulatorConfig(checksum_required=True)) as server,
+        marlin_aio.connect(server.url, timeout_s=2.0) as printer,
+    ):
+        reading = await printer.temperatures()
+        assert "T" in reading.temperatures.heaters
+        reply = await printer.send("M114", numbered=False)  # numbered all the same: the firmware demands it
+        assert any("X:" in line for line in reply.lines)
+
+
+async def test_a_locked_printer_fails_the_handshake_naming_the_unlock_command() -> None:
+    async with served(SimulatorConfig(password="1234")) as server:
+        with pytest.raises(marlin_aio.PrinterLockedError, match="M511"):
+            async with marlin_aio.connect(server.url, timeout_s=2.0):
+                pass
+
+
+async def test_a_locked_printer_is_unlocked_with_the_password_and_a_wrong_one_fails_clearly() -> None:
+    async with (
+        served(SimulatorConfig(password="1234")) as server,
+        marlin_aio.connect(server.url, timeout_s=2.0, password="1234") as printer,
+    ):
+        reading = await printer.temperatures()
+        assert "T" in reading.temperatures.heaters
+    async with served(SimulatorConfig(password="1234")) as server:
+        with pytest.raises(marlin_aio.PrinterLockedError, match="password"):
+            async with marlin_aio.connect(server.url, timeout_s=2.0, password="9999"):
+                pass
+
+
+async def test_m114_answered_on_the_ok_line_gives_the_position() -> None:
+    async with (
+        served(SimulatorConfig(m114_on_ok=True)) as server,
+        marlin_aio.connect(server.url, timeout_s=2.0) as printer,
+    ):
+        await printer.send("G1 X10 Y5")
+        position = await printer.position()
+        assert (position["X"], position["Y"]) == (10.0, 5.0)
+
+
+@pytest.mark.parametrize("dialect", ["plain_wait_lines", "bare_busy"])
+async def test_m109_with_plain_wait_lines_or_bare_keepalives_does_not_time_out(dialect: str) -> None:
+    # A 1 s timeout and a heat-up of several simulated seconds: only the signs of life keep M109 going.
+    config = SimulatorConfig(**{dialect: True})
+    async with served(config) as server, marlin_aio.connect(server.url, timeout_s=1.0) as printer:
+        reply = await printer.send("M109 S60", timeout_s=1.0)
+        assert reply.ok is not None
+        assert server.printer.heater_celsius("T0") >= 59.0
