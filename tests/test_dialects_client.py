@@ -62,7 +62,7 @@ async def test_m114_answered_on_the_ok_line_gives_the_position() -> None:
 @pytest.mark.parametrize("dialect", ["plain_wait_lines", "bare_busy"])
 async def test_m109_with_plain_wait_lines_or_bare_keepalives_does_not_time_out(dialect: str) -> None:
     # A 1 s timeout and a heat-up of several simulated seconds: only the signs of life keep M109 going.
-    config = SimulatorConfig(**{dialect: True})
+    config = SimulatorConfig(plain_wait_lines=dialect == "plain_wait_lines", bare_busy=dialect == "bare_busy")
     async with served(config) as server, marlin_aio.connect(server.url, timeout_s=1.0) as printer:
         reply = await printer.send("M109 S60", timeout_s=1.0)
         assert reply.ok is not None
