@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import math
 import time
 from collections import deque
@@ -39,10 +40,19 @@ from marlin_aio.errors import (
     PrinterResetError,
     TemperatureTimeoutError,
 )
-from marlin_aio.events import Capability, Event, FirmwareInfo, Ok, OverlongLine, TemperatureReport, UnrecognisedLine
+from marlin_aio.events import (
+    Capability,
+    Event,
+    FirmwareInfo,
+    Ok,
+    OverlongLine,
+    TargetTemperature,
+    TemperatureReport,
+    UnrecognisedLine,
+)
 from marlin_aio.parsing import parse_endstops, parse_position
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
-from marlin_aio.temperatures import TemperatureReading
+from marlin_aio.temperatures import TemperatureReading, Temperatures
 from marlin_aio.trace import Trace
 
 __all__ = ["DEFAULT_BAUDRATE", "PrintHandle", "Printer", "connect"]
@@ -167,6 +177,7 @@ class Printer:
         self.latest: TemperatureReading | None = None
         self.firmware: FirmwareInfo | None = None
         self.capabilities: dict[str, bool] = {}
+        self._targets: dict[str, float] = {}  # from Repetier-style target lines, for reports that lack targets
         self.bytes_received = 0
         #: (answered at, round trip) of the latest replies, on the loop's clock: for latency figures.
         self.round_trips: deque[tuple[float, float]] = deque(maxlen=8192)
@@ -382,7 +393,7 @@ class Printer:
         if reply.temperatures is None or not reply.temperatures.heaters:
             raise MarlinError(f"M105 was answered without temperatures: {reply.ok.payload!r}")
         # Built from this reply, not `latest`: an auto-report arriving in the same read may already have replaced it.
-        return TemperatureReading(reply.temperatures, reply.answered_s, time.time(), "poll")
+        return self._reading(reply.temperatures, reply.answered_s, "poll")
 
     async def temperature_readings(self) -> AsyncGenerator[TemperatureReading, None]:
         """Yield every temperature report from now on, whatever produced it (polls, auto-report, wait lines).
@@ -503,6 +514,7 @@ class Printer:
         hotend: float | None = None,
         bed: float | None = None,
         chamber: float | None = None,
+        tool: int | None = None,
         tolerance_c: float = 2.0,
         timeout_s: float | None = None,
         poll_interval_s: float = 0.5,
@@ -510,7 +522,8 @@ class Printer:
         """Wait until heaters are within `tolerance_c` of their targets, watching readings (the queue stays free).
 
         Targets not given are taken from readings that arrive after the call (heaters whose target is 0 are not
-        waited for). If no poller is running, one polls every `poll_interval_s` while waiting.
+        waited for). `tool` waits on that hotend (`T1:` in the reports) instead of the active one. If no poller is
+        running, one polls every `poll_interval_s` while waiting.
 
         Raises:
             ValueError: `tolerance_c` is negative or a target is invalid.
@@ -519,19 +532,26 @@ class Printer:
         """
         if not tolerance_c >= 0:
             raise ValueError(f"tolerance_c must not be negative, got {tolerance_c}")
+        if tool is not None and (isinstance(tool, bool) or not isinstance(tool, int) or tool < 0):
+            raise ValueError(f"tool must be a non-negative integer, got {tool!r}")
+        # `T` is whichever hotend is active; `T<n>` names one hotend (a single-hotend printer reports only `T`).
+        hotend_key = "T" if tool is None else f"T{tool}"
         wanted: dict[str, float] = {}
         if hotend is not None:
-            wanted["T"] = check_target("hotend", hotend, self.max_hotend_celsius)
+            wanted[hotend_key] = check_target("hotend", hotend, self.max_hotend_celsius)
         if bed is not None:
             wanted["B"] = check_target("bed", bed, self.max_bed_celsius)
         if chamber is not None:
             wanted["C"] = check_target("chamber", chamber, self.max_chamber_celsius)
 
         def reached(reading: TemperatureReading) -> bool:
-            heaters = reading.temperatures.heaters
+            heaters = dict(reading.temperatures.heaters)
+            if "T0" not in heaters and "T" in heaters:
+                heaters["T0"] = heaters["T"]
             targets = dict(wanted)
             if not wanted:
-                targets = {k: h.target for k, h in heaters.items() if h.target and k in ("T", "B", "C")}
+                names = ("T" if tool is None else hotend_key, "B", "C")
+                targets = {k: h.target for k, h in heaters.items() if h.target and k in names}
             return all(
                 key in heaters and abs(heaters[key].actual - target) <= tolerance_c for key, target in targets.items()
             )
@@ -559,8 +579,9 @@ class Printer:
             except TimeoutError:
                 latest = self.latest
                 state = "no reading" if latest is None else _describe_heaters(latest)
+                waited_for = ", ".join(_HEATER_NAMES.get(key, f"hotend {key[1:]}") for key in wanted) or "all heaters"
                 raise TemperatureTimeoutError(
-                    f"heaters did not reach their targets within {timeout_s:g} s ({state})"
+                    f"{waited_for} did not reach the target within {timeout_s:g} s ({state})"
                 ) from None
         raise AssertionError("unreachable")  # pragma: no cover  (mypy cannot see that `async with` returns)
 
@@ -722,11 +743,14 @@ class Printer:
         if kind is Ok:
             assert isinstance(event, Ok)
             if event.temperatures is not None:
-                self._publish(TemperatureReading(event.temperatures, now, time.time(), "poll"))
+                self._publish(self._reading(event.temperatures, now, "poll"))
         elif kind is TemperatureReport:
             assert isinstance(event, TemperatureReport)
             source = "wait" if event.temperatures.waiting else "auto"
-            self._publish(TemperatureReading(event.temperatures, now, time.time(), source))
+            self._publish(self._reading(event.temperatures, now, source))
+        elif kind is TargetTemperature:
+            assert isinstance(event, TargetTemperature)
+            self._targets[event.heater] = event.celsius
         elif kind is Capability:
             assert isinstance(event, Capability)
             self.capabilities[event.name] = event.enabled
@@ -735,6 +759,22 @@ class Printer:
             self.firmware = event
         elif kind is OverlongLine or (kind is UnrecognisedLine and "\ufffd" in getattr(event, "text", "")):
             self.garbage_lines += 1
+
+    def _reading(self, temperatures: Temperatures, now: float, source: str) -> TemperatureReading:
+        """A reading of `temperatures`, with the targets of Repetier-style `TargetExtr0:` lines filled in where the
+        report itself carries none."""
+        if self._targets:
+            heaters = temperatures.heaters
+            if any(heater.target is None for heater in heaters.values()):
+                filled = {}
+                for key, heater in heaters.items():
+                    # `T` is the active hotend; these firmwares name hotends by number only.
+                    target = self._targets.get(key, self._targets.get("T0") if key == "T" else None)
+                    if heater.target is None and target is not None:
+                        heater = dataclasses.replace(heater, target=target)
+                    filled[key] = heater
+                temperatures = Temperatures(filled, temperatures.waiting, temperatures.wait_remaining_s)
+        return TemperatureReading(temperatures, now, time.time(), source)
 
     def _publish(self, reading: TemperatureReading) -> None:
         self.latest = reading
@@ -812,10 +852,17 @@ class Printer:
             self._closed.set_result(None)
 
 
+#: Names for the heaters a wait can name; hotends by number are "hotend <n>".
+_HEATER_NAMES = {"T": "hotend", "B": "bed", "C": "chamber"}
+
+
 def _describe_heaters(reading: TemperatureReading) -> str:
     parts = []
-    for key, heater in reading.temperatures.heaters.items():
-        if key in ("T", "B", "C") and heater.target is not None and not math.isnan(heater.actual):
+    heaters = reading.temperatures.heaters
+    for key, heater in heaters.items():
+        if key == "T" and "T0" in heaters:
+            continue  # the active hotend appears again under its number
+        if key[:1] in ("T", "B", "C") and heater.target is not None and not math.isnan(heater.actual):
             parts.append(f"{key} {heater.actual:.1f}/{heater.target:.0f} C")
     return ", ".join(parts) or "no heaters reported"
 

@@ -67,3 +67,38 @@ async def test_m109_with_plain_wait_lines_or_bare_keepalives_does_not_time_out(d
         reply = await printer.send("M109 S60", timeout_s=1.0)
         assert reply.ok is not None
         assert server.printer.heater_celsius("T0") >= 59.0
+
+
+async def test_repetier_target_lines_fill_the_targets_the_reports_lack() -> None:
+    async with (
+        served(SimulatorConfig(repetier_targets=True)) as server,
+        marlin_aio.connect(server.url, timeout_s=2.0) as printer,
+    ):
+        await printer.set_temperatures(hotend=200, bed=60)
+        reading = await printer.temperatures()
+        assert reading.hotend is not None and reading.hotend.target == 200.0
+        assert reading.bed is not None and reading.bed.target == 60.0
+
+
+async def test_waiting_on_the_second_hotend_watches_that_hotend() -> None:
+    # Defect: waits always watched the active hotend, so waiting on T1 timed out while T1 sat at its target.
+    async with (
+        served(SimulatorConfig(extruders=2)) as server,
+        marlin_aio.connect(server.url, timeout_s=2.0) as printer,
+    ):
+        await printer.send("M104 T1 S60")
+        reading = await printer.wait_for_temperatures(hotend=60, tool=1, tolerance_c=2.0, timeout_s=60)
+        t1 = reading.temperatures.heaters["T1"]
+        assert abs(t1.actual - 60) <= 2.0
+        assert reading.temperatures.heaters["T0"].actual < 40  # the active hotend stayed cold
+        with pytest.raises(ValueError, match="tool"):
+            await printer.wait_for_temperatures(hotend=60, tool=-1)
+
+
+async def test_a_wait_that_times_out_names_the_heater_it_waited_for() -> None:
+    async with (
+        served(SimulatorConfig(extruders=2)) as server,
+        marlin_aio.connect(server.url, timeout_s=2.0) as printer,
+    ):
+        with pytest.raises(marlin_aio.TemperatureTimeoutError, match="hotend 1 did not reach"):
+            await printer.wait_for_temperatures(hotend=200, tool=1, timeout_s=0.2)
