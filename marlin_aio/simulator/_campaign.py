@@ -1,0 +1,238 @@
+"""A seeded fault campaign in simulated time: the protocol core against the simulated firmware, with nothing between.
+
+One `run_print()` is one print of a generated file over a simulated serial line, driven by a discrete-event loop:
+the host side is a `marlin_aio.connection.Connection` fed by the same calls the asyncio client makes (a poller
+sending M105 every 10 ms, a user sending commands whose answers identify themselves, the print job), the printer is
+a `SimulatedPrinter` with its faults switched on, and the line between them carries bytes at a UART's speed in
+each direction. No clock, no thread and no I/O, so a run of thousands of lines takes a fraction of a second and
+every run with the same seed is the same run.
+
+What each run checks, as the invariants of issue 8 state them:
+
+- exactly once, in order: the numbered print lines the firmware executed are the file's commands, each once, in
+  order (or the print failed with a diagnosis, for the faults that must fail it);
+- no wrong reply: every reply handed to a user command belongs to it. A user command is `M118 U<k>`, which the
+  firmware answers with the line `U<k>`, so a reply that carries another command's line (or none) is caught;
+  every poll reply must carry temperatures;
+- nothing hangs: every command submitted gets its result within its bound, and the run ends.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections import Counter
+from dataclasses import dataclass, field
+
+from marlin_aio.connection import Command, Connection, Reply
+from marlin_aio.errors import MarlinError
+from marlin_aio.printjob import PrintJob, PrintState
+from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
+
+__all__ = ["CampaignResult", "Scenario", "run_print"]
+
+_BYTE_S = 10 / 250_000  # one byte on a 250000-baud UART (start bit, 8 data bits, stop bit)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One run's settings: the fault mix, the host's mode and what else happens during the print."""
+
+    seed: int
+    lines: int = 400
+    send_ahead: bool = True
+    advanced_ok: bool = False
+    corrupt: float = 0.0  # share of host lines the firmware receives damaged
+    drop_ok: float = 0.0  # share of oks the firmware never sends
+    noise: float = 0.0  # share of firmware lines preceded by a line of garbage
+    poll_interval_s: float | None = 0.01  # the poller's M105; None: no polling
+    user_interval_s: float | None = 0.05  # a user's `M118 U<k>` this often; None: none
+    reset_at_line: int | None = None  # the board resets once this many print lines ran
+    silent_at_line: int | None = None  # the board falls silent (and stays so) once this many print lines ran
+    timeout_s: float = 2.0
+    time_limit_s: float = 600.0
+
+
+@dataclass
+class CampaignResult:
+    """What one run did, and each broken invariant in words (empty when all held)."""
+
+    scenario: Scenario
+    state: PrintState
+    error: str | None
+    executed_in_order: bool
+    lines_executed: int
+    user_replies: int = 0
+    user_failures: int = 0
+    poll_replies: int = 0
+    wrong_replies: int = 0
+    unfinished_commands: int = 0
+    end_s: float = 0.0
+    problems: list[str] = field(default_factory=list)
+    failures_by_kind: Counter[str] = field(default_factory=Counter)
+
+    @property
+    def ok(self) -> bool:
+        """True when every invariant held."""
+        return not self.problems
+
+
+def _print_lines(count: int) -> list[str]:
+    return [f"G1 X{index % 200}.{index % 10} Y{(index * 7) % 200} F6000" for index in range(count)]
+
+
+def run_print(scenario: Scenario) -> CampaignResult:
+    """Run one print under `scenario` and check the invariants."""
+    config = SimulatorConfig(
+        advanced_ok=scenario.advanced_ok, seed=scenario.seed, motion_time_scale=0.0, record_limit=None
+    )
+    faults = Faults(corrupt_rx_ratio=scenario.corrupt, drop_ok_ratio=scenario.drop_ok, noise_ratio=scenario.noise)
+    printer = SimulatedPrinter(config, faults, now=0.0, boot=False)
+    conn = Connection(numbered=True, max_in_flight=64 if scenario.send_ahead else 1)
+    lines = _print_lines(scenario.lines)
+
+    now = 0.0
+    to_printer: list[tuple[float, int, bytes]] = []  # (arrival, sequence, bytes) on the wire, host to printer
+    to_host: list[tuple[float, int, bytes]] = []
+    wire_free = {"out": 0.0, "in": 0.0}
+    sequence = 0
+    pending: dict[int, tuple[Command, float, str]] = {}  # command id -> (command, bound, kind)
+    result = CampaignResult(scenario, PrintState.RUNNING, None, False, 0)
+    poll: Command | None = None
+    next_poll = 0.0 if scenario.poll_interval_s is not None else None
+    next_user = 0.01 if scenario.user_interval_s is not None else None
+    user_count = 0
+    reset_done = False
+
+    def transmit(data: bytes, direction: str, queue: list[tuple[float, int, bytes]]) -> None:
+        nonlocal sequence
+        start = max(now, wire_free[direction])
+        wire_free[direction] = start + len(data) * _BYTE_S
+        sequence += 1
+        heapq.heappush(queue, (wire_free[direction], sequence, data))
+
+    def submit(text: str, kind: str) -> Command:
+        command = conn.submit(text, timeout_s=scenario.timeout_s, now=now)
+        # The bound: its own timeout after every command ahead of it had theirs, with room for resends.
+        ahead = conn.in_flight + conn.queued
+        pending[command.id] = (command, now + scenario.timeout_s * (ahead + 3) + 5.0, kind)
+        return command
+
+    def collect() -> None:
+        nonlocal poll
+        for command, outcome in conn.take_results():
+            entry = pending.pop(command.id, None)
+            if entry is None:
+                result.problems.append(f"a result for {command.text!r}, which nobody waits for")
+                continue
+            _, bound, kind = entry
+            if now > bound:
+                result.problems.append(f"{command.text!r} finished at {now:.2f} s, past its bound {bound:.2f} s")
+            if kind == "poll":
+                poll = None
+            if isinstance(outcome, MarlinError):
+                if kind == "user":
+                    result.user_failures += 1
+                result.failures_by_kind[type(outcome).__name__] += 1
+                continue
+            _check_reply(command, outcome, kind, result)
+
+    def flush() -> None:
+        data = conn.data_to_send(now)
+        if data:
+            transmit(data, "out", to_printer)
+
+    def pump_printer() -> None:
+        out = printer.take_output()
+        if out:
+            transmit(out, "in", to_host)
+
+    job = PrintJob(lines, name="campaign.gcode", lines_total=len(lines))
+    start = submit("M110 N0", "internal")
+    flush()
+    started = False
+
+    while now < scenario.time_limit_s:
+        if not started and start.id not in pending:
+            conn.attach(job, timeout_s=scenario.timeout_s)
+            started = True
+        if started and job.finished and not pending and not to_printer and not to_host:
+            break
+        candidates = [scenario.time_limit_s]
+        for queue in (to_printer, to_host):
+            if queue:
+                candidates.append(queue[0][0])
+        for due in (conn.next_deadline(), printer.next_wakeup(), next_poll, next_user):
+            if due is not None:
+                candidates.append(max(due, now))
+        now = max(now, min(candidates))
+
+        if to_printer and to_printer[0][0] <= now:
+            _, _, data = heapq.heappop(to_printer)
+            printer.receive(data, now)
+            pump_printer()
+            continue
+        if to_host and to_host[0][0] <= now:
+            _, _, data = heapq.heappop(to_host)
+            conn.receive_data(data, now)
+            collect()
+            flush()
+            continue
+        printer.advance(now)
+        pump_printer()
+        ran = len(printer.executed_line_numbers)
+        if scenario.reset_at_line is not None and not reset_done and ran >= scenario.reset_at_line:
+            reset_done = True
+            printer.reset(now)
+            pump_printer()
+        if scenario.silent_at_line is not None and ran >= scenario.silent_at_line:
+            faults.silent = True
+        deadline = conn.next_deadline()
+        if deadline is not None and now >= deadline:
+            conn.check_timeouts(now)
+            collect()
+            flush()
+        if next_poll is not None and now >= next_poll and scenario.poll_interval_s is not None:
+            if poll is None and not job.finished and conn.halted is None:
+                poll = submit("M105", "poll")
+                flush()
+            next_poll = now + scenario.poll_interval_s
+        if next_user is not None and now >= next_user and scenario.user_interval_s is not None:
+            if not job.finished and conn.halted is None:
+                user_count += 1
+                submit(f"M118 U{user_count}", "user")
+                flush()
+            next_user = now + scenario.user_interval_s
+
+    result.end_s = now
+    result.state = job.state
+    result.error = None if job.error is None else str(job.error)
+    if job.active:
+        result.problems.append(f"the print was still {job.state.value} at the time limit ({now:.0f} s)")
+    for command, bound, kind in pending.values():
+        if kind != "internal" or now > bound:
+            result.unfinished_commands += 1
+            result.problems.append(f"{kind} command {command.text!r} never finished")
+    executed = [text for text in printer.executed if text.startswith("G1 ")]
+    result.lines_executed = len(executed)
+    result.executed_in_order = executed == lines[: len(executed)]
+    if not result.executed_in_order:
+        result.problems.append("the firmware executed print lines out of order, twice or not at all")
+    if job.state is PrintState.DONE and len(executed) != len(lines):
+        result.problems.append(f"the print ended DONE with {len(executed)} of {len(lines)} lines executed")
+    if job.state is PrintState.FAILED and scenario.reset_at_line is None and scenario.silent_at_line is None:
+        result.problems.append(f"the print failed on a link that should carry it: {result.error}")
+    return result
+
+
+def _check_reply(command: Command, reply: Reply, kind: str, result: CampaignResult) -> None:
+    if kind == "user":
+        result.user_replies += 1
+        token = command.text.split()[1]
+        if reply.lines != (token,):
+            result.wrong_replies += 1
+            result.problems.append(f"{command.text!r} was handed the reply lines {reply.lines!r}")
+    elif kind == "poll":
+        result.poll_replies += 1
+        if reply.temperatures is None:
+            result.wrong_replies += 1
+            result.problems.append(f"a poll was handed an ok without temperatures: {reply.ok!r}")
