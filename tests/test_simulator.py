@@ -17,6 +17,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from marlin_aio.commands import number_command
+from marlin_aio.events import (
+    BusyKeepalive,
+    ErrorKind,
+    ErrorMessage,
+    Ok,
+    PrinterLocked,
+    TargetTemperature,
+    TemperatureReport,
+)
+from marlin_aio.parsing import classify_line, parse_position
 from marlin_aio.simulator import Faults, SimulatedPrinter, SimulatorConfig, generate_moves
 from marlin_aio.simulator._wire import Wire
 
@@ -1031,3 +1041,230 @@ def test_numbered_streaming_survives_every_fault_and_runs_each_line_once(window_
     assert printer.executed_line_numbers == list(range(1, len(moves) + 1))
     assert printer.executed == moves
     assert printer.rx_dropped_bytes == 0
+
+
+# ------------------------------------------------------------------------------------------------ dialects
+# The switches for the protocol doc's "Dialects a host meets in the field"; each line the host would see is also
+# run through the parser, so the simulator and the parser agree on every shape.
+
+
+def test_checksum_required_refuses_unnumbered_lines_without_an_ok() -> None:
+    printer = make(checksum_required=True)
+    assert send(printer, "M105") == ["Error: Missing checksum"]
+    assert send(printer, "G1 X5") == ["Error: Missing checksum"]
+    assert send(printer, "M110 N10") == ["Error: Missing checksum"]  # not even M110 N, unnumbered
+    assert printer.executed == []
+    assert classify_line("Error: Missing checksum") == ErrorMessage("Missing checksum", ErrorKind.CHECKSUM_REQUIRED)
+    # Numbered lines work as usual, M110 included, and so do their errors (with `Last Line`, a resend and an ok).
+    assert send(printer, number_command("M110 N0", 0)) == ["ok"]
+    assert send(printer, number_command("M105", 1)) == [IDLE_M105]
+    assert send(printer, number_command("G1 X5", 2)) == ["ok"]
+    assert send(printer, "N3 G1 X6") == ["Error:No Checksum with line number, Last Line: 2", "Resend: 3", "ok"]
+    assert printer.executed == ["M110 N0", "M105", "G1 X5"]
+
+
+def test_plain_wait_lines_have_no_w_field() -> None:
+    printer = make(plain_wait_lines=True)
+    assert send(printer, "M109 S60") == [" T:25.00 /60.00 B:25.00 /0.00 @:0 B@:0"]
+    timed = run_until_ok(printer, 120.0)
+    waits = [" T:25.00 /60.00 B:25.00 /0.00 @:0 B@:0"] + [line for _, line in timed if line.startswith(" T:")]
+    assert len(waits) > 10
+    assert all(" W:" not in line for line in waits)
+    for line in waits:
+        event = classify_line(line)
+        assert isinstance(event, TemperatureReport)
+        assert not event.temperatures.waiting
+    others = [line for _, line in timed if not line.startswith(" T:")]
+    assert set(others[:-1]) == {"echo:busy: processing"}
+    assert others[-1] == "ok"
+
+
+def test_bare_busy_keepalives() -> None:
+    printer = make(bare_busy=True, homing_s=5.0)
+    assert send(printer, "G28") == []
+    assert [line for _, line in run(printer, 10.0)] == [
+        "busy:processing",
+        "busy:processing",
+        "X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0",
+        "ok",
+    ]
+    assert classify_line("busy:processing") == BusyKeepalive(reason="processing")
+
+
+def test_repetier_targets_get_lines_of_their_own_and_reports_drop_them() -> None:
+    printer = make(repetier_targets=True, has_chamber=True, extruders=2)
+    assert send(printer, "M105") == ["ok T:25.00 B:25.00 C:25.00 T0:25.00 T1:25.00 @:0 B@:0 C@:0 @0:0 @1:0"]
+    target_lines = [
+        *send(printer, "M104 S200"),
+        *send(printer, "M104 T1 S300"),  # clamped, as the board stores it
+        *send(printer, "M140 S60"),
+        *send(printer, "M141 S45.7"),  # celsius_t is an integer
+    ]
+    assert target_lines == [
+        *("TargetExtr0:200", "ok", "TargetExtr1:260", "ok"),
+        *("TargetBed:60", "ok", "TargetChamber:45", "ok"),
+    ]
+    assert [classify_line(line) for line in target_lines[::2]] == [
+        TargetTemperature("T0", 200.0),
+        TargetTemperature("T1", 260.0),
+        TargetTemperature("B", 60.0),
+        TargetTemperature("C", 45.0),
+    ]
+    assert send(printer, "M104") == ["ok"]  # no S, no new target, no line
+    assert send(printer, "M104 T5 S10") == ["echo:M104 Invalid extruder 5", "ok"]
+    report = classify_line(send(printer, "M105")[0])
+    assert isinstance(report, Ok)
+    assert report.temperatures is not None
+    assert set(report.temperatures.heaters) == {"T", "B", "C", "T0", "T1"}
+    assert all(reading.target is None for reading in report.temperatures.heaters.values())
+
+
+def test_repetier_targets_in_waits_and_auto_reports() -> None:
+    printer = make(repetier_targets=True)
+    assert send(printer, "M155 S1") == ["ok"]
+    assert send(printer, "M190 S30", 0.5) == ["TargetBed:30", " T:25.00 B:25.00 @:0 B@:0 W:?"]
+    timed = run_until_ok(printer, 200.0)
+    reports = [line for _, line in timed if line.startswith(" T:")]
+    assert reports[0].startswith(" T:25.00 B:25.")
+    assert all(" /" not in line for line in reports)
+    assert any(" W:" not in line for line in reports)  # the auto-reports go on during the wait
+    assert timed[-1][1] == "ok"
+    # M109 that does not need to wait still prints the new target.
+    assert send(printer, "M109 S0", timed[-1][0]) == ["TargetExtr0:0", "ok"]
+
+
+def test_m114_on_ok() -> None:
+    for advanced_ok in (False, True):
+        printer = make(m114_on_ok=True, advanced_ok=advanced_ok, motion_time_scale=0.0)
+        assert send(printer, "M114") == ["ok X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0"]
+        send(printer, "G1 X10 E1.5")
+        reply = send(printer, "M114")
+        assert reply == ["ok X:10.00 Y:0.00 Z:0.00 E:1.50 Count X:800 Y:0 Z:0"]
+        event = classify_line(reply[0])
+        assert isinstance(event, Ok)
+        assert parse_position((event.payload,)) == {"X": 10.0, "Y": 0.0, "Z": 0.0, "E": 1.5}
+    # A dropped ok must not take the position with it: this ok is an answer, like M105's.
+    printer = make(Faults(drop_ok_ratio=1.0), m114_on_ok=True)
+    assert send(printer, "M114") == ["ok X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0"]
+
+
+LOCKED = "echo:Printer locked! (Unlock with M511 or LCD)"
+
+
+def test_password_locks_every_command_until_m511() -> None:
+    printer = make(password="1234", motion_time_scale=0.0)
+    assert send(printer, "M105") == [LOCKED, "ok"]
+    assert send(printer, "G1 X10") == [LOCKED, "ok"]
+    assert send(printer, "M104 S200") == [LOCKED, "ok"]
+    assert send(printer, number_command("M115", 1)) == [LOCKED, "ok"]  # numbered lines are checked, then refused
+    assert printer.executed == []
+    assert printer.executed_line_count == 0
+    assert classify_line(LOCKED) == PrinterLocked(message=LOCKED.removeprefix("echo:"))
+    assert send(printer, "M511 P4321") == ["echo:Incorrect Password", "ok"]
+    assert send(printer, "M511") == ["echo:Incorrect Password", "ok"]
+    assert send(printer, "M105") == [LOCKED, "ok"]
+    assert send(printer, "M511 P1234") == ["ok"]
+    assert send(printer, "M105") == [IDLE_M105]
+    assert send(printer, "M114") == ["X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0", "ok"]  # G1 X10 never ran
+    assert send(printer, "M511 P0") == ["ok"]  # unlocked: M511 does nothing
+    assert printer.executed == ["M511 P4321", "M511", "M511 P1234", "M105", "M114", "M511 P0"]
+    printer.reset(1.0)
+    lines(printer)
+    assert send(printer, "M105", 1.0) == [LOCKED, "ok"]  # locked again after a reset
+    assert send(make(), "M511 P1234") == ['echo:Unknown command: "M511 P1234"', "ok"]  # no PASSWORD_FEATURE
+
+
+def test_password_lock_with_advanced_ok_and_the_emergency_parser() -> None:
+    printer = make(password="7", advanced_ok=True)
+    assert send(printer, number_command("M105", 1)) == [LOCKED, "ok N1 P15 B3"]
+    send(printer, "M112")  # the emergency parser does not ask for the password
+    assert printer.halted
+
+
+@pytest.mark.parametrize("password", ["", "a b", "x;y", "x*1", "caf\u00e9"])
+def test_passwords_that_cannot_be_sent_are_refused(password: str) -> None:
+    with pytest.raises(ValueError, match="password"):
+        SimulatorConfig(password=password)
+
+
+LOST = "!! Lost communication with MCU 'mcu'"
+
+
+def test_not_executed_commands_get_the_bridge_line_and_an_ok() -> None:
+    printer = make(Faults(not_executed_ratio=1.0), advanced_ok=True)
+    assert send(printer, "G1 X10") == [LOST, "ok P15 B3"]
+    assert send(printer, number_command("M105", 1)) == [LOST, "ok N1 P15 B3"]
+    assert printer.executed == []
+    assert printer.executed_count == 0
+    assert classify_line(LOST) == ErrorMessage("Lost communication with MCU 'mcu'", ErrorKind.NOT_EXECUTED)
+    printer.faults.not_executed_ratio = 0.0
+    assert send(printer, number_command("M105", 2)) == [IDLE_M105]
+
+
+def test_not_executed_share_has_its_own_random_stream() -> None:
+    def outcome(faults: Faults) -> list[bool]:
+        printer = make(faults, seed=3)
+        result = []
+        for index in range(300):
+            reply = send(printer, f"M117 {index}")
+            result.append(LOST in reply)
+        assert printer.executed_count == result.count(False)
+        return result
+
+    plain = outcome(Faults(not_executed_ratio=0.2))
+    assert 30 < plain.count(True) < 90
+    # Other faults drawing from their own streams do not change which commands are lost.
+    assert outcome(Faults(not_executed_ratio=0.2, drop_ok_ratio=0.5, noise_ratio=0.3)) == plain
+
+
+def test_multi_extruder_auto_reports_have_every_hotend_and_its_power() -> None:
+    printer = make(extruders=2)
+    send(printer, "M104 T1 S200")
+    assert send(printer, "M155 S1") == ["ok"]
+    reports = [line for _, line in run(printer, 2.0) if line.startswith(" T:")]
+    assert reports[0] == " T:25.00 /0.00 B:25.00 /0.00 T0:25.00 /0.00 T1:28.39 /200.00 @:0 B@:0 @0:0 @1:127"
+    event = classify_line(reports[0])
+    assert isinstance(event, TemperatureReport)
+    heaters = event.temperatures.heaters
+    assert (heaters["T1"].actual, heaters["T1"].target, heaters["T1"].power) == (28.39, 200.0, 127)
+    assert (heaters["T0"].actual, heaters["T0"].target, heaters["T0"].power) == (25.0, 0.0, 0)
+
+
+# ------------------------------------------------------------------------------------------------ bounded record
+
+
+def test_the_record_keeps_only_the_last_commands_and_counts_them_all() -> None:
+    printer = make(record_limit=5)
+    for number in range(1, 13):
+        send(printer, number_command(f"M117 {number}", number))
+    send(printer, "M117 unnumbered")
+    assert printer.executed == [f"M117 {n}" for n in range(9, 13)] + ["M117 unnumbered"]
+    assert list(printer.executed) == [f"M117 {n}" for n in range(9, 13)] + ["M117 unnumbered"]
+    assert printer.executed_line_numbers == [8, 9, 10, 11, 12]
+    assert (printer.executed_count, printer.executed_line_count) == (13, 12)
+    assert len(printer.executed) == 5
+    assert printer.executed[0] == "M117 9"
+    assert printer.executed[-1] == "M117 unnumbered"
+    assert printer.executed[-2:] == ["M117 12", "M117 unnumbered"]
+    assert "M117 10" in printer.executed
+    assert "M117 1" not in printer.executed
+
+
+def test_the_default_record_is_bounded_and_none_keeps_everything() -> None:
+    assert SimulatorConfig().record_limit == 100_000
+    assert make().executed.limit == 100_000
+    printer = make(record_limit=None)
+    for index in range(50):
+        send(printer, f"M117 {index}")
+    assert len(printer.executed) == printer.executed_count == 50
+    with pytest.raises(ValueError, match="record_limit"):
+        SimulatorConfig(record_limit=-1)
+
+
+def test_silent_after_lines_counts_lines_the_record_no_longer_keeps() -> None:
+    printer = make(Faults(silent_after_lines=4), record_limit=2)
+    for number in range(1, 5):
+        assert send(printer, number_command("M400", number)) == ["ok"]
+    assert printer.stalled
+    assert send(printer, number_command("M400", 5)) == []
+    assert printer.executed_line_numbers == [3, 4]

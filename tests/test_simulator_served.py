@@ -168,6 +168,44 @@ async def test_pyserial_opens_the_pty_at_250000_baud() -> None:
         assert await asyncio.to_thread(round_trip) == [IDLE_M105.encode() + b"\n"] * 3
 
 
+@pytest.mark.parametrize("baud_rate", [None, BAUD])
+async def test_pty_reset_on_open_gives_pyserial_the_banner_after_its_open(baud_rate: int | None) -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE, baud_rate=baud_rate, reset_on_open=True) as sim:
+        sim.printer.take_output()
+
+        def session() -> list[bytes]:
+            # pyserial's open() flushes the input at its end: the banner must come after that, as from a board
+            # that DTR reset.
+            with serial.Serial(sim.url, 250000, timeout=5) as port:
+                received = [port.readline() for _ in range(3)]
+                while not received[-1].startswith(b"echo:  M301"):
+                    received.append(port.readline())
+                port.reset_input_buffer()  # a flush is no open: no second reset
+                port.write(b"M105\n")
+                received.append(port.readline())
+                return received
+
+        for cause in ("External Reset", "External Reset"):  # every open resets, not only the first
+            received = await asyncio.to_thread(session)
+            assert received[:3] == [b"start\n", cause.encode() + b"\n", b"Marlin 2.1.2.4\n"]
+            assert received[-1] == IDLE_M105.encode() + b"\n"
+            assert received.count(b"start\n") == 1
+
+
+async def test_pty_reset_on_open_keeps_raw_bytes_and_ignores_plain_opens() -> None:
+    # os.open sets nothing up: the power-up banner, and no reset.
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=TIME_SCALE, reset_on_open=True) as sim,
+        pty_client(sim.url) as host,
+    ):
+        banner = await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        assert banner[:2] == ["start", "PowerUp"]
+        host.write(b"M118 a\rM105\n")  # packet mode changes no byte, in either direction
+        assert [await host.readline() for _ in range(3)] == ["a", "ok", IDLE_M105]
+    with pytest.raises(ValueError, match="reset_on_open"):
+        SimulatorServer(SimulatorConfig(), None, kind="tcp", reset_on_open=True)
+
+
 async def test_pty_disconnect_makes_the_host_see_the_link_drop() -> None:
     async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE) as sim, pty_client(sim.url) as host:
         await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
@@ -450,3 +488,66 @@ async def test_command_rejects_bad_options() -> None:
         _, stderr = await process.communicate()
     assert process.returncode == 2
     assert b"between 0 and 1" in stderr
+
+
+def test_every_dialect_switch_has_a_flag() -> None:
+    from marlin_aio.simulator.__main__ import _build_parser, _settings
+
+    arguments = _build_parser().parse_args(
+        [
+            *("--checksum-required", "--plain-wait-lines", "--bare-busy", "--repetier-targets", "--m114-on-ok"),
+            *("--password", "1234", "--not-executed", "0.25"),
+        ]
+    )
+    config, faults = _settings(arguments)
+    assert (config.checksum_required, config.plain_wait_lines, config.bare_busy) == (True, True, True)
+    assert (config.repetier_targets, config.m114_on_ok, config.password) == (True, True, "1234")
+    assert faults.not_executed_ratio == 0.25
+    config, faults = _settings(_build_parser().parse_args([]))
+    assert config == SimulatorConfig()
+    assert faults == Faults()
+
+
+async def test_command_serves_a_locked_repetier_dialect_over_tcp() -> None:
+    process, url = await _start_command(
+        sys.executable,
+        *("-m", "marlin_aio.simulator", "--tcp", "0", "--time-scale", "20"),
+        *("--password", "42", "--repetier-targets", "--m114-on-ok", "--checksum-required"),
+    )
+    stderr = ""
+    try:
+        host, port = url.removeprefix("socket://").rsplit(":", 1)
+        reader, writer = await asyncio.open_connection(host, int(port))
+        await read_until(lambda: tcp_readline(reader), lambda line: line.startswith("echo:  M301"))
+        writer.write(b"M105\n")
+        assert await tcp_readline(reader) == "Error: Missing checksum"
+        writer.write(f"{number_command('M110 N0', 0)}\n{number_command('M105', 1)}\n".encode())
+        # Locked, M110 too is refused; its line number counts all the same (it was taken as the line was read).
+        assert [await tcp_readline(reader) for _ in range(4)] == [
+            "echo:Printer locked! (Unlock with M511 or LCD)",
+            "ok",
+        ] * 2
+        writer.write(f"{number_command('M511 P42', 2)}\n{number_command('M104 S200', 3)}\n".encode())
+        writer.write(f"{number_command('M114', 4)}\n".encode())
+        assert [await tcp_readline(reader) for _ in range(4)] == [
+            "ok",
+            "TargetExtr0:200",
+            "ok",
+            "ok X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0",
+        ]
+        writer.close()
+        await writer.wait_closed()
+    finally:
+        stderr = await _stop_command(process, signal.SIGTERM)
+    assert "repetier_targets, m114_on_ok, locked (M511)" in stderr
+    assert "3 commands run, 3 of them numbered" in stderr
+
+
+async def test_command_rejects_a_password_it_could_not_send() -> None:
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "marlin_aio.simulator", "--password", "a;b", stderr=asyncio.subprocess.PIPE
+    )
+    async with asyncio.timeout(20):
+        _, stderr = await process.communicate()
+    assert process.returncode == 2
+    assert b"password" in stderr

@@ -10,10 +10,12 @@ does the same from a shell. With `baud_rate` (`--baud`) the link runs at a UART'
 from __future__ import annotations
 
 from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
+from marlin_aio.simulator._record import BoundedRecord
 from marlin_aio.simulator._serve import SimulatorServer, serve_pty, serve_tcp
 from marlin_aio.simulator._workload import generate_moves
 
 __all__ = [
+    "BoundedRecord",
     "Faults",
     "SimulatedPrinter",
     "SimulatorConfig",

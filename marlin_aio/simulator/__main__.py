@@ -64,6 +64,25 @@ def _not_negative(text: str) -> float:
     return value
 
 
+def _password(text: str) -> str:
+    try:
+        SimulatorConfig(password=text)  # the rule lives with the option it guards
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+# The on/off dialect switches of SimulatorConfig: each is a flag named after its field (`--bare-busy` sets
+# `bare_busy`), so adding one here is all it takes.
+_DIALECT_SWITCHES: tuple[tuple[str, str], ...] = (
+    ("checksum_required", "refuse unnumbered lines: 'Error: Missing checksum', no ok, not run"),
+    ("plain_wait_lines", "M109/M190/M191 wait lines without ' W:'"),
+    ("bare_busy", "keepalives as 'busy:processing', without 'echo:'"),
+    ("repetier_targets", "'TargetExtr0:200'-style target lines, reports without ' /target'"),
+    ("m114_on_ok", "M114 answers on its ok line: 'ok X:.. Y:.. Z:.. E:.. Count ...'"),
+)
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="marlin-sim",
@@ -87,6 +106,12 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="FACTOR",
         help="factor on how long moves take; 0 makes them instant (default 1)",
     )
+    parser.add_argument(
+        "--reset-on-open",
+        action="store_true",
+        help="pty (Linux): reset and print the banner when a client opens the port, as DTR resets a board"
+        " (a TCP client always finds the board reset)",
+    )
     parser.add_argument("--advanced-ok", action="store_true", help="ok N<line> P<planner> B<buffer> (ADVANCED_OK)")
     parser.add_argument("--extruders", type=int, default=1, choices=range(1, 9), metavar="N", help="hotends (1-8)")
     parser.add_argument("--chamber", action="store_true", help="add a heated chamber (M141, C: in M105)")
@@ -103,10 +128,27 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="stall, answering nothing more, after running N numbered lines",
     )
+    parser.add_argument(
+        "--not-executed",
+        type=_ratio,
+        default=0.0,
+        metavar="RATIO",
+        help="share of commands answered \"!! Lost communication with MCU 'mcu'\" and ok, and not run",
+    )
+    dialects = parser.add_argument_group("dialects", "firmware variants and options a host meets in the field")
+    for field, help_text in _DIALECT_SWITCHES:
+        dialects.add_argument("--" + field.replace("_", "-"), dest=field, action="store_true", help=help_text)
+    dialects.add_argument(
+        "--password",
+        type=_password,
+        metavar="PASSWORD",
+        help="PASSWORD_FEATURE: locked until 'M511 P<PASSWORD>' (again after every reset)",
+    )
     return parser
 
 
-async def _serve(arguments: argparse.Namespace) -> None:
+def _settings(arguments: argparse.Namespace) -> tuple[SimulatorConfig, Faults]:
+    """The printer's configuration and faults the parsed command line asks for."""
     config = SimulatorConfig(
         advanced_ok=arguments.advanced_ok,
         extruders=arguments.extruders,
@@ -115,14 +157,22 @@ async def _serve(arguments: argparse.Namespace) -> None:
         emergency_parser=not arguments.no_emergency_parser,
         rx_buffer_size=arguments.rx_buffer,
         motion_time_scale=arguments.motion_time_scale,
+        password=arguments.password,
         seed=arguments.seed,
+        **{field: getattr(arguments, field) for field, _ in _DIALECT_SWITCHES},
     )
     faults = Faults(
         corrupt_rx_ratio=arguments.corrupt_rx,
         drop_ok_ratio=arguments.drop_ok,
         noise_ratio=arguments.noise,
         silent_after_lines=arguments.silent_after_lines,
+        not_executed_ratio=arguments.not_executed,
     )
+    return config, faults
+
+
+async def _serve(arguments: argparse.Namespace) -> None:
+    config, faults = _settings(arguments)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -137,20 +187,28 @@ async def _serve(arguments: argparse.Namespace) -> None:
             baud_rate=arguments.baud,
         )
     else:
-        server = serve_pty(config, faults, time_scale=arguments.time_scale, baud_rate=arguments.baud)
+        server = serve_pty(
+            config,
+            faults,
+            time_scale=arguments.time_scale,
+            baud_rate=arguments.baud,
+            reset_on_open=arguments.reset_on_open,
+        )
     async with server:
         print(server.url, flush=True)
         baud = f", {arguments.baud} baud" if arguments.baud is not None else ""
+        dialects = "".join(f", {field}" for field, _ in _DIALECT_SWITCHES if getattr(config, field))
+        locked = ", locked (M511)" if config.password is not None else ""
         print(
             f"marlin-sim: {config.firmware_name} on {server.url}, time scale {arguments.time_scale:g}{baud}"
-            f"{', ADVANCED_OK' if config.advanced_ok else ''}; Ctrl-C to stop",
+            f"{', ADVANCED_OK' if config.advanced_ok else ''}{dialects}{locked}; Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
         )
         await stop.wait()
     printer = server.printer
     print(
-        f"marlin-sim: stopped; {len(printer.executed)} commands run, {len(printer.executed_line_numbers)} of them"
+        f"marlin-sim: stopped; {printer.executed_count} commands run, {printer.executed_line_count} of them"
         f" numbered; {printer.rx_dropped_bytes} received bytes dropped in {printer.rx_overflows} overflows",
         file=sys.stderr,
         flush=True,

@@ -30,6 +30,13 @@ How it follows Marlin 2.1 (`gcode/queue.cpp`, `MarlinCore.cpp`, `module/temperat
   numbers below the next one are dropped without a word instead, as newer `queue.cpp` sources do.
 - Each kind of random fault draws from a stream of its own (derived from the seed), so which `ok`s are dropped
   does not depend on how the host's bytes happened to be split into reads.
+- Dialects a host meets in the field (Marlin forks, Repetier-compatible boards, options) are switches of
+  `SimulatorConfig`, each off by default: `checksum_required`, `plain_wait_lines`, `bare_busy`,
+  `repetier_targets`, `m114_on_ok` and `password` (PASSWORD_FEATURE). A host-side bridge that drops commands is
+  the fault `Faults.not_executed_ratio`.
+- What was run is recorded in `executed` and `executed_line_numbers`, bounded to the last
+  `SimulatorConfig.record_limit` entries so a simulator served for hours does not grow without end;
+  `executed_count` and `executed_line_count` keep the totals.
 """
 
 from __future__ import annotations
@@ -42,6 +49,7 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass
 
 from marlin_aio.commands import checksum
+from marlin_aio.simulator._record import BoundedRecord
 from marlin_aio.simulator._thermal import BED, CHAMBER, HOTEND, STEP_US, Heater
 
 __all__ = ["Faults", "SimulatedPrinter", "SimulatorConfig"]
@@ -58,6 +66,10 @@ _HYSTERESIS_CELSIUS = 3.0
 _COOLING_SLOPE_CELSIUS = 1.5
 _COOLING_SLOPE_US = 60 * _US_PER_S
 _WAIT_REPORT_US = _US_PER_S
+
+_LOCKED = "echo:Printer locked! (Unlock with M511 or LCD)"  # STR_PRINTER_LOCKED, as SERIAL_ECHO_MSG prints it
+_LOST_MCU = "!! Lost communication with MCU 'mcu'"
+_M511_PASSWORD = re.compile(r"P *(\S+)")
 
 _BUILD_DATE = "Jan  1 2024 12:00:00"
 _UUID = "cede2a2f-41a2-4748-9b12-c55c62f367ff"
@@ -177,6 +189,29 @@ class SimulatorConfig:
     ignore_duplicate_lines: bool = False
     """Drop a numbered line repeating one of the last two numbers without any answer (no error, no `ok`), as
     newer Marlin `queue.cpp` does; off, such a line gets the line-number error and `Resend:` like 2.1.2."""
+    checksum_required: bool = False
+    """Take only numbered lines with a checksum: an unnumbered command is answered with `Error: Missing checksum`
+    and nothing else (no `ok`) and is not run. Numbered lines, `N0 M110` included, work as usual."""
+    plain_wait_lines: bool = False
+    """M109/M190/M191 print their once-a-second wait lines as plain reports, without ` W:<seconds left>`."""
+    bare_busy: bool = False
+    """Keepalives read `busy:processing`, without the `echo:` prefix."""
+    repetier_targets: bool = False
+    """Repetier style: a heater's new target gets a line of its own before the `ok` (`TargetExtr0:200`,
+    `TargetBed:60`, `TargetChamber:45`, from M104/M109, M140/M190, M141/M191), and temperature reports show each
+    sensor without its ` /target` (`ok T:21.50 B:21.30 @:0 B@:0`)."""
+    m114_on_ok: bool = False
+    """M114 answers on its `ok` line (`ok X:10.00 Y:0.00 Z:0.00 E:0.00 Count X:800 Y:0 Z:0`), no separate line."""
+    password: str | None = None
+    """PASSWORD_FEATURE: locked at power-up and after every reset, the board answers each command other than
+    `M511 P<password>` with `echo:Printer locked! (Unlock with M511 or LCD)` and `ok` and does not run it.
+    The right password unlocks it; a wrong one prints `echo:Incorrect Password`. None: no such feature (M511 is
+    then an unknown command)."""
+    record_limit: int | None = 100_000
+    """How many of the latest commands `executed` and `executed_line_numbers` keep (None: all, which grows
+    without end on a simulator served for hours). `executed_count` and `executed_line_count` count them all.
+    The default holds a whole test print of tens of thousands of lines, and at 100 commands a second the last
+    quarter of an hour: some 12 MB at most, where keeping everything grew by about 40 MB an hour."""
     seed: int = 0
     """Seed of the `random.Random` behind every fault decision, so runs are reproducible."""
 
@@ -195,6 +230,13 @@ class SimulatorConfig:
             raise ValueError(f"motion_time_scale must be a finite number >= 0, got {self.motion_time_scale}")
         if "\n" in self.firmware_name or "\r" in self.firmware_name:
             raise ValueError("firmware_name must be one line")
+        if self.password is not None and (
+            not self.password or any(c.isspace() or c in ";*" for c in self.password) or not self.password.isascii()
+        ):
+            # It has to survive the trip as one `M511 P<password>` word: no blanks, no comment or checksum mark.
+            raise ValueError(f"password must be one word of ASCII without ';' or '*', got {self.password!r}")
+        if self.record_limit is not None and self.record_limit < 0:
+            raise ValueError(f"record_limit must be None or at least 0, got {self.record_limit}")
 
 
 @dataclass
@@ -205,7 +247,8 @@ class Faults:
     """Share of received lines that get one character changed before parsing (numbered ones then fail their
     line-number or checksum check; the leading `N` itself is never hit)."""
     drop_ok_ratio: float = 0.0
-    """Share of normal command `ok`s not sent at all (not M105's `ok T:...`, not the `ok` after `Resend:`)."""
+    """Share of normal command `ok`s not sent at all (not M105's `ok T:...`, nor M114's `ok X:...` with
+    `m114_on_ok`, nor the `ok` after `Resend:`)."""
     silent: bool = False
     """Keep reading and executing, but write nothing."""
     noise_ratio: float = 0.0
@@ -216,6 +259,9 @@ class Faults:
     `executed_line_numbers`): the `ok` of the last one still goes out, then the board runs and writes nothing
     more, while its receive buffer keeps filling (and overflowing) as on a hung board. `reset()` revives it,
     but with the fault still set the next numbered line stalls it again."""
+    not_executed_ratio: float = 0.0
+    """Share of commands a host-side bridge does not pass on: each is answered with
+    `!! Lost communication with MCU 'mcu'` and `ok`, and is not run (not in `executed`)."""
 
 
 @dataclass(slots=True)
@@ -233,6 +279,14 @@ def _to_us(seconds: float) -> int:
 
 def _celsius(value: float) -> str:
     return f"{value + 0.0:.2f}"  # + 0.0 turns -0.0 into 0.0, which Marlin would print without a sign
+
+
+def _reading_and_target(letter: str, heater: Heater) -> str:
+    return f" {letter}:{_celsius(heater.celsius)} /{_celsius(heater.target_celsius)}"
+
+
+def _reading(letter: str, heater: Heater) -> str:
+    return f" {letter}:{_celsius(heater.celsius)}"
 
 
 def _leading_int(text: str, start: int) -> int:
@@ -261,10 +315,13 @@ class SimulatedPrinter:
         """Power the board up at `now`; with `boot` its banner is the first output."""
         self.config = config if config is not None else SimulatorConfig()
         self.faults = faults if faults is not None else Faults()
-        self.executed: list[str] = []
-        """Every command executed, in order, as received minus line number, checksum and comment."""
-        self.executed_line_numbers: list[int] = []
-        """The number of every numbered line executed, in order (unnumbered commands add nothing)."""
+        limit = self.config.record_limit
+        self.executed: BoundedRecord[str] = BoundedRecord(limit)
+        """The commands executed, in order, as received minus line number, checksum and comment: the last
+        `SimulatorConfig.record_limit` of them (`executed_count` counts all)."""
+        self.executed_line_numbers: BoundedRecord[int] = BoundedRecord(limit)
+        """The number of each numbered line executed, in order (unnumbered commands add nothing): the last
+        `SimulatorConfig.record_limit` of them (`executed_line_count` counts all)."""
         self.rx_overflows = 0
         """How many arrivals of bytes found the receive buffer too full to hold them all."""
         self.rx_dropped_bytes = 0
@@ -277,6 +334,7 @@ class SimulatedPrinter:
         self._corrupt_rng = random.Random(f"{seed}:corrupt-rx")
         self._drop_ok_rng = random.Random(f"{seed}:drop-ok")
         self._noise_rng = random.Random(f"{seed}:noise")
+        self._not_executed_rng = random.Random(f"{seed}:not-executed")
         self._out = bytearray()
         self._t = _to_us(now)
         self._thermal_step = self._t // STEP_US
@@ -295,6 +353,17 @@ class SimulatedPrinter:
             self._print_banner("PowerUp")
 
     # ----------------------------------------------------------------------------------------------- public API
+
+    @property
+    def executed_count(self) -> int:
+        """How many commands were executed since power-up, also those `executed` no longer keeps."""
+        return self.executed.total
+
+    @property
+    def executed_line_count(self) -> int:
+        """How many numbered lines were executed since power-up, also those `executed_line_numbers` no longer
+        keeps."""
+        return self.executed_line_numbers.total
 
     def receive(self, data: bytes, now: float) -> None:
         """Bytes from the host arriving at `now`.
@@ -407,6 +476,7 @@ class SimulatedPrinter:
         self._report_us = 0
         self._next_report: int | None = None
         self._skip_ok = False
+        self._locked = self.config.password is not None
         for heater in self._heaters_by_name.values():
             heater.set_target(0.0)
 
@@ -443,7 +513,7 @@ class SimulatedPrinter:
         """What idle() prints at this moment; the task itself resumes in `_settle()`."""
         now = self._t
         if self._task is not None and self._next_keepalive is not None and self._next_keepalive <= now:
-            self._emit("echo:busy: processing")
+            self._emit("busy:processing" if self.config.bare_busy else "echo:busy: processing")
             self._next_keepalive = now + self._keepalive_us if self._keepalive_us > 0 else None
         if self._next_report is not None and self._next_report <= now:
             self._emit(self._heater_states(self._active_extruder))
@@ -546,6 +616,10 @@ class SimulatedPrinter:
             text = self._corrupt(text)
         line_label = None
         line_number = None
+        if text[0] != "N" and self.config.checksum_required:
+            # Thrown away as it is read, like a line error, but with neither a resend request nor an ok.
+            self._emit("Error: Missing checksum")
+            return
         if text[0] == "N":
             is_m110 = "M110" in text
             number_at = 0
@@ -607,10 +681,20 @@ class SimulatedPrinter:
     # ---------------------------------------------------------------------------------------------- execution
 
     def _start_command(self, command: _Command) -> None:
+        self._skip_ok = False
+        ratio = self.faults.not_executed_ratio
+        if ratio > 0.0 and self._not_executed_rng.random() < ratio:
+            self._emit(_LOST_MCU)
+            self._finish_command()
+            return
+        if self._locked and command.code != "M511":
+            # gcode.cpp refuses everything but M511 before looking at the command.
+            self._emit(_LOCKED)
+            self._finish_command()
+            return
         self.executed.append(command.text)
         if command.line_number is not None:
             self.executed_line_numbers.append(command.line_number)
-        self._skip_ok = False
         handler = self._handlers.get(command.code)
         if handler is None:
             handler = self._tool_change if command.code[:1] == "T" else self._unknown
@@ -635,20 +719,23 @@ class SimulatedPrinter:
         self._ring.popleft()
         self._next_keepalive = None
         limit = self.faults.silent_after_lines
-        if limit is not None and command.line_number is not None and len(self.executed_line_numbers) >= limit:
+        if limit is not None and command.line_number is not None and self.executed_line_count >= limit:
             self.stalled = True
 
     def _send_ok(self, command: _Command) -> None:
         ratio = self.faults.drop_ok_ratio
         if ratio > 0.0 and self._drop_ok_rng.random() < ratio:
             return
+        self._emit(self._ok_line(command))
+
+    def _ok_line(self, command: _Command) -> str:
+        """`ok`, with ADVANCED_OK `ok N<line> P<free blocks> B<free slots>`."""
         if not self.config.advanced_ok:
-            self._emit("ok")
-            return
+            return "ok"
         free_blocks = self._moves_free()
         free_slots = self.config.command_buffer_size - len(self._ring)
         label = "" if command.line_label is None else f" {command.line_label}"
-        self._emit(f"ok{label} P{free_blocks} B{free_slots}")
+        return f"ok{label} P{free_blocks} B{free_slots}"
 
     def _kill(self) -> None:
         """kill(): heaters off, the halt line, then nothing more until reset."""
@@ -695,13 +782,15 @@ class SimulatedPrinter:
         self._sync_thermal()
         hotends = self._hotends
         hotend = hotends[extruder]
-        parts = [f" T:{_celsius(hotend.celsius)} /{_celsius(hotend.target_celsius)}"]
+        # Repetier-style firmwares report targets on lines of their own, not after each reading.
+        field = _reading if self.config.repetier_targets else _reading_and_target
+        parts = [field("T", hotend)]
         if self._bed is not None:
-            parts.append(f" B:{_celsius(self._bed.celsius)} /{_celsius(self._bed.target_celsius)}")
+            parts.append(field("B", self._bed))
         if self._chamber is not None:
-            parts.append(f" C:{_celsius(self._chamber.celsius)} /{_celsius(self._chamber.target_celsius)}")
+            parts.append(field("C", self._chamber))
         if len(hotends) > 1:
-            parts.extend(f" T{i}:{_celsius(h.celsius)} /{_celsius(h.target_celsius)}" for i, h in enumerate(hotends))
+            parts.extend(field(f"T{i}", h) for i, h in enumerate(hotends))
         parts.append(f" @:{hotend.power_127}")
         if self._bed is not None:
             parts.append(f" B@:{self._bed.power_127}")
@@ -777,6 +866,8 @@ class SimulatedPrinter:
             handlers["M191"] = self._m191
         if self.config.autoreport_temp:
             handlers["M155"] = self._m155
+        if self.config.password is not None:
+            handlers["M511"] = self._m511
         return handlers
 
     def _no_op(self, command: _Command) -> None:
@@ -893,10 +984,20 @@ class SimulatedPrinter:
             return None
         self._sync_thermal()
         heater.set_target(float(int(celsius)))  # celsius_t is an integer in Marlin 2.1
+        if self.config.repetier_targets:
+            self._emit(f"{self._target_label(heater, extruder)}:{int(heater.target_celsius)}")
         heating = heater.target_celsius > heater.celsius
         if wait and (heating or not no_wait_for_cooling):
             return self._wait_for_heater(heater, extruder)
         return None
+
+    def _target_label(self, heater: Heater, extruder: int) -> str:
+        """The Repetier name of a heater's target: `TargetExtr<n>`, `TargetBed` or `TargetChamber`."""
+        if heater is self._bed:
+            return "TargetBed"
+        if heater is self._chamber:
+            return "TargetChamber"
+        return f"TargetExtr{extruder}"
 
     def _wait_for_heater(self, heater: Heater, extruder: int) -> _Task:
         """Temperature::wait_for_hotend() / wait_for_bed(): a W: line every second, 10 s residency in a 1 C
@@ -914,8 +1015,11 @@ class SimulatedPrinter:
             now = self._t
             if now >= next_print:
                 next_print = now + _WAIT_REPORT_US
-                left = "?" if residency_start is None else str((_RESIDENCY_US - now + residency_start) // _US_PER_S)
-                self._emit(f"{self._heater_states(extruder)} W:{left}")
+                if self.config.plain_wait_lines:
+                    self._emit(self._heater_states(extruder))
+                else:
+                    left = "?" if residency_start is None else str((_RESIDENCY_US - now + residency_start) // _US_PER_S)
+                    self._emit(f"{self._heater_states(extruder)} W:{left}")
             celsius = heater.celsius
             difference = abs(target - celsius)
             if residency_start is None:
@@ -965,7 +1069,11 @@ class SimulatedPrinter:
             self._keepalive_us = min(max(int(seconds), 0), 60) * _US_PER_S
 
     def _m114(self, command: _Command) -> None:
-        self._emit(self._position_line())
+        if self.config.m114_on_ok:
+            self._skip_ok = True  # the position rides on the ok line itself, like M105's temperatures
+            self._emit(f"ok {self._position_line()}")
+        else:
+            self._emit(self._position_line())
 
     def _m115(self, command: _Command) -> None:
         config = self.config
@@ -1029,6 +1137,16 @@ class SimulatedPrinter:
     def _m410(self, command: _Command) -> None:
         if not self.config.emergency_parser:
             self._quick_stop()
+
+    def _m511(self, command: _Command) -> None:
+        """M511 P<password>: unlock (password.cpp compares only while locked)."""
+        if not self._locked:
+            return
+        match = _M511_PASSWORD.search(command.args)
+        if match is not None and match.group(1) == self.config.password:
+            self._locked = False
+        else:
+            self._emit("echo:Incorrect Password")
 
     def _m503(self, command: _Command) -> None:
         for line in _SETTINGS_LINES:

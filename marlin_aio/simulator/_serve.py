@@ -20,6 +20,13 @@ runs on a select() loop, which keeps time to the microsecond.) About 10 ms of th
 of the wire; the rest wait in the pty or socket, where a host that writes too much finds its writes
 blocking, as with a real serial port.
 
+Opening a port resets most boards (DTR), and each TCP client finds the board reset. A pty cannot see DTR, and the
+server holds the slave open, so it sees no open either; with `reset_on_open` it watches the terminal's settings
+instead: the slave gets EXTPROC and the master packet mode (TIOCPKT), so every `tcsetattr()` on the slave reaches
+the master as a TIOCPKT_IOCTL packet. pyserial's `open()` always sets the port up that way, and its reads and
+flushes do not, so a client finds the board booting a moment after it opened the port, after the flush that
+ends pyserial's `open()` (which would otherwise throw the banner away). This is Linux behaviour.
+
 Only os, pty, tty and termios are used for the pseudo-terminal, never the serial package (the client's business).
 """
 
@@ -27,9 +34,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import fcntl
 import os
 import pty
 import socket
+import struct
+import sys
+import termios
 import tty
 from collections.abc import Callable
 from types import TracebackType
@@ -52,6 +63,12 @@ _WIRE_TICK_S = 0.001
 # has gone on), so they mostly wait in the pty or socket and a flood is held back there.
 _READ_AHEAD_S = 0.01
 _MIN_READ_AHEAD = 32
+# With reset_on_open: how long after the port's set-up the board prints its banner (a real one takes 1-3 s in
+# its bootloader; this is short so a handshake is not slowed down, and long enough to come after pyserial's flush).
+_OPEN_RESET_DELAY_S = 0.05
+# Linux values; the termios module names neither.
+_EXTPROC = 0o200000
+_TIOCPKT_IOCTL = 0x40
 
 
 class SimulatorServer:
@@ -72,16 +89,22 @@ class SimulatorServer:
         time_scale: float = 1.0,
         clock: Callable[[], float] | None = None,
         baud_rate: int | None = None,
+        reset_on_open: bool = False,
     ) -> None:
         """Prepare a server; nothing is opened until `start()`.
 
         Raises:
-            ValueError: if `time_scale` or `baud_rate` is not a positive number.
+            ValueError: if `time_scale` or `baud_rate` is not a positive number, or `reset_on_open` is asked of
+                a TCP server (which always resets on connect) or off Linux.
         """
         if not time_scale > 0:
             raise ValueError(f"time_scale must be positive, got {time_scale!r}")
         if baud_rate is not None and baud_rate <= 0:
             raise ValueError(f"baud_rate must be positive, got {baud_rate!r}")
+        if reset_on_open and (kind != "pty" or not sys.platform.startswith("linux")):
+            raise ValueError("reset_on_open is for a pty on Linux; a TCP server resets on every connect anyway")
+        self._reset_on_open = reset_on_open
+        self._open_reset: asyncio.TimerHandle | None = None
         self.printer = SimulatedPrinter(config, faults, now=0.0, boot=True)
         """The firmware being served."""
         self._kind = kind
@@ -164,6 +187,9 @@ class SimulatorServer:
         self._closed = True
         self._cancel_timer()
         self._cancel_wire_timer()
+        if self._open_reset is not None:
+            self._open_reset.cancel()
+            self._open_reset = None
         self._close_pty()
         if self._transport is not None:
             self._transport.close()
@@ -387,6 +413,11 @@ class SimulatorServer:
         master_fd, slave_fd = pty.openpty()
         # Raw at once: otherwise the line discipline echoes the host's bytes back and turns \n into \r\n.
         tty.setraw(slave_fd)
+        if self._reset_on_open:
+            attributes = termios.tcgetattr(slave_fd)
+            attributes[3] |= _EXTPROC  # lflag; in raw mode it changes nothing but the reporting
+            termios.tcsetattr(slave_fd, termios.TCSANOW, attributes)
+            fcntl.ioctl(master_fd, termios.TIOCPKT, struct.pack("i", 1))
         os.set_blocking(master_fd, False)
         self._master_fd = master_fd
         # Held open for the server's life, so the master sees no hang-up while no client has the port open.
@@ -415,6 +446,8 @@ class SimulatorServer:
         size = _READ_CHUNK
         if self._rx_wire is not None:
             size = max(1, self._read_ahead - self._rx_wire.pending)
+        if self._reset_on_open:
+            size += 1  # room for the packet's status byte, so a read always makes progress
         try:
             data = os.read(self._master_fd, size)
         except (BlockingIOError, InterruptedError):
@@ -423,8 +456,31 @@ class SimulatorServer:
             # EIO and friends: the terminal is gone; stop listening rather than spin on an error.
             self._close_pty()
             return
+        if data and self._reset_on_open:
+            # Packet mode: a status byte first; 0 (TIOCPKT_DATA) means the host's bytes follow.
+            status, data = data[0], data[1:]
+            if status & _TIOCPKT_IOCTL:
+                self._port_opened()
+            if status:
+                return
         if data:
             self._receive_from_host(data)
+
+    def _port_opened(self) -> None:
+        """The client set the port up (opened it): the board resets, as DTR would make it, a moment later."""
+        assert self._loop is not None
+        self._clear_wires()  # what was on the wire belonged to the previous session
+        if self._open_reset is not None:
+            self._open_reset.cancel()
+        self._open_reset = self._loop.call_later(_OPEN_RESET_DELAY_S, self._reset_after_open)
+
+    def _reset_after_open(self) -> None:
+        self._open_reset = None
+        if self._closed or self._paused:
+            return
+        self.printer.reset(self.now())
+        self._flush()
+        self._reschedule()
 
     def _write_pty(self, data: bytes) -> None:
         if self._master_fd is None:
@@ -518,6 +574,7 @@ def serve_pty(
     time_scale: float = 1.0,
     clock: Callable[[], float] | None = None,
     baud_rate: int | None = None,
+    reset_on_open: bool = False,
 ) -> SimulatorServer:
     """A simulated printer on a new pseudo-terminal; open `url` (its slave path) with pyserial at any baud rate.
 
@@ -525,10 +582,23 @@ def serve_pty(
     speed, in real time whatever the `time_scale`; without it they pass as fast as the pty carries them. The
     rate the client opens the port with does not matter either way.
 
+    With `reset_on_open` (Linux), the board resets a moment after a client sets the port up, as pyserial's
+    `open()` does (and as a later change of the port's settings does), so the client reads `start` and the boot
+    banner during its handshake, as from a board that DTR resets. Without it, the banner printed when the server
+    starts waits in the terminal, and pyserial's `open()` throws it away.
+
     Raises:
-        ValueError: if `time_scale` or `baud_rate` is not positive.
+        ValueError: if `time_scale` or `baud_rate` is not positive, or `reset_on_open` is asked off Linux.
     """
-    return SimulatorServer(config, faults, kind="pty", time_scale=time_scale, clock=clock, baud_rate=baud_rate)
+    return SimulatorServer(
+        config,
+        faults,
+        kind="pty",
+        time_scale=time_scale,
+        clock=clock,
+        baud_rate=baud_rate,
+        reset_on_open=reset_on_open,
+    )
 
 
 def serve_tcp(
