@@ -32,6 +32,7 @@ from marlin_aio.errors import (
     ChecksumRequiredError,
     CommandNotExecutedError,
     CommandTimeoutError,
+    LostReplyError,
     MarlinError,
     PrinterHaltedError,
     PrinterLockedError,
@@ -161,6 +162,8 @@ class Connection:
             written again (its rejection may have been taken for a stale one).
         ok_after_resend: the firmware follows every `Resend:` with an `ok` that answers nothing (Marlin 2.1);
             False for the 2.0.x builds that omit it.
+        advanced_ok: the printer is known to name the line in each ok (ADVANCED_OK), so numbered commands may
+            share the line from the start; otherwise this is learnt from the first `ok N<line>`.
     """
 
     def __init__(
@@ -173,6 +176,7 @@ class Connection:
         max_resends: int = 10,
         resend_timeout_s: float = 3.0,
         ok_after_resend: bool = True,
+        advanced_ok: bool = False,
     ) -> None:
         if max_in_flight < 1:
             raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
@@ -211,6 +215,8 @@ class Connection:
         self.resets = 0
         self.resend_requests = 0
         self.stray_oks = 0
+        self.lost_oks = 0  # oks proven lost: a later answer showed that their command had been processed
+        self._exact_oks = advanced_ok  # the printer names lines in its oks (ADVANCED_OK): plain oks identify themselves
         self.locked = False  # the printer said "Printer locked!" and has not run a command since
         self.requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
         self.garbage_lines = 0  # lines of noise received (not given to any command)
@@ -295,6 +301,7 @@ class Connection:
             if self._in_flight and (
                 (len(self._in_flight) >= self.max_in_flight and not command.probe)
                 or self._in_flight_bytes + self._wire_size(command) > (self.rx_buffer_bytes if command.probe else limit)
+                or not self._answer_stays_distinct(command)
             ):
                 break
             if command is self._job_next:
@@ -311,6 +318,27 @@ class Connection:
                 command.job.sent()
             chunks.append(self._write(command, now))
         return b"".join(chunks)
+
+    def _answer_stays_distinct(self, command: Command) -> bool:
+        """May `command` go out now without its answer becoming confusable with another's if an ok is lost?
+
+        An ok names its command only by line number (ADVANCED_OK) or by its shape (M105's `ok T:`). So, unless
+        the printer numbers its oks, a command whose reply someone waits for is never in flight together with
+        another whose ok looks the same: at most one M105 at a time, and a user's command that is answered by
+        a plain ok only while no other plainly answered command is in flight. Print lines may share the line
+        with each other (a print line needs only to be known to have run, and a later answer proves that).
+        """
+        if command.code == "M105":
+            return not any(c.code == "M105" for c in self._in_flight)
+        if self._exact_oks and command.numbered:
+            return True
+        waits_for_reply = command.job is None and not command.probe
+        for other in self._in_flight:
+            if other.code == "M105":
+                continue
+            if waits_for_reply or (other.job is None and not other.probe and not other.orphan):
+                return False
+        return True
 
     def _next_job_command(self, now: float) -> Command | None:
         """The job's next line as a command (kept until it fits the window), or None."""
@@ -469,53 +497,90 @@ class Connection:
         if not self._in_flight:
             self.stray_oks += 1
             return
-        # How many in-flight commands does this ok finish? Normally one; more when it proves older oks were lost.
-        count = 1
+        # Which in-flight command does this ok answer? The oldest one whose answer can look like it; every command
+        # ahead of that one was processed (Marlin answers in order) but its own ok was lost.
+        index = self._match(ok)
+        if index is None:
+            self.stray_oks += 1
+            return
         if ok.line_number is not None:
-            for index, command in enumerate(self._in_flight):
+            self._exact_oks = True
+        skipped = [self._pop_in_flight(now) for _ in range(index)]
+        command = self._pop_in_flight(now)
+        lines = self._attribute(skipped, command)
+        for lost in skipped:
+            self.lost_oks += 1
+            self._settle(lost, None, None, now)
+        self._settle(command, ok, lines, now)
+
+    def _match(self, ok: Ok) -> int | None:
+        """The index in the FIFO of the command `ok` answers, or None when it answers none of them."""
+        flight = self._in_flight
+        if ok.line_number is not None:
+            for index, command in enumerate(flight):
                 if command.line_number == ok.line_number:
-                    count = index + 1
-                    break
-            else:
-                if self._in_flight[0].line_number is not None:
-                    # It names a line no longer in flight (a command that already timed out): completing the
-                    # head with it would hand one command another's answer.
-                    self.stray_oks += 1
-                    return
-        elif ok.temperatures is not None and self._in_flight[0].code != "M105":
-            # Only M105 answers `ok T:...`. If one is in flight, the oks before it were lost; if none is, this
-            # answers a probe we already gave up on, and must not complete an unrelated command.
-            for index, command in enumerate(self._in_flight):
-                if command.code == "M105":
-                    count = index + 1
-                    break
-            else:
-                self.stray_oks += 1
-                return
-        for _ in range(count):
-            command = self._pop_in_flight(now)
-            if self._stale == 0 or (self._resend_from is not None and (command.line_number or 0) >= self._resend_from):
-                # The firmware has reached the lines written again: nothing older can still answer.
-                self._stale = 0
-                self._resend_from = None
-            if command.code == "M999" and self._halt_recoverable:
-                # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
-                self.halted = None
-                self._halt_recoverable = False
-            if command.refusal is None and self.locked and not command.orphan and command.code != "M511":
-                self.locked = False  # a command ran normally: the printer was unlocked (M511 or its screen)
-            if command.refusal is not None and not command.orphan and not command.probe:
-                self._refused(command, now)
-            elif command.job is not None:
-                if command.sends == 1 and command.sent_s is not None:
-                    self._rtts.append(now - command.sent_s)
-                command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
-            elif command.probe:
-                self._probe = None
-            elif not command.orphan:
-                sent = now if command.sent_s is None else command.sent_s
-                reply = Reply(command.text, tuple(command.lines), ok, sent, now, command.lines_dropped)
-                self._finish(command, reply)
+                    return index
+            # It names a line no longer in flight: completing another command with it would hand that command
+            # someone else's answer. (An unnumbered command's ok carries no N, so only numbered heads rule it out.)
+            return 0 if flight[0].line_number is None else None
+        if ok.temperatures is not None:
+            # Only M105 answers `ok T:...`.
+            return next((i for i, c in enumerate(flight) if c.code == "M105"), None)
+        # A plain ok: the oldest command that answers with a plain ok (not M105, whose answer carries temperatures;
+        # a refused one is answered plainly whatever it was).
+        return next((i for i, c in enumerate(flight) if c.code != "M105" or c.refusal is not None), None)
+
+    def _attribute(self, skipped: list[Command], command: Command) -> tuple[str, ...] | None:
+        """The reply lines of `command`, or None when they cannot be told apart from a skipped command's.
+
+        Lines go to the oldest command waiting when they arrive; when its ok was lost, the lines of the commands
+        behind it landed in its slot too. They are `command`'s for certain only if every skipped command prints
+        nothing but its ok line (a bare M105).
+        """
+        if not skipped:
+            return tuple(command.lines)
+        if all(lost.text == "M105" or lost.probe for lost in skipped):
+            return tuple(line for lost in skipped for line in lost.lines) + tuple(command.lines)
+        if not any(lost.lines for lost in skipped):
+            return tuple(command.lines)
+        return None
+
+    def _settle(self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float) -> None:
+        """Finish one command taken off the FIFO: answered by `ok`, or (ok None) processed with its ok lost."""
+        if self._stale == 0 or (self._resend_from is not None and (command.line_number or 0) >= self._resend_from):
+            # The firmware has reached the lines written again: nothing older can still answer.
+            self._stale = 0
+            self._resend_from = None
+        if command.code == "M999" and self._halt_recoverable:
+            # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
+            self.halted = None
+            self._halt_recoverable = False
+        if command.refusal is None and self.locked and not command.orphan and command.code != "M511":
+            self.locked = False  # a command ran normally: the printer was unlocked (M511 or its screen)
+        if command.refusal is not None and not command.orphan and not command.probe:
+            self._refused(command, now)
+        elif command.job is not None:
+            # A print line needs no reply: a later answer proves it ran, whether its own ok came or not.
+            if ok is not None and command.sends == 1 and command.sent_s is not None:
+                self._rtts.append(now - command.sent_s)
+            command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
+        elif command.probe:
+            self._probe = None
+        elif command.orphan:
+            return
+        elif ok is None or lines is None:
+            what = "its ok was lost" if ok is None else "the ok of a command before it was lost"
+            self._finish(
+                command,
+                LostReplyError(
+                    f"{command.text!r} was processed but {what}, so which reply lines are its own cannot be "
+                    "proven; it was not handed another command's answer",
+                    command=command.text,
+                ),
+            )
+        else:
+            sent = now if command.sent_s is None else command.sent_s
+            self._finish(command, Reply(command.text, lines, ok, sent, now, command.lines_dropped))
 
     def _refused(self, command: Command, now: float) -> None:
         """The printer answered `command` with an ok but said it did not run it."""

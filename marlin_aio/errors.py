@@ -14,6 +14,7 @@ __all__ = [
     "ConnectionLostError",
     "HandshakeError",
     "HandshakeTimeoutError",
+    "LostReplyError",
     "MarlinError",
     "PortBusyError",
     "PortNotFoundError",
@@ -136,3 +137,15 @@ class CommandNotExecutedError(MarlinError):
 
 class ChecksumRequiredError(MarlinError):
     """The firmware runs only lines with a line number and checksum (`Error: Missing checksum`)."""
+
+
+class LostReplyError(MarlinError):
+    """A command was processed but its reply cannot be proven to be its own (its `ok`, or an earlier one, was
+    lost on the line), so it is not handed one.
+
+    `command` is the command as sent.
+    """
+
+    def __init__(self, message: str, *, command: str) -> None:
+        super().__init__(message)
+        self.command = command

@@ -20,6 +20,7 @@ from marlin_aio.errors import (
     ChecksumRequiredError,
     CommandNotExecutedError,
     CommandTimeoutError,
+    LostReplyError,
     MarlinError,
     PrinterHaltedError,
     PrinterLockedError,
@@ -133,12 +134,12 @@ def test_unnumbered_connection_sends_bare_commands() -> None:
     conn = Connection(numbered=False, max_in_flight=4)
     submit_all(conn, "M105", "G28 ; home")
     assert sent(conn.data_to_send(0.0)) == ["M105", "G28"]
-    receive(conn, "ok", "ok")
+    receive(conn, M105_OK, "ok")
     assert [text for text, _ in replies(conn)] == ["M105", "G28"]
 
 
 def test_fifo_matching_with_several_in_flight() -> None:
-    conn = Connection(max_in_flight=4)
+    conn = Connection(max_in_flight=4, advanced_ok=True)
     commands = submit_all(conn, "M104 S200", "M140 S60", "G28", "M114", "M105")
     assert sent(conn.data_to_send(0.0)) == [
         wire("M104 S200", 1),
@@ -172,7 +173,7 @@ def test_fifo_matching_with_several_in_flight() -> None:
 
 
 def test_max_in_flight_is_respected() -> None:
-    conn = Connection(max_in_flight=3, rx_buffer_bytes=1024)
+    conn = Connection(max_in_flight=3, rx_buffer_bytes=1024, advanced_ok=True)
     submit_all(conn, *(f"G1 X{i}" for i in range(10)))
     assert len(sent(conn.data_to_send(0.0))) == 3
     assert conn.data_to_send(0.0) == b""
@@ -220,7 +221,7 @@ def test_m115_reply_collects_firmware_and_capability_lines() -> None:
 
 
 def test_reply_collects_echo_and_error_lines_but_not_reports_or_keepalives() -> None:
-    conn = Connection(max_in_flight=2)
+    conn = Connection(max_in_flight=2, advanced_ok=True)
     submit_all(conn, "M9999", "G28")
     conn.data_to_send(0.0)
     receive(conn, 'echo:Unknown command: "M9999"', AUTO_REPORT, "echo:busy: processing", "Error:Something odd", "ok")
@@ -278,13 +279,19 @@ def test_receive_returns_events_and_keeps_partial_lines() -> None:
 
 
 def test_advanced_ok_completes_older_commands_whose_oks_were_lost() -> None:
-    conn = Connection(max_in_flight=4)
+    conn = Connection(max_in_flight=4, advanced_ok=True)
     submit_all(conn, "G1 X1", "G1 X2", "G1 X3", "G1 X4")
     conn.data_to_send(0.0)
     receive(conn, "ok N3 P12 B3", now=1.0)  # the oks of N1 and N2 were lost on the wire
-    done = replies(conn)
+    done = outcomes(conn)
     assert [text for text, _ in done] == ["G1 X1", "G1 X2", "G1 X3"]
-    assert all(reply.ok.line_number == 3 for _, reply in done)
+    # The first two ran (the printer answered a later line), but their own answers never came: they are not
+    # handed line 3's.
+    assert all(isinstance(outcome, LostReplyError) for _, outcome in done[:2])
+    assert "was processed but its ok was lost" in str(done[0][1])
+    reply = done[2][1]
+    assert isinstance(reply, Reply) and reply.ok.line_number == 3
+    assert conn.lost_oks == 2
     assert conn.in_flight == 1
     receive(conn, "ok N4 P11 B3", now=2.0)
     assert [text for text, _ in replies(conn)] == ["G1 X4"]
@@ -292,7 +299,7 @@ def test_advanced_ok_completes_older_commands_whose_oks_were_lost() -> None:
 
 
 def test_advanced_ok_for_the_head_completes_one() -> None:
-    conn = Connection(max_in_flight=4)
+    conn = Connection(max_in_flight=4, advanced_ok=True)
     submit_all(conn, "G1 X1", "G1 X2")
     conn.data_to_send(0.0)
     receive(conn, "ok N1 P14 B3")
@@ -301,13 +308,15 @@ def test_advanced_ok_for_the_head_completes_one() -> None:
 
 
 def test_ok_with_temperatures_completes_up_to_the_m105() -> None:
-    conn = Connection(max_in_flight=4)
+    conn = Connection(max_in_flight=4, advanced_ok=True)
     submit_all(conn, "M104 S200", "M140 S60", "M105", "G28")
     conn.data_to_send(0.0)
     receive(conn, M105_OK, now=1.0)  # the two plain oks before it were lost
-    done = replies(conn)
+    done = outcomes(conn)
     assert [text for text, _ in done] == ["M104 S200", "M140 S60", "M105"]
-    assert done[2][1].temperatures is not None
+    assert [type(outcome) for _, outcome in done[:2]] == [LostReplyError, LostReplyError]
+    reply = done[2][1]
+    assert isinstance(reply, Reply) and reply.temperatures is not None
     assert conn.in_flight == 1
     assert conn.oldest_waiting() is not None
     receive(conn, "ok P15 B3", now=2.0)
@@ -315,7 +324,7 @@ def test_ok_with_temperatures_completes_up_to_the_m105() -> None:
 
 
 def test_stray_ok_with_temperatures_completes_nothing() -> None:
-    conn = Connection(max_in_flight=4)
+    conn = Connection(max_in_flight=4, advanced_ok=True)
     submit_all(conn, "G28", "M114")
     conn.data_to_send(0.0)
     receive(conn, M105_OK)  # answers an M105 we gave up on; no M105 is in flight
@@ -412,7 +421,7 @@ def test_resend_without_the_ok_of_older_firmware() -> None:
     first = conn.data_to_send(0.0)
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1")
     assert conn.data_to_send(0.0) == first
-    receive(conn, "echo:busy: processing", "ok")
+    receive(conn, "echo:busy: processing", M105_OK)
     assert [text for text, _ in replies(conn)] == ["M105"]
 
 
@@ -467,7 +476,7 @@ def test_a_dead_head_fails_everything_queued_behind_it_at_once_and_writes_none_o
 
 
 def test_stale_rejections_cause_no_extra_resends() -> None:
-    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
     texts = [f"G1 X{i}" for i in range(1, 6)]
     submit_all(conn, *texts)
     assert sent(conn.data_to_send(0.0)) == [wire(texts[i], i + 1) for i in range(4)]
@@ -490,7 +499,7 @@ def test_stale_rejections_cause_no_extra_resends() -> None:
 
 
 def test_discarded_lines_are_resent_when_the_printer_drops_them_silently() -> None:
-    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
     texts = [f"G1 X{i}" for i in range(1, 5)]
     submit_all(conn, *texts)
     conn.data_to_send(0.0)
@@ -502,7 +511,7 @@ def test_discarded_lines_are_resent_when_the_printer_drops_them_silently() -> No
 
 
 def test_resent_line_corrupted_again_is_resent_again() -> None:
-    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
     texts = [f"G1 X{i}" for i in range(1, 5)]
     submit_all(conn, *texts)
     all_four = [wire(texts[i], i + 1) for i in range(4)]
@@ -671,7 +680,7 @@ def test_a_firmware_that_requires_checksums_fails_the_unnumbered_command_and_num
 
 
 def test_check_timeouts_fails_only_the_head() -> None:
-    conn = Connection(max_in_flight=4)
+    conn = Connection(max_in_flight=4, advanced_ok=True)
     submit_all(conn, "G28", timeout_s=10.0, now=0.0)
     submit_all(conn, "M105", "M114", timeout_s=3.0, now=0.0)
     conn.data_to_send(0.0)
@@ -869,7 +878,7 @@ def flying_bytes(conn: Connection, commands: list[Command]) -> int:
 
 
 def test_window_respects_rx_buffer_bytes() -> None:
-    conn = Connection(max_in_flight=8, rx_buffer_bytes=40)
+    conn = Connection(max_in_flight=8, rx_buffer_bytes=40, advanced_ok=True)
     commands = submit_all(conn, *(f"G1 X{i}" for i in range(1, 10)))
     assert all(len(number_command(c.text, i + 1)) + 1 == 12 for i, c in enumerate(commands))
     assert len(sent(conn.data_to_send(0.0))) == 3  # 3 x 12 bytes fit in 40, a fourth does not
@@ -915,7 +924,7 @@ def test_cancel_of_a_queued_command_means_it_is_never_written() -> None:
 
 
 def test_cancel_of_a_written_command_drops_only_its_result() -> None:
-    conn = Connection(max_in_flight=2)
+    conn = Connection(max_in_flight=2, advanced_ok=True)
     first, second = submit_all(conn, "G28", "M114")
     conn.data_to_send(0.0)
     assert conn.cancel(first) is False
@@ -1011,6 +1020,8 @@ class IdealFirmware:
             return self._reject("Line Number is not Last Line Number+1")
         self.last_n = number
         self.executed.append(command)
+        if command == "M105":
+            return f"{M105_OK}\n".encode()  # M105 answers on its own ok line, without N, P or B
         return f"ok N{number} P15 B3\n".encode() if self.advanced_ok else b"ok\n"
 
     def _reject(self, why: str) -> bytes:
@@ -1114,3 +1125,41 @@ def test_a_probe_after_a_stale_looking_rejection_gets_the_line_resent_at_once() 
     receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok")
     again = sent(conn.data_to_send(probe_at))
     assert again[:4] == [wire(texts[i], i + 1) for i in range(4)]
+
+
+def test_without_advanced_ok_commands_answered_by_plain_oks_go_one_at_a_time() -> None:
+    # Defect: with 8 in flight and plain oks, one lost ok shifted every later answer to the next caller. A plain ok
+    # cannot say whom it answers, so a command someone waits for is never in flight beside another such command.
+    conn = Connection(max_in_flight=8)
+    submit_all(conn, "M118 A", "M105", "M118 B", "M118 C")
+    assert sent(conn.data_to_send(0.0)) == [wire("M118 A", 1), wire("M105", 2)]  # M105's answer looks different
+    receive(conn, M105_OK, now=0.1)  # A's lines and ok were lost: M105's answer proves A ran
+    [(text_a, lost), (text_m105, reply)] = outcomes(conn)
+    assert (text_a, type(lost)) == ("M118 A", LostReplyError)
+    assert text_m105 == "M105" and isinstance(reply, Reply) and reply.temperatures is not None
+    assert sent(conn.data_to_send(0.1)) == [wire("M118 B", 3)]
+    receive(conn, "B", "ok", now=0.2)
+    assert sent(conn.data_to_send(0.2)) == [wire("M118 C", 4)]
+    receive(conn, "C", "ok", now=0.3)
+    assert [(text, r.lines) for text, r in replies(conn)] == [("M118 B", ("B",)), ("M118 C", ("C",))]
+
+
+def test_a_plain_ok_skips_an_m105_whose_answer_was_lost_and_keeps_the_lines_of_the_command_behind_it() -> None:
+    conn = Connection(max_in_flight=8)
+    submit_all(conn, "M105", "M119")
+    conn.data_to_send(0.0)
+    receive(conn, "Reporting endstop status", "x_min: open", "ok", now=0.1)  # M105's `ok T:` was lost
+    [(text_m105, lost), (text_m119, reply)] = outcomes(conn)
+    assert text_m119 == "M119"
+    assert (text_m105, type(lost)) == ("M105", LostReplyError)
+    assert isinstance(reply, Reply) and reply.lines == ("Reporting endstop status", "x_min: open")
+
+
+def test_lines_that_could_be_a_skipped_commands_are_given_to_nobody() -> None:
+    conn = Connection(max_in_flight=8, advanced_ok=True)
+    submit_all(conn, "M118 A", "M118 B")
+    conn.data_to_send(0.0)
+    receive(conn, "A", "B", "ok N2 P15 B3", now=0.1)  # A's ok was lost: is "A" or "B" the reply of B? Both.
+    [(_, first), (_, second)] = outcomes(conn)
+    assert isinstance(first, LostReplyError) and isinstance(second, LostReplyError)
+    assert "the ok of a command before it was lost" in str(second)
