@@ -142,8 +142,8 @@ class Command:
 
 
 def _is_garbage(text: str) -> bool:
-    """True for a line no firmware prints: undecodable bytes or control characters (link noise)."""
-    return any(ch == "\ufffd" or (ch < " " and ch != "\t") or "\x7f" <= ch < "\xa0" for ch in text)
+    """True for a line no firmware prints: Marlin writes ASCII only, so anything else is noise from the link."""
+    return not text.isascii() or any((ch < " " and ch != "\t") or ch == "\x7f" for ch in text)
 
 
 class Connection:
