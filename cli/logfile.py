@@ -3,15 +3,20 @@
 Rows are buffered and written as whole lines at least once a second, so a crash or SIGKILL loses at most the
 last second and never leaves half a row behind (the file still parses). Appending to an existing CSV keeps its
 columns, and refuses (with a clear message) a file whose columns differ.
+
+The flush is driven by time, not by the next row: the first row to wait in the buffer arms a timer for one
+flush interval later. A printer that falls silent (or a link that drops) brings no next row, and the rows
+before it must still reach the disk. That timer is why the log is an async context manager: it belongs to the
+running event loop, taken in `__aenter__`.
 """
 
 from __future__ import annotations
 
+import asyncio
 import csv
 import io
 import json
 import os
-import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -64,16 +69,21 @@ class LogSummary:
 
 
 class TemperatureLog:
-    """Writes readings to `path` as CSV or JSON lines; use as a context manager.
+    """Writes readings to `path` as CSV or JSON lines; use as an async context manager (`async with`).
+
+    No row waits in memory longer than `flush_interval_s`, whether more rows follow or not.
 
     Raises:
-        ValueError: `fmt` is unknown, or an existing CSV has other columns than this printer reports.
+        ValueError: `fmt` is unknown, `flush_interval_s` is not positive, or an existing CSV has other columns
+            than this printer reports.
         OSError: the file cannot be opened or written.
     """
 
     def __init__(self, path: Path, fmt: LogFormat = "csv", flush_interval_s: float = 1.0) -> None:
         if fmt not in ("csv", "jsonl"):
             raise ValueError(f"unknown log format {fmt!r}: use csv or jsonl")
+        if not flush_interval_s > 0:
+            raise ValueError(f"flush_interval_s must be positive, got {flush_interval_s}")
         self.path = path
         self.format = fmt
         self.flush_interval_s = flush_interval_s
@@ -82,21 +92,35 @@ class TemperatureLog:
         self._columns: list[str] | None = None
         self._existing_columns: list[str] | None = None
         self._pending: list[str] = []
-        self._last_flush = time.monotonic()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._flush_timer: asyncio.TimerHandle | None = None
+        self._error: OSError | None = None  # met by a timed flush, raised by the next add() or flush()
         self._start: float | None = None
 
-    def __enter__(self) -> TemperatureLog:
+    async def __aenter__(self) -> TemperatureLog:
         if self.format == "csv" and self.path.exists() and self.path.stat().st_size > 0:
             with self.path.open(newline="") as existing:
                 self._existing_columns = next(csv.reader(existing), None)
         self._file = self.path.open("a", newline="", encoding="utf-8")
+        self._loop = asyncio.get_running_loop()
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    async def __aexit__(self, *exc: object) -> None:
         self.close()
 
     def add(self, reading: TemperatureReading) -> None:
-        """Queue one row; rows reach the file at least every `flush_interval_s`."""
+        """Queue one row; it reaches the file within `flush_interval_s`, even if no other row follows.
+
+        Raises:
+            ValueError: an existing CSV has other columns than this reading's heaters.
+            RuntimeError: the log is not open (`async with`).
+            OSError: a timed flush since the last row could not write the file.
+        """
+        if self._loop is None:
+            raise RuntimeError("the log is not open: use `async with TemperatureLog(...)`")
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
         if self._start is None:
             self._start = reading.monotonic_s
         elapsed = reading.monotonic_s - self._start
@@ -129,8 +153,9 @@ class TemperatureLog:
         for key, heater in heaters.items():
             self.summary.first.setdefault(key, heater.actual)
             self.summary.last[key] = heater.actual
-        if time.monotonic() - self._last_flush >= self.flush_interval_s:
-            self.flush()
+        if self._flush_timer is None:
+            # The oldest row in the buffer sets the deadline; rows after it go out with it, sooner than theirs.
+            self._flush_timer = self._loop.call_later(self.flush_interval_s, self._flush_due)
 
     def _start_csv(self, keys: list[str]) -> None:
         columns = _columns_for(keys)
@@ -144,9 +169,26 @@ class TemperatureLog:
             self._pending.append(",".join(columns) + "\n")
         self._columns = columns
 
+    def _flush_due(self) -> None:
+        self._flush_timer = None
+        try:
+            self.flush()
+        except OSError as exc:
+            # Raised in a timer callback, it would only reach the loop's log: keep it for the recorder to meet.
+            self._error = exc
+
     def flush(self) -> None:
-        """Write every queued row as whole lines and push them to the operating system."""
-        self._last_flush = time.monotonic()
+        """Write every queued row as whole lines and push them to the operating system.
+
+        Raises:
+            OSError: the file cannot be written (also one that a timed flush met since the last call).
+        """
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
+        if self._flush_timer is not None:
+            self._flush_timer.cancel()
+            self._flush_timer = None
         if not self._pending or self._file is None:
             return
         # One write of whole lines: a kill between writes can cut the file only at a line end.
@@ -156,9 +198,16 @@ class TemperatureLog:
         os.fsync(self._file.fileno())
 
     def close(self) -> None:
-        """Flush and close (idempotent)."""
-        if self._file is not None:
+        """Flush and close (idempotent).
+
+        Raises:
+            OSError: the last rows could not be written (the file is closed all the same).
+        """
+        if self._file is None:
+            return
+        try:
             self.flush()
+        finally:
             self._file.close()
             self._file = None
 

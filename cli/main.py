@@ -130,7 +130,9 @@ def watch(
     refresh: Annotated[float, typer.Option("--refresh", help="Seconds between screen redraws.", min=0.05)] = 1.0,
     window: Annotated[float, typer.Option("--window", help="Seconds of history in the chart.", min=5)] = 60.0,
     tolerance: Annotated[float, typer.Option("--tolerance", help="Within this many C a heater is holding.")] = 2.0,
-    log: Annotated[Path | None, typer.Option("--log", help="Also record every reading to this CSV file.")] = None,
+    log: Annotated[
+        Path | None, typer.Option("--log", help="Also record every reading to this CSV file (on disk within a second).")
+    ] = None,
     json_lines: Annotated[bool, typer.Option("--json", help="Print JSON lines instead of the live view.")] = False,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
     reconnect: Annotated[bool, typer.Option("--reconnect", help="When the printer goes away, keep retrying.")] = False,
@@ -244,8 +246,9 @@ def log(
 ) -> None:
     """Record temperatures to a file, headless, for long runs. Ctrl-C (or --duration) ends it with a summary.
 
-    One row per reading: UTC time, seconds since start, and actual/target/power of each heater. Rows reach the
-    disk at least once a second, so a crash loses at most the last second and the file always parses.
+    One row per reading: UTC time, seconds since start, and actual/target/power of each heater. Every row reaches
+    the disk within a second of its reading, also when no reading follows (a printer gone silent), so a crash
+    loses at most the last second and the file always parses.
     """
     from .logcmd import log_temperatures
 

@@ -149,24 +149,25 @@ async def watch_printer(options: ConnectOptions, settings: WatchSettings, consol
     deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
     started = loop.time()
     log = TemperatureLog(settings.log_path) if settings.log_path is not None else None
-    with on_stop_signals(stop.set), log if log is not None else contextlib.nullcontext():
-        while True:
-            try:
-                async with open_printer(options, errors) as (printer, label):
-                    await _session(printer, label, model, settings, console, log, stop, deadline)
-                    break
-            except (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError) as exc:
-                if not settings.reconnect or stop.is_set():
-                    if isinstance(exc, marlin_aio.ConnectionLostError):
-                        raise marlin_aio.ConnectionLostError(
-                            f"{exc} (unplugged? use --reconnect to keep retrying)"
-                        ) from exc
-                    raise
-                errors.print(f"{exc}; retrying in 2 s (Ctrl-C stops)", style="yellow")
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stop.wait(), 2.0)
-                if stop.is_set():
-                    break
+    with on_stop_signals(stop.set):
+        async with log if log is not None else contextlib.nullcontext():
+            while True:
+                try:
+                    async with open_printer(options, errors) as (printer, label):
+                        await _session(printer, label, model, settings, console, log, stop, deadline)
+                        break
+                except (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError) as exc:
+                    if not settings.reconnect or stop.is_set():
+                        if isinstance(exc, marlin_aio.ConnectionLostError):
+                            raise marlin_aio.ConnectionLostError(
+                                f"{exc} (unplugged? use --reconnect to keep retrying)"
+                            ) from exc
+                        raise
+                    errors.print(f"{exc}; retrying in 2 s (Ctrl-C stops)", style="yellow")
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(stop.wait(), 2.0)
+                    if stop.is_set():
+                        break
     link = model.link()
     elapsed = loop.time() - started
     summary = f"watched {elapsed:.1f} s: {model.readings} readings, {link.timeouts} timeouts, {link.errors} errors"
