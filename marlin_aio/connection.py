@@ -867,13 +867,15 @@ class Connection:
                 continue
             summary = self.describe_stall(head, now)
             error = CommandTimeoutError(summary, command=head.text)
-            self._pop_in_flight(now)
-            if head.line_number is not None:
-                # Marlin may still hold it (as with M105 T9, which never answers): keep it for resends, but its
-                # caller is told now, and a late answer completes nothing.
-                head.orphan = True
+            # Its caller is told now, but the command keeps its place for one more timeout (quarantine): Marlin may
+            # still answer it (a long G28), and that late ok must land on it, not on the next caller's command,
+            # which waits (see `_answer_stays_distinct`). Only then is its place given up.
+            head.orphan = True
+            head.head_since_s = now
+            head.alive_s = None
             self._finish(head, error)
             self._give_up_behind(head, summary)
+            return
 
     def _give_up_behind(self, dead: Command, summary: str) -> None:
         """The oldest command got no answer for its whole timeout: fail everything behind it at once.

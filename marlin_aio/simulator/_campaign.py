@@ -179,7 +179,7 @@ def run_print(scenario: Scenario) -> CampaignResult:
             continue
         printer.advance(now)
         pump_printer()
-        ran = len(printer.executed_line_numbers)
+        ran = printer.executed_line_count
         if scenario.reset_at_line is not None and not reset_done and ran >= scenario.reset_at_line:
             reset_done = True
             printer.reset(now)
