@@ -74,9 +74,13 @@ async def _wait_with_progress(
     with progress:
         follower = asyncio.create_task(follow())
         try:
-            kwargs = {"hotend" if k[0] == "T" else "bed" if k == "B" else "chamber": v for k, v in wanted.items()}
             reached = await printer.wait_for_temperatures(
-                tolerance_c=request.tolerance_c, timeout_s=request.timeout_s, **kwargs
+                hotend=next((v for k, v in wanted.items() if k[0] == "T"), None),
+                bed=wanted.get("B"),
+                chamber=wanted.get("C"),
+                tool=request.tool,  # --tool 1 waits on that hotend (T1), not on the active one
+                tolerance_c=request.tolerance_c,
+                timeout_s=request.timeout_s,
             )
             show(reached)
             return reached
