@@ -139,7 +139,9 @@ def watch(
 ) -> None:
     """Live view of every heater: table, chart of the last minute, link statistics. q or Ctrl-C quits.
 
-    When stdout is not a terminal it prints one plain line per refresh instead (or JSON lines with --json).
+    With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and power,
+    and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints one plain
+    line per refresh instead (or JSON lines with --json).
     """
     from .watch import WatchSettings, watch_printer
 

@@ -101,11 +101,16 @@ class WatchModel:
             self._latencies.popleft()
 
     def heater_keys(self) -> list[str]:
-        """The heaters to show, in Marlin's order; `T` is dropped when per-tool `T0..Tn` are present."""
+        """The heaters to show: the hotends first, then the others in the order the printer reports them.
+
+        With several hotends Marlin reports the active one as `T` and then every one as `T0`, `T1`, ...: each of
+        those is shown, in tool order where `T` stood, and `T` (a copy of one of them) is not.
+        """
         keys = list(self.series)
-        if any(k[0] == "T" and k[1:].isdigit() for k in keys) and "T" in keys:
-            keys.remove("T")
-        return keys
+        tools = sorted((k for k in keys if k[0] == "T" and k[1:].isdigit()), key=lambda k: int(k[1:]))
+        if not tools:
+            return keys
+        return tools + [k for k in keys if k != "T" and k not in tools]
 
     def status(self, key: str) -> HeaterStatus:
         """The row for one heater."""

@@ -20,11 +20,15 @@ from .model import HeaterStatus, LinkStats, WatchModel, heater_name
 __all__ = ["chart", "footer", "heater_table", "json_line", "plain_line", "watch_view"]
 
 _COLOURS = {"T": "red", "B": "blue", "C": "green"}
+# One colour per hotend, so each curve in the chart can be told apart; none of them is the bed's or chamber's.
+_HOTEND_COLOURS = ("red", "yellow", "bright_red", "orange3", "bright_yellow", "deep_pink3", "gold3", "dark_orange")
 _STATE_STYLE = {"heating": "bold red", "cooling": "cyan", "holding": "green", "off": "dim"}
 
 
 def _colour(key: str) -> str:
-    return _COLOURS.get(key[0] if key[0] == "T" else key, "magenta")
+    if key[0] == "T" and key[1:].isdigit():
+        return _HOTEND_COLOURS[int(key[1:]) % len(_HOTEND_COLOURS)]
+    return _COLOURS.get(key, "magenta")
 
 
 def _fmt(value: float | None, spec: str, unit: str = "") -> str:
@@ -67,11 +71,8 @@ def heater_table(statuses: list[HeaterStatus]) -> Table:
 
 
 def chart(model: WatchModel, width: int = 72, height: int = 12, now: float | None = None) -> Text:
-    """A chart of the last `model.window_s` seconds: actual (•) and target (─) for the hotend, bed and chamber."""
+    """A chart of the last `model.window_s` seconds: actual (•) and target (─) of each hotend, the bed and chamber."""
     keys = [k for k in model.heater_keys() if k[0] in "TBC"]
-    # One hotend curve is enough to read: the active tool, or tool 0.
-    hotends = [k for k in keys if k[0] == "T"]
-    keys = hotends[:1] + [k for k in keys if k[0] != "T"]
     plot_width = max(width - 7, 10)
     end = now if now is not None else (model.latest_time or 0.0)
     start = end - model.window_s

@@ -104,7 +104,7 @@ async def _session(
     def view() -> Text | object:
         if not model.series:
             return Text(f"{label}: waiting for the first reading...")
-        chart_height = min(max(console.height - len(model.series) - 10, 6), 30)
+        chart_height = min(max(console.height - len(model.heater_keys()) - 10, 6), 30)
         return watch_view(model, label, firmware, width=console.width, chart_height=chart_height)
 
     since = 0.0
