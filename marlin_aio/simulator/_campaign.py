@@ -50,6 +50,7 @@ class Scenario:
     silent_at_line: int | None = None  # the board falls silent (and stays so) once this many print lines ran
     timeout_s: float = 2.0
     time_limit_s: float = 600.0
+    chunk_bytes: int | None = None  # deliver the host's bytes in pieces this size (16: a USB bridge's FIFO)
 
 
 @dataclass
@@ -105,10 +106,15 @@ def run_print(scenario: Scenario) -> CampaignResult:
 
     def transmit(data: bytes, direction: str, queue: list[tuple[float, int, bytes]]) -> None:
         nonlocal sequence
-        start = max(now, wire_free[direction])
-        wire_free[direction] = start + len(data) * _BYTE_S
-        sequence += 1
-        heapq.heappush(queue, (wire_free[direction], sequence, data))
+        # With `chunk_bytes`, in pieces of that size, each arriving when its last byte has crossed the wire: the
+        # firmware sees its receive buffer fill as fast as the line allows, not a whole write at once.
+        size = scenario.chunk_bytes or len(data)
+        for at in range(0, len(data), size):
+            piece = data[at : at + size]
+            start = max(now, wire_free[direction])
+            wire_free[direction] = start + len(piece) * _BYTE_S
+            sequence += 1
+            heapq.heappush(queue, (wire_free[direction], sequence, piece))
 
     def submit(text: str, kind: str) -> Command:
         command = conn.submit(text, timeout_s=scenario.timeout_s, now=now)
@@ -155,6 +161,7 @@ def run_print(scenario: Scenario) -> CampaignResult:
         if not started and start.id not in pending:
             conn.attach(job, timeout_s=scenario.timeout_s)
             started = True
+            flush()
         if started and job.finished and not pending and not to_printer and not to_host:
             break
         candidates = [scenario.time_limit_s]
