@@ -12,6 +12,19 @@ Three exceptions are handled here, all from Marlin's sources (`gcode/queue.cpp`)
 - A command that gets no `ok` at all (Marlin's `M105 T9` prints an error and nothing more) times out and is
   dropped, so the commands behind it go on.
 
+Why a reply handed to a caller is its own (the invariant of issue 8). An `ok` can name its command only by its
+shape: `ok N<line>` (ADVANCED_OK) names a numbered line, `ok T:...` names "an M105", a plain `ok` names nothing.
+So an ok answers the oldest command in flight whose answer it can be (`_match`), and every command ahead of that
+one was processed (Marlin answers in order) but lost its ok: such a command is never handed the later answer; it
+fails with `LostReplyError`, or, for a print line, counts as run. That is sound only if no two commands in flight
+could take each other's ok, so `_answer_stays_distinct` lets a command out only when a lost ok cannot make its
+answer ambiguous: at most one M105 at a time, and, unless the printer names lines in its oks, a command someone
+waits for is never in flight beside another plainly answered one (print lines may share the wire with each other,
+as a later answer proves that they ran). Reply lines go to the oldest command waiting when they arrive; after a lost
+ok they may belong to a later command, so `_attribute` hands them on only when the skipped commands print nothing
+(a bare M105), and otherwise to nobody. A command that times out keeps its place for one more timeout, so its late
+ok lands on it and not on the next caller's command. Noise (non-ASCII, control characters) is nobody's reply line.
+
 A print job (`marlin_aio.printjob.PrintJob`) is fed through the same FIFO, after any submitted commands, as far as
 the window allows. While it streams, a line left unanswered for a few round trips gets a probe (a numbered M105)
 so that a lost `ok` costs a moment; a line unanswered for the whole timeout, with no busy keepalive, stalls the
