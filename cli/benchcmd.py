@@ -8,15 +8,20 @@ and the `M110 N0` that restarts the line numbers of a stream). Nothing moves and
    event loop, which is what a host program sees.
 2. Correctness: numbered `M118 E1 bench <n>` lines with checksums, several in flight. Marlin prints
    `echo:bench <n>` before the `ok` of each, so a reply that carries its own echo, arriving after every earlier
-   one, proves that the oks came back in order and were matched to the right commands.
+   one, proves that the oks came back in order and were matched to the right commands. An `ok` lost on the wire
+   is not reordering and is told apart (`OrderCheck`): the library proves it lost when a later answer names its
+   command, and withholds the replies it cannot attribute (`LostReplyError`) rather than hand them to the
+   wrong command. Without ADVANCED_OK only an M105's `ok T:` names its command, so each line gets an M105
+   right behind it (a witness); with ADVANCED_OK every `ok N<line>` does, and only the last line needs one.
 3. Throughput: `G4 P0` (a dwell of 0 ms) streamed exactly as `marlin-temp print` streams a file
    (`Printer.start_print(..., send_ahead=True)`), against the wire limit of the baud rate.
 
 Send-ahead in the correctness run: the printer is opened by `open_printer` like in every other command, as a
 ping-pong client. For that run only, its connection's `max_in_flight` is raised, as `start_print` does for a
 stream; what bounds the lines in flight is then the byte window (the printer's 128-byte receive buffer), not a
-count. Measuring and rendering are apart: `bench_printer` returns a `BenchResult`, and `bench_table` and
-`bench_json` are pure functions of it.
+count. (Without ADVANCED_OK the library keeps one line in flight beside its witness: plain oks cannot be told
+apart, and it never risks handing one command another's answer.) Measuring and rendering are apart:
+`bench_printer` returns a `BenchResult`, and `bench_table` and `bench_json` are pure functions of it.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import asyncio
 import json
 import math
 import statistics
-from collections.abc import Iterator
+from collections.abc import Coroutine, Iterator
 from dataclasses import dataclass
 
 from rich import box
@@ -41,6 +46,7 @@ __all__ = [
     "BenchSettings",
     "CorrectnessResult",
     "LatencyResult",
+    "OrderCheck",
     "ThroughputResult",
     "bench_json",
     "bench_printer",
@@ -50,6 +56,7 @@ __all__ = [
 
 LATENCY_COMMAND = "M105"
 ECHO_COMMAND = "M118 E1 bench {n}"
+_ECHO_PREFIX = "echo:bench "
 STREAM_COMMAND = "G4 P0"
 #: Sends kept waiting in the correctness run: more than the 128-byte window holds, so the window stays full.
 _CORRECTNESS_TASKS = 32
@@ -86,7 +93,12 @@ class LatencyResult:
 
 @dataclass(frozen=True)
 class CorrectnessResult:
-    """Numbered M118 echoes sent ahead: how many came back with their own echo and in order."""
+    """Numbered M118 echoes sent ahead: how many came back with their own echo and in order.
+
+    Every line sent ends up in one of `oks_in_order`, `withheld`, `out_of_order` and `timeouts` (`timeouts` also
+    counts the witness M105s). `lost_oks` counts the oks the library proved lost and recovered from; `withheld` the
+    lines that ran but whose reply it could not prove to be their own, so gave them none.
+    """
 
     lines_sent: int
     oks_in_order: int
@@ -95,11 +107,21 @@ class CorrectnessResult:
     timeouts: int
     max_in_flight: int
     elapsed_s: float
+    lost_oks: int = 0
+    withheld: int = 0
+    numbered_oks: bool = True  # the printer has ADVANCED_OK; without it lines go one at a time with a witness
 
     @property
     def clean(self) -> bool:
-        """Every line answered, in order, with its own echo."""
-        return self.out_of_order == 0 and self.timeouts == 0 and self.oks_in_order == self.lines_sent
+        """Every line answered, nothing reordered and nothing timed out; lost oks the library recovered are allowed."""
+        answered = self.oks_in_order + self.withheld
+        return self.out_of_order == 0 and self.timeouts == 0 and answered == self.lines_sent
+
+    @property
+    def summary(self) -> str:
+        """`3 oks lost (recovered), 0 out of order`: what the order check saw, told apart."""
+        lost = f"{self.lost_oks} ok{'s' if self.lost_oks != 1 else ''} lost (recovered)"
+        return f"{lost}, {self.out_of_order} out of order"
 
 
 @dataclass(frozen=True)
@@ -149,7 +171,10 @@ class BenchResult:
 
     @property
     def problem(self) -> str | None:
-        """One line saying what went wrong, or None when every ok came back in order and nothing timed out."""
+        """One line saying what went wrong, or None when every ok came back in order and nothing timed out.
+
+        Lost oks alone are not a problem (see `warning`): the library recovered from them and nothing was reordered.
+        """
         parts = []
         correctness = self.correctness
         if correctness.out_of_order:
@@ -157,7 +182,8 @@ class BenchResult:
                 f"{correctness.out_of_order} of {correctness.lines_sent} oks came back out of order "
                 "or without their own echo"
             )
-        missing = correctness.lines_sent - correctness.oks_in_order - correctness.out_of_order - correctness.timeouts
+        answered = correctness.oks_in_order + correctness.withheld + correctness.out_of_order
+        missing = correctness.lines_sent - answered - correctness.timeouts
         if missing > 0:
             parts.append(f"{missing} of {correctness.lines_sent} lines got no answer")
         timeouts = correctness.timeouts + self.latency.timeouts
@@ -167,7 +193,22 @@ class BenchResult:
             parts.append(f"the throughput stream stalled ({self.throughput.stall})")
         if not parts:
             return None
+        if correctness.lost_oks:
+            # Said apart, so a reader does not take the lost oks for the reordering (or the other way round).
+            parts.append(f"{correctness.lost_oks} ok{'s' if correctness.lost_oks != 1 else ''} lost (recovered)")
         return "link check failed: " + "; ".join(parts) + " (check the cable, the baud rate and the grounding)"
+
+    @property
+    def warning(self) -> str | None:
+        """One line when oks were lost but the check passed: the library recovered, nothing was reordered."""
+        correctness = self.correctness
+        if self.problem is not None or not correctness.lost_oks:
+            return None
+        return (
+            f"{correctness.summary}: oks went missing on the way, but the library proved each one lost by a later "
+            "answer and recovered, and no reply came back out of order (if it keeps happening, check the cable "
+            "and the grounding)"
+        )
 
 
 # ------------------------------------------------------------------------------------------- measuring
@@ -204,65 +245,134 @@ async def _measure_latency(printer: marlin_aio.Printer, settings: BenchSettings)
     )
 
 
+class OrderCheck:
+    """Judges the order check's answers, in the order their oks were read: in order, withheld, or reordered.
+
+    Pure bookkeeping with no I/O, fed by `_check_order`. The library never hands a command an answer it cannot
+    prove to be its own: when an `ok` is lost, a later answer that names its command (`ok N<line>` with
+    ADVANCED_OK, or an M105's `ok T:`) shows that the commands before it ran, and each of those whose reply
+    lines cannot be told apart fails with `LostReplyError`. Such a reply is withheld, not reordered. What is left
+    for this check is what the library trusted: a reply must carry exactly its own echo, after every earlier one.
+    """
+
+    def __init__(self) -> None:
+        self.in_order = 0
+        """Replies that carried exactly their own echo, in sequence."""
+        self.withheld = 0
+        """Lines that ran, but whose reply the library withheld because an ok (theirs or an earlier one) was lost."""
+        self.out_of_order = 0
+        """Replies with another line's echo, with none, or after a later line's echo."""
+        self.timeouts = 0
+        """Commands that got no ok within the timeout."""
+        self._last_echo = -1
+
+    def answered(self, line: int, echoes: list[int]) -> None:
+        """Judge the reply to bench line `line`, which carried the echoes numbered `echoes` (as read)."""
+        if echoes == [line] and line > self._last_echo:
+            self.in_order += 1
+        else:
+            self.out_of_order += 1
+        self._last_echo = max([self._last_echo, *echoes])
+
+    def lost_reply(self) -> None:
+        """A line ran but its reply was withheld (`LostReplyError`): an ok was lost, and the library recovered."""
+        self.withheld += 1
+
+    def timed_out(self) -> None:
+        """A command got no ok within the timeout."""
+        self.timeouts += 1
+
+
+def _echo_numbers(lines: tuple[str, ...]) -> list[int]:
+    # Only the bench echoes count: a board may print other echo lines (an SD card inserted) at any time.
+    numbers = (line.removeprefix(_ECHO_PREFIX) for line in lines if line.startswith(_ECHO_PREFIX))
+    return [int(number) for number in numbers if number.isdigit()]
+
+
 async def _check_order(printer: marlin_aio.Printer, settings: BenchSettings) -> CorrectnessResult:
     loop = asyncio.get_running_loop()
     deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
-    resends_before = printer.connection.resend_requests
-    in_order = out_of_order = timeouts = 0
-    latest = -1  # the highest line answered so far
+    connection = printer.connection
+    resends_before = connection.resend_requests
+    lost_before = connection.lost_oks
+    check = OrderCheck()
     failure: marlin_aio.MarlinError | None = None
+    numbered_oks = False  # the printer names the line in each ok (ADVANCED_OK): no witness needed
     slots = asyncio.Semaphore(_CORRECTNESS_TASKS)
     tasks: set[asyncio.Task[None]] = set()
 
+    def start(coroutine: Coroutine[None, None, None], name: str) -> None:
+        # Tasks take their first step in the order they are created, so commands are submitted in that order.
+        task = asyncio.create_task(coroutine, name=name)
+        tasks.add(task)
+        task.add_done_callback(tasks.discard)
+
+    async def witness() -> None:
+        # An M105 right behind a line: if the line's ok is lost, this `ok T:` proves that the line ran, and the
+        # library recovers at once (LostReplyError) instead of after --timeout. Its own reply is of no interest.
+        nonlocal failure
+        try:
+            await printer.send(LATENCY_COMMAND)
+        except marlin_aio.LostReplyError:
+            pass  # counted by the library's lost_oks
+        except marlin_aio.CommandTimeoutError:
+            check.timed_out()
+        except marlin_aio.MarlinError as exc:
+            failure = failure or exc
+
     async def one(n: int) -> None:
-        nonlocal in_order, out_of_order, timeouts, latest, failure
+        nonlocal failure, numbered_oks
         try:
             reply = await printer.send(ECHO_COMMAND.format(n=n))
+        except marlin_aio.LostReplyError:
+            check.lost_reply()
+            return
         except marlin_aio.CommandTimeoutError:
-            timeouts += 1
+            check.timed_out()
             return
         except marlin_aio.MarlinError as exc:
             failure = failure or exc
             return
         finally:
             slots.release()
-        # Only the bench echoes count: a board may print other echo lines (an SD card inserted) at any time.
-        echoes = [line for line in reply.lines if line.startswith("echo:bench ")]
+        numbered_oks = numbered_oks or reply.ok.line_number is not None
         # Tasks resume in the order their futures were resolved, which is the order the oks were read.
-        if echoes == [f"echo:bench {n}"] and n > latest:
-            in_order += 1
-        else:
-            out_of_order += 1
-        latest = max(latest, n)
+        check.answered(n, _echo_numbers(reply.lines))
 
-    saved = printer.connection.max_in_flight
-    printer.connection.max_in_flight = _SEND_AHEAD_MAX_IN_FLIGHT
-    start = loop.time()
+    saved = connection.max_in_flight
+    connection.max_in_flight = _SEND_AHEAD_MAX_IN_FLIGHT
+    start_s = loop.time()
     sent = 0
     try:
         while failure is None and ((sent < settings.lines) if deadline is None else (loop.time() < deadline)):
             await slots.acquire()
-            # Tasks start in the order they are created, so the lines are submitted (and numbered) in order n.
-            task = asyncio.create_task(one(sent), name=f"marlin-temp bench line {sent}")
-            tasks.add(task)
-            task.add_done_callback(tasks.discard)
+            start(one(sent), f"marlin-temp bench line {sent}")
+            if not numbered_oks:
+                # Without ADVANCED_OK only an M105's ok names its command: a witness behind each line.
+                start(witness(), f"marlin-temp bench witness {sent}")
             sent += 1
-        if tasks:
-            await asyncio.wait(tasks)
+        if failure is None and numbered_oks:
+            # With ADVANCED_OK the next ok proves a lost one, but nothing follows the last line: this does.
+            start(witness(), "marlin-temp bench witness")
+        while tasks:
+            await asyncio.wait(set(tasks))
     finally:
-        printer.connection.max_in_flight = saved
+        connection.max_in_flight = saved
         for task in tasks:
             task.cancel()
     if failure is not None:
         raise failure
     return CorrectnessResult(
         lines_sent=sent,
-        oks_in_order=in_order,
-        out_of_order=out_of_order,
-        resends=printer.connection.resend_requests - resends_before,
-        timeouts=timeouts,
+        oks_in_order=check.in_order,
+        out_of_order=check.out_of_order,
+        resends=connection.resend_requests - resends_before,
+        timeouts=check.timeouts,
         max_in_flight=_SEND_AHEAD_MAX_IN_FLIGHT,
-        elapsed_s=loop.time() - start,
+        elapsed_s=loop.time() - start_s,
+        lost_oks=connection.lost_oks - lost_before,
+        withheld=check.withheld,
+        numbered_oks=numbered_oks,
     )
 
 
@@ -348,6 +458,10 @@ def _wire_note(result: BenchResult) -> str:
     return f"of {result.wire_limit_bytes_per_s:,.0f} bytes/s, the wire limit"
 
 
+def _order_mode(correctness: CorrectnessResult) -> str:
+    return "send-ahead" if correctness.numbered_oks else "one at a time + M105 (no ADVANCED_OK)"
+
+
 def bench_table(result: BenchResult) -> Table:
     """The report as a table of metric, value and a note saying what the number means."""
     latency, correctness, throughput = result.latency, result.correctness, result.throughput
@@ -370,13 +484,22 @@ def bench_table(result: BenchResult) -> Table:
     table.add_row("latency max", _ms(latency.max_ms), "the slowest round trip")
     table.add_row("round trips/s", f"{latency.round_trips_per_s:,.0f}", "sustained, one in flight")
     table.add_section()
-    table.add_row("lines sent", str(correctness.lines_sent), f"{ECHO_COMMAND.format(n='<n>')}, send-ahead")
+    table.add_row(
+        "lines sent", str(correctness.lines_sent), f"{ECHO_COMMAND.format(n='<n>')}, {_order_mode(correctness)}"
+    )
     table.add_row("oks in order", str(correctness.oks_in_order), "replies with their own echo, in sequence")
+    table.add_row("oks lost", str(correctness.lost_oks), "never came; recovered, not reordering")
+    table.add_row("replies withheld", str(correctness.withheld), "ran, but an ok lost: no reply to trust")
     table.add_row("out of order", str(correctness.out_of_order), "wrong echo, or after a later line's ok")
     table.add_row("resends", str(correctness.resends), "lines rejected (corrupted) and asked for again")
     table.add_row("timeouts", str(correctness.timeouts + latency.timeouts), "no ok within --timeout")
-    verdict = "[green]clean[/]" if correctness.clean and latency.timeouts == 0 else "[bold red]FAILED[/]"
-    table.add_row("order check", verdict, "every ok in order, nothing timed out")
+    if not correctness.clean or latency.timeouts:
+        verdict = "[bold red]FAILED[/]"
+    elif correctness.lost_oks:
+        verdict = "[yellow]clean[/]"
+    else:
+        verdict = "[green]clean[/]"
+    table.add_row("order check", verdict, correctness.summary)
     table.add_section()
     mode = f"{STREAM_COMMAND} like a print, {throughput.window_bytes}-byte send-ahead"
     table.add_row("stream lines/s", f"{throughput.lines_per_s:,.0f}", mode)
@@ -397,6 +520,7 @@ def bench_json(result: BenchResult) -> dict[str, object]:
         "wire_limit_bytes_per_s": result.wire_limit_bytes_per_s,
         "clean": result.problem is None,
         "problem": result.problem,
+        "warning": result.warning,
         "latency": {
             "command": LATENCY_COMMAND,
             "mode": "ping-pong",
@@ -410,9 +534,15 @@ def bench_json(result: BenchResult) -> dict[str, object]:
         },
         "correctness": {
             "command": ECHO_COMMAND.format(n="<n>"),
-            "mode": f"send-ahead: concurrent send(), max_in_flight {correctness.max_in_flight}, 128-byte window",
+            "mode": (
+                f"send-ahead: concurrent send(), max_in_flight {correctness.max_in_flight}, 128-byte window"
+                if correctness.numbered_oks
+                else "one at a time, each followed by an M105 witness (no ADVANCED_OK)"
+            ),
             "lines_sent": correctness.lines_sent,
             "oks_in_order": correctness.oks_in_order,
+            "lost_oks": correctness.lost_oks,
+            "withheld": correctness.withheld,
             "out_of_order": correctness.out_of_order,
             "resends": correctness.resends,
             "timeouts": correctness.timeouts,

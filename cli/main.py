@@ -315,14 +315,20 @@ _BENCH_HELP = "\n\n".join(
         "per second.",
         "Order check: --lines numbered 'M118 E1 bench <n>' lines with checksums, several in flight (send-ahead). "
         "Each reply must carry its own echo and come after the earlier ones: 'oks in order' should equal 'lines "
-        "sent', and 'out of order' be 0. 'resends' counts the lines the printer rejected (corrupted on the way) and "
+        "sent', and 'out of order' be 0. A lost ok is not reordering and is counted apart: 'oks lost' counts the "
+        "oks that never came, which the library proved lost by a later answer and recovered from, and 'replies "
+        "withheld' the lines that ran but whose reply it could not prove to be their own, so gave them none. "
+        "Without ADVANCED_OK in the firmware only an M105's ok names its command, so each line gets an M105 behind "
+        "it and lines go one at a time. 'resends' counts the lines the printer rejected (corrupted on the way) and "
         "asked for again; 'timeouts' the commands that got no ok within --timeout.",
         "Throughput: --lines G4 P0 lines streamed as 'marlin-temp print' streams a file (send-ahead in the "
         "printer's 128-byte buffer). 'stream lines/s' and 'stream bytes/s' (as on the wire, with line numbers and "
         "checksums) are compared with the wire limit of the baud rate, baud/10 bytes per second ('wire use'). The "
         "built-in --sim is not paced, so the limit does not apply there: run 'marlin-sim --baud 250000' and give "
         "its device as --port to see the ratio.",
-        "Exits 1 with one line when an ok came back out of order or a command timed out.",
+        "Exits 1 with one line when an ok came back out of order, a line got no answer or a command timed out. "
+        "Lost oks that the library recovered are not a failure of the link's order: they give a warning line "
+        "('3 oks lost (recovered), 0 out of order') and exit 0.",
     )
 )
 
@@ -353,6 +359,8 @@ def bench(
     show_result(result, Console(highlight=False), as_json=json_output)
     if result.problem is not None:
         fail(result.problem)
+    if result.warning is not None:
+        _stderr().print(f"[yellow]warning:[/] {escape(result.warning)}", markup=True)
 
 
 # ------------------------------------------------------------------------------------------- plot
