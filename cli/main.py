@@ -142,6 +142,10 @@ def watch(
     With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and power,
     and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints one plain
     line per refresh instead (or JSON lines with --json).
+
+    The footer counts timeouts and errors (failed commands, board resets) from the moment the connection is
+    established: a board that resets when the port opens, printing 'start' and its banner during the
+    handshake, is starting up, not failing.
     """
     from .watch import WatchSettings, watch_printer
 

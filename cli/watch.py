@@ -43,11 +43,38 @@ class WatchSettings:
     reconnect: bool = False
 
 
-def _update_link_stats(model: WatchModel, printer: marlin_aio.Printer, since: float) -> float:
+@dataclass(frozen=True)
+class _Baseline:
+    """The counters when a connection was established, so the footer counts only what happened after it.
+
+    A board that resets when the port opens prints `start` while the handshake runs, failing the M105 in flight
+    then, and a bootloader's silence times a few out: that is the board starting, not the link failing. With
+    --reconnect the model keeps the counts of the earlier connections (`model_timeouts`, `model_errors`).
+    """
+
+    timeouts: int
+    failed: int
+    resets: int
+    model_timeouts: int
+    model_errors: int
+
+    @classmethod
+    def now(cls, model: WatchModel, printer: marlin_aio.Printer) -> _Baseline:
+        """The baseline for `printer`, just connected."""
+        conn = printer.connection
+        return cls(conn.timeouts, conn.failed, conn.resets, model.timeouts, model.errors)
+
+
+def _update_link_stats(model: WatchModel, printer: marlin_aio.Printer, since: float, baseline: _Baseline) -> float:
     """Copy counters and new round trips from the client into the model; return the newest round-trip time."""
     conn = printer.connection
-    model.timeouts = conn.timeouts
-    model.errors = conn.failed - conn.timeouts
+    timeouts = conn.timeouts - baseline.timeouts
+    failures = conn.failed - baseline.failed - timeouts
+    resets = conn.resets - baseline.resets
+    model.timeouts = baseline.model_timeouts + timeouts
+    # watch has at most one command in flight (its poll), so a reset fails at most one. The larger count is what
+    # went wrong without counting a reset twice, nor missing one that came between two polls.
+    model.errors = baseline.model_errors + max(failures, resets)
     newest = since
     for answered_s, latency_s in printer.round_trips:
         if answered_s > since:
@@ -108,6 +135,7 @@ async def _session(
         return watch_view(model, label, firmware, width=console.width, chart_height=chart_height)
 
     since = 0.0
+    baseline = _Baseline.now(model, printer)  # after the handshake: `open_printer` has run it
     async with printer.poll_temperatures(settings.interval_s):
         consumer = asyncio.create_task(consume(), name="marlin-temp readings")
         stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
@@ -124,7 +152,7 @@ async def _session(
                     done, _ = await asyncio.wait({consumer, stopper}, timeout=timeout, return_when="FIRST_COMPLETED")
                     if consumer in done:
                         consumer.result()  # raises what ended the readings (link lost, printer halted)
-                    since = _update_link_stats(model, printer, since)
+                    since = _update_link_stats(model, printer, since, baseline)
                     if live is not None:
                         live.update(view(), refresh=True)  # type: ignore[arg-type]
                     elif model.series:

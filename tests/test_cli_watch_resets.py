@@ -1,0 +1,77 @@
+"""`marlin-temp watch` and board resets: a reset while the port is being opened is not an error, one later is.
+
+Many boards reset when the port opens (DTR) and spend a moment in their bootloader before printing `start` and
+the boot banner. The simulator plays such a board: silent while the client's handshake begins, then reset by
+the test once the handshake's first M105 has reached it, so the banner arrives while that M105 waits.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import Callable
+from typing import Any
+
+from typer.testing import CliRunner
+
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
+from marlin_temp.connect import Exit
+from marlin_temp.main import app
+
+runner = CliRunner()
+
+
+async def until(condition: Callable[[], bool], what: str, limit_s: float = 10.0) -> None:
+    """Poll `condition` (bounded): what the simulator has run is the only signal there is."""
+    for _ in range(int(limit_s / 0.005)):
+        if condition():
+            return
+        await asyncio.sleep(0.005)  # polling a condition, bounded; not a fixed wait
+    raise AssertionError(f"timed out after {limit_s} s waiting for {what}")
+
+
+def reset(sim: SimulatorServer) -> None:
+    sim.printer.reset(sim.now())
+    sim.poke()  # the banner goes out at once
+
+
+def watch_in_thread(sim: SimulatorServer, *args: str) -> asyncio.Task[Any]:
+    command = ["watch", "--port", sim.url, "--refresh", "0.2", "--json", *args]
+    return asyncio.create_task(asyncio.to_thread(runner.invoke, app, command))
+
+
+def last_status(output: str) -> dict[str, Any]:
+    records: list[dict[str, Any]] = [json.loads(line) for line in output.splitlines() if line.startswith("{")]
+    assert records, output
+    return records[-1]
+
+
+async def test_a_reset_during_the_handshake_is_not_an_error() -> None:
+    faults = Faults(silent=True)  # the bootloader: the port is open, the firmware says nothing yet
+    async with serve_pty(SimulatorConfig(), faults, time_scale=20) as sim:
+        watching = watch_in_thread(sim, "--duration", "1")
+        await until(lambda: "M105" in sim.printer.executed, "the handshake's first M105")
+        faults.silent = False
+        reset(sim)  # `start` and the banner, while that M105 waits for its ok
+        result = await watching
+    assert result.exit_code == Exit.OK, result.output
+    assert last_status(result.stdout)["errors"] == 0
+    assert "0 timeouts, 0 errors" in result.stderr
+
+
+async def test_a_reset_once_connected_is_an_error() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+        watching = watch_in_thread(sim, "--duration", "1.5")
+        await until(lambda: sim.printer.executed.count("M105") > 20, "readings to flow")
+        reset(sim)
+        result = await watching
+    assert result.exit_code == Exit.OK, result.output
+    assert last_status(result.stdout)["errors"] == 1
+    assert "0 timeouts, 1 errors" in result.stderr
+
+
+def test_watch_help_says_what_the_errors_count() -> None:
+    result = runner.invoke(app, ["watch", "--help"])
+    assert result.exit_code == 0
+    text = " ".join(result.output.split())
+    assert "from the moment the connection is established" in text and "board resets" in text
