@@ -59,6 +59,16 @@ async def test_a_reset_during_the_handshake_is_not_an_error() -> None:
     assert "0 timeouts, 0 errors" in result.stderr
 
 
+async def test_a_board_that_resets_as_the_port_opens_shows_no_errors() -> None:
+    # The simulator's own reset on open: quicker than a bootloader, so the banner passes during the boot wait.
+    async with serve_pty(SimulatorConfig(), time_scale=20, reset_on_open=True) as sim:
+        result = await watch_in_thread(sim, "--duration", "1")
+        assert sim.printer.executed.count("M105") > 0
+    assert result.exit_code == Exit.OK, result.output
+    assert last_status(result.stdout)["errors"] == 0
+    assert "0 timeouts, 0 errors" in result.stderr
+
+
 async def test_a_reset_once_connected_is_an_error() -> None:
     async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
         watching = watch_in_thread(sim, "--duration", "1.5")
