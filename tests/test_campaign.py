@@ -10,6 +10,8 @@ from __future__ import annotations
 from collections import Counter
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from marlin_aio.printjob import PrintState
 from marlin_aio.simulator._campaign import CampaignResult, Scenario, run_print
@@ -119,3 +121,38 @@ def test_ping_pong_survives_a_noisy_link_when_bytes_arrive_as_a_uart_delivers_th
     ]
     assert [r.problems for r in results if r.problems] == []
     assert all(r.state is PrintState.DONE for r in results)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 10**6),
+    send_ahead=st.booleans(),
+    advanced_ok=st.booleans(),
+    corrupt=st.floats(0.0, 0.08),
+    drop_ok=st.floats(0.0, 0.05),
+    noise=st.floats(0.0, 0.08),
+    user_interval_s=st.sampled_from([0.003, 0.02, 0.05]),
+)
+def test_any_mix_of_lost_oks_noise_and_resends_hands_no_command_another_ones_reply(
+    seed: int,
+    send_ahead: bool,
+    advanced_ok: bool,
+    corrupt: float,
+    drop_ok: float,
+    noise: float,
+    user_interval_s: float,
+) -> None:
+    result = run_print(
+        Scenario(
+            seed=seed,
+            lines=80,
+            send_ahead=send_ahead,
+            advanced_ok=advanced_ok,
+            corrupt=corrupt,
+            drop_ok=drop_ok,
+            noise=noise,
+            user_interval_s=user_interval_s,
+        )
+    )
+    assert result.wrong_replies == 0, result.problems
+    assert result.problems == []
