@@ -156,7 +156,7 @@ class Command:
 
 def _is_garbage(text: str) -> bool:
     """True for a line no firmware prints: Marlin writes ASCII only, so anything else is noise from the link."""
-    return not text.isascii() or any((ch < " " and ch != "\t") or ch == "\x7f" for ch in text)
+    return not text.isascii() or any(ch < " " or ch == "\x7f" for ch in text)
 
 
 class Connection:

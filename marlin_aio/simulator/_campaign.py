@@ -45,7 +45,7 @@ class Scenario:
     drop_ok: float = 0.0  # share of oks the firmware never sends
     noise: float = 0.0  # share of firmware lines preceded by a line of garbage
     poll_interval_s: float | None = 0.01  # the poller's M105; None: no polling
-    user_interval_s: float | None = 0.05  # a user's `M118 U<k>` this often; None: none
+    user_interval_s: float | None = 0.05  # a user's `M118 U<k>` this often (after the last one finished); None: none
     reset_at_line: int | None = None  # the board resets once this many print lines ran
     silent_at_line: int | None = None  # the board falls silent (and stays so) once this many print lines ran
     timeout_s: float = 2.0
@@ -204,7 +204,8 @@ def run_print(scenario: Scenario) -> CampaignResult:
                 flush()
             next_poll = now + scenario.poll_interval_s
         if next_user is not None and now >= next_user and scenario.user_interval_s is not None:
-            if not job.finished and conn.halted is None:
+            # The user awaits each command before sending the next, as a task calling `send()` does.
+            if not job.finished and conn.halted is None and not any(k == "user" for _, _, k in pending.values()):
                 user_count += 1
                 submit(f"M118 U{user_count}", "user")
                 flush()
