@@ -494,8 +494,7 @@ class Printer:
     def _target_commands(
         self, *, hotend: float | None, bed: float | None, chamber: float | None, tool: int | None
     ) -> list[str]:
-        if tool is not None and (isinstance(tool, bool) or not isinstance(tool, int) or tool < 0):
-            raise ValueError(f"tool must be a non-negative integer, got {tool!r}")
+        _check_tool(tool)
         commands = []
         if hotend is not None:
             value = check_target("hotend", hotend, self.max_hotend_celsius)
@@ -532,8 +531,7 @@ class Printer:
         """
         if not tolerance_c >= 0:
             raise ValueError(f"tolerance_c must not be negative, got {tolerance_c}")
-        if tool is not None and (isinstance(tool, bool) or not isinstance(tool, int) or tool < 0):
-            raise ValueError(f"tool must be a non-negative integer, got {tool!r}")
+        _check_tool(tool)
         # `T` is whichever hotend is active; `T<n>` names one hotend (a single-hotend printer reports only `T`).
         hotend_key = "T" if tool is None else f"T{tool}"
         wanted: dict[str, float] = {}
@@ -850,6 +848,11 @@ class Printer:
         self._transport = None
         if self._closed is not None and not self._closed.done():
             self._closed.set_result(None)
+
+
+def _check_tool(tool: int | None) -> None:
+    if tool is not None and (isinstance(tool, bool) or not isinstance(tool, int) or tool < 0):
+        raise ValueError(f"tool must be a non-negative integer, got {tool!r}")
 
 
 #: Names for the heaters a wait can name; hotends by number are "hotend <n>".
