@@ -271,13 +271,22 @@ def log(
 @app.command("print", epilog=EXIT_CODES_HELP)
 def print_file(
     path: Annotated[Path, typer.Argument(help="The G-code file to print.", show_default=False)],
-    ping_pong: Annotated[
-        bool, typer.Option("--ping-pong", help="One line at a time, each waiting for its ok (slowest, simplest).")
-    ] = False,
+    send_ahead: Annotated[
+        bool | None,
+        typer.Option(
+            "--send-ahead/--ping-pong",
+            help="Send-ahead keeps several lines on the wire (faster on a clean link); ping-pong, the default, writes "
+            "one line at a time, each after the ok of the one before, which no link fault can make run a line twice "
+            "or out of place.",
+            show_default=False,
+        ),
+    ] = None,
     window: Annotated[
         int | None,
         typer.Option(
-            "--window", help="Send-ahead: bytes of unanswered lines allowed (default: the 128-byte buffer).", min=17
+            "--window",
+            help="Send-ahead (implied): bytes of unanswered lines allowed (default: the 128-byte buffer).",
+            min=17,
         ),
     ] = None,
     keep_heaters: Annotated[
@@ -298,10 +307,11 @@ def print_file(
 
     if not path.is_file():
         fail(f"no such file: {path}", Exit.USAGE)
-    if ping_pong and window is not None:
+    if send_ahead is False and window is not None:
         fail("--ping-pong sends one line at a time; do not combine it with --window", Exit.USAGE)
+    ahead = window is not None if send_ahead is None else send_ahead
     options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
-    settings = PrintSettings(path=path, send_ahead=not ping_pong, window_bytes=window, keep_heaters=keep_heaters)
+    settings = PrintSettings(path=path, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters)
     code = run(print_gcode(options, settings, Console(highlight=False), _stderr()))
     raise typer.Exit(int(code))
 

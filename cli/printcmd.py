@@ -32,7 +32,7 @@ class PrintSettings:
     """What `print` was asked to do."""
 
     path: Path
-    send_ahead: bool = True
+    send_ahead: bool = False
     window_bytes: int | None = None
     keep_heaters: bool = False
 

@@ -31,6 +31,7 @@ from marlin_aio.connection import Command, Connection, Reply
 from marlin_aio.errors import (
     ChecksumRequiredError,
     CommandTimeoutError,
+    LostReplyError,
     ConnectionLostError,
     HandshakeError,
     HandshakeTimeoutError,
@@ -293,17 +294,52 @@ class Printer:
             except PrinterHaltedError as exc:
                 raise HandshakeError(f"{exc}; reset the printer (power cycle or reset button)", step="sync") from exc
         try:
-            await self.send("M110 N0", timeout_s=self.timeout_s)
+            await self._send_until_processed("M110 N0")
         except PrinterLockedError:
             await self._unlock()
-            await self.send("M110 N0", timeout_s=self.timeout_s)
+            await self._send_until_processed("M110 N0")
         except CommandTimeoutError as exc:
             raise HandshakeTimeoutError(f"the printer did not answer M110 N0: {exc}", step="sync") from exc
         # 3. Identify: M115 gives the firmware name and capabilities (collected from events as they arrive).
         try:
-            await self.send("M115", timeout_s=self.timeout_s)
+            await self._send_until_processed("M115")
         except CommandTimeoutError as exc:
             raise HandshakeTimeoutError(f"the printer did not answer M115: {exc}", step="identify") from exc
+
+    async def _send_until_processed(self, command: str) -> None:
+        """Send a command that is harmless to run twice and whose reply lines nobody needs (M110 N0, M115), and
+        return once the printer has shown that it processed it: a lost ok costs a probe, not the connection or
+        the print.
+
+        An answer to a later command proves it ran (Marlin answers in order; the connection then fails it with
+        `LostReplyError`). Without one, it times out after a short wait and an M105 is written behind it: if that
+        is answered, the command ran. Otherwise it is written again, until `timeout_s` has passed.
+
+        Raises:
+            CommandTimeoutError: the printer answered nothing for `timeout_s`.
+        """
+        loop = self._running_loop()
+        deadline = loop.time() + self.timeout_s
+        while True:
+            step = max(min(2.0, self.timeout_s / 4, deadline - loop.time()), 0.05)
+            try:
+                await self.send(command, timeout_s=step)
+                return
+            except LostReplyError:
+                return
+            except CommandTimeoutError:
+                if loop.time() >= deadline:
+                    raise
+            try:
+                # Unnumbered, so a line counter the command may not have set cannot get it rejected.
+                probe_timeout = max(min(2.0, self.timeout_s / 4, deadline - loop.time()), 0.05)
+                await self.send("M105", timeout_s=probe_timeout, numbered=self._conn.requires_numbers)
+                return  # answered behind it: the command was processed, only its ok was lost
+            except (CommandTimeoutError, LostReplyError) as exc:
+                if loop.time() >= deadline:
+                    raise CommandTimeoutError(
+                        f"no answer to {command!r} within {self.timeout_s:g} s: {exc}", command=command
+                    ) from exc
 
     async def _unlock(self) -> None:
         """Unlock a PASSWORD_FEATURE printer with the password given to `connect()`, or fail clearly."""
@@ -589,7 +625,7 @@ class Printer:
         self,
         source: str | Path | Iterable[str],
         *,
-        send_ahead: bool = True,
+        send_ahead: bool = False,
         window_bytes: int | None = None,
         check: bool = True,
         timeout_s: float | None = None,
@@ -597,8 +633,13 @@ class Printer:
         """Start streaming G-code: a file path, or any iterable of lines (read lazily, so any size streams).
 
         Every line is numbered with a checksum (after an `M110 N0`), comments and blank lines are dropped, and lines
-        the printer rejects are resent. With `send_ahead` several lines are in flight, never more unanswered bytes
-        than `window_bytes` (default: the printer's receive buffer); without it, one line at a time (ping-pong).
+        the printer rejects are resent. By default one line at a time (ping-pong): each line is written after the
+        ok of the one before, so no fault of the link can make a line run twice or out of place. With `send_ahead`
+        several lines are in flight, never more unanswered bytes than `window_bytes` (default: the printer's
+        receive buffer): faster on a clean link. After a line error it writes one line at a time again until the
+        link has been clean for a while; but Marlin throws away its receive buffer when it rejects a line, and if
+        that cuts the next line in two, the firmware may run the rest of it on its own. No host can prevent that
+        with lines on the wire; the print then stops with a `RemoteProtocolError` that says so.
         Polls and `send()` keep working meanwhile; polls slow to `print_poll_interval_s`.
 
         Raises:
@@ -613,7 +654,7 @@ class Printer:
             raise ValueError(f"window_bytes must be between 17 and 65536, got {window_bytes}")
         loop = self._running_loop()
         job = PrintJob.from_path(Path(source), check=check) if isinstance(source, str | Path) else PrintJob(source)
-        await self.send("M110 N0")  # the print's numbering starts fresh
+        await self._send_until_processed("M110 N0")  # the print's numbering starts fresh
         job.start_s = loop.time()
         self._saved_window = (self._conn.max_in_flight, self._conn.rx_buffer_bytes)
         self._conn.max_in_flight = 64 if send_ahead else 1
@@ -629,7 +670,7 @@ class Printer:
         self,
         source: str | Path | Iterable[str],
         *,
-        send_ahead: bool = True,
+        send_ahead: bool = False,
         window_bytes: int | None = None,
         check: bool = True,
         timeout_s: float | None = None,

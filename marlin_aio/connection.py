@@ -25,6 +25,16 @@ ok they may belong to a later command, so `_attribute` hands them on only when t
 (a bare M105), and otherwise to nobody. A command that times out keeps its place for one more timeout, so its late
 ok lands on it and not on the next caller's command. Noise (non-ASCII, control characters) is nobody's reply line.
 
+Why a print line runs exactly once, in order. Every line is numbered, and Marlin runs a numbered line only if it
+follows the last one it ran, so a line written twice is never run twice. The exception is a firmware fact: when
+Marlin rejects a line it throws away its receive buffer, and a line that was half received is cut in two; its tail
+arrives later as an unnumbered line of its own. Marlin refuses most tails (`Unknown command`, recognised by
+`_is_fragment`, whose ok then answers nothing), but a tail that begins at the command word runs, out of place. Only
+a line written behind an unanswered one can be cut, so ping-pong (one line in flight) is exact on any link. With
+send-ahead, after a line error nothing is written until the printer has been quiet (`_drain_until`: every stale
+line and tail has arrived), then one line at a time for `CALM_LINES` lines; a tail that ran shows as an ok that no
+command earned while draining, and the print stops saying so (`_fragment_ran`).
+
 A print job (`marlin_aio.printjob.PrintJob`) is fed through the same FIFO, after any submitted commands, as far as
 the window allows. While it streams, a line left unanswered for a few round trips gets a probe (a numbered M105)
 so that a lost `ok` costs a moment; a line unanswered for the whole timeout, with no busy keepalive, stalls the
@@ -86,6 +96,10 @@ _HEATER_WAITS = frozenset({"M109", "M190", "M191"})
 
 #: How many reply lines one command keeps (M115 prints about 40, M503 about 25); older ones are counted only.
 MAX_REPLY_LINES = 256
+
+#: After a line error, how many print lines must be answered without another before send-ahead writes more than
+#: one line at a time again. One line at a time never leaves a line on the wire behind one the firmware may reject.
+CALM_LINES = 100
 
 #: Commands Marlin's emergency parser acts on as soon as their bytes arrive; they skip the queue here too.
 EMERGENCY_COMMANDS = frozenset({"M108", "M112", "M410", "M876"})
@@ -221,6 +235,16 @@ class Connection:
         self._stale = 0  # answers still due for lines written before the last resend request
         self._swallow_ok = False  # the ok right after a resend request answers nothing
         self._after_line_error = False  # the last line was `Error:...Last Line` (a rejection, not an M999 request)
+        # After a line error with more lines on the wire behind the rejected one: write nothing until the printer has
+        # been quiet this long (every stale line and fragment has arrived and been answered), then resend.
+        self._drain_until: float | None = None
+        self._calm_left = 0  # print lines still to be answered one at a time after the last line error
+        self._fragment_wires: list[tuple[str, str]] = []  # (wire, text) of lines a flush may have cut in two
+        self._nudged: Command | None = None  # the oldest command when a queued resend was let out to probe it
+        self._nudge_pending = False  # let the next resend out past the window, as a probe
+        self._fragment_oks = 0  # oks still due for fragments the firmware reported as unknown commands
+        self.fragments = 0  # pieces of lines the printer received on their own after a flush (and refused)
+        self.fragments_run = 0  # pieces of lines the printer ran on their own: a line ran out of place
         self._results: list[tuple[Command, Reply | MarlinError]] = []
         self._thermal_message: str | None = None
         self.halted: PrinterHaltedError | None = None
@@ -300,9 +324,14 @@ class Connection:
         """Return the bytes to write now: resends first, then queued commands, then print job lines, as far as the
         window allows."""
         self._now = now
+        if self._drain_until is not None:
+            if now < self._drain_until:
+                return b""
+            self._end_drain()
         chunks: list[bytes] = []
         # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.
         limit = self.rx_buffer_bytes - (self.probe_reserve_bytes if self.job is not None else 0)
+        window = 1 if self._calm_left > 0 else self.max_in_flight
         while True:
             if self._queue:
                 command = self._queue[0]
@@ -311,8 +340,10 @@ class Connection:
                 if job_command is None:
                     break
                 command = job_command
+            nudge = self._nudge_pending and bool(command.wire)
+            self._nudge_pending = False
             if self._in_flight and (
-                (len(self._in_flight) >= self.max_in_flight and not command.probe)
+                (len(self._in_flight) >= window and not (command.probe or nudge))
                 or self._in_flight_bytes + self._wire_size(command) > (self.rx_buffer_bytes if command.probe else limit)
                 or not self._answer_stays_distinct(command)
             ):
@@ -459,6 +490,9 @@ class Connection:
         self._parser.clear()
 
     def _handle(self, text: str, event: Event, now: float) -> None:
+        if self._drain_until is not None:
+            # The printer is still answering what was on the wire when it threw its buffer away.
+            self._drain_until = max(self._drain_until, now + self._quiet_s())
         kind = type(event)
         if kind is Ok:
             assert isinstance(event, Ok)
@@ -491,6 +525,11 @@ class Connection:
         elif kind is UnrecognisedLine and _is_garbage(text):
             # Noise from the link (a baud glitch, a reset) is nobody's reply.
             self.garbage_lines += 1
+        elif kind is UnknownCommand and self._is_fragment(event):
+            # The tail of a line cut in two by a flush, which the firmware read as a command of its own and
+            # refused: its ok answers nothing.
+            self.fragments += 1
+            self._fragment_oks += 1
         elif kind is PrinterLocked or kind is UnknownCommand:
             if head is not None:
                 head.add_line(text)
@@ -503,18 +542,30 @@ class Connection:
         elif head is not None and kind in (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability):
             head.add_line(text)
 
+    def _is_fragment(self, event: Event) -> bool:
+        """Is this "Unknown command" about a piece of a line that a flush cut in two?
+
+        Its text is then part of a line written behind a rejected one, but not that line's whole command (a line
+        whose command the firmware does not know is refused with its own text, and that refusal stops a print).
+        """
+        assert isinstance(event, UnknownCommand)
+        piece = event.command
+        return any(piece != text and piece in wire for wire, text in self._fragment_wires)
+
     def _on_ok(self, ok: Ok, now: float) -> None:
         if self._swallow_ok:
             self._swallow_ok = False
             return
-        if not self._in_flight:
-            self.stray_oks += 1
+        if self._fragment_oks:
+            self._fragment_oks -= 1
             return
         # Which in-flight command does this ok answer? The oldest one whose answer can look like it; every command
         # ahead of that one was processed (Marlin answers in order) but its own ok was lost.
-        index = self._match(ok)
+        index = self._match(ok) if self._in_flight else None
         if index is None:
             self.stray_oks += 1
+            if self._drain_until is not None and ok.temperatures is None:
+                self._fragment_ran(now)
             return
         if ok.line_number is not None:
             self._exact_oks = True
@@ -539,6 +590,11 @@ class Connection:
         if ok.temperatures is not None:
             # Only M105 answers `ok T:...`.
             return next((i for i, c in enumerate(flight) if c.code == "M105"), None)
+        if self._exact_oks:
+            # This printer names the line in the ok of every numbered command: a plain ok is an unnumbered one's.
+            return next(
+                (i for i, c in enumerate(flight) if c.line_number is None and (c.code != "M105" or c.refusal)), None
+            )
         # A plain ok: the oldest command that answers with a plain ok (not M105, whose answer carries temperatures;
         # a refused one is answered plainly whatever it was).
         return next((i for i, c in enumerate(flight) if c.code != "M105" or c.refusal is not None), None)
@@ -576,6 +632,8 @@ class Connection:
             # A print line needs no reply: a later answer proves it ran, whether its own ok came or not.
             if ok is not None and command.sends == 1 and command.sent_s is not None:
                 self._rtts.append(now - command.sent_s)
+            if ok is not None and self._calm_left and self._resend_from is None and self._drain_until is None:
+                self._calm_left -= 1
             command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
         elif command.probe:
             self._probe = None
@@ -692,19 +750,29 @@ class Connection:
         owed = {id(c) for c in self._in_flight}
         keep: deque[Command] = deque()
         removed = 0
+        behind: list[Command] = []  # written after the rejected line: on the wire when the firmware flushed
         for command in self._in_flight:
+            if removed:
+                behind.append(command)
             if command.line_number is not None and command.line_number >= line_number:
                 removed += 1
             else:
                 keep.append(command)
         self._stale = max(removed - 1, 0)
+        self._calm_left = CALM_LINES
+        if behind:
+            # One of those lines may have been cut in two by the flush; its tail arrives as a line of its own. Hold
+            # every write until the printer has answered all of them, so nothing new is cut, and recognise the
+            # pieces (`_is_fragment`).
+            self._drain_until = now + self._quiet_s()
+            self._fragment_wires = [(c.wire.decode("ascii").rstrip("\n"), c.text) for c in behind]
         queued = {id(c) for c in self._queue}
         again: list[Command] = []
         for number in range(line_number, self._next_line):
             resend = self._history.get(number)
-            if resend is None or id(resend) in queued:
+            if resend is None:
                 continue
-            if id(resend) not in owed:
+            if id(resend) not in owed and id(resend) not in queued:
                 # Not in flight and not queued: its caller already had a result (a timeout). Resend it so the
                 # numbering goes on, but its answer completes nothing.
                 resend.orphan = True
@@ -714,7 +782,40 @@ class Connection:
         if keep and keep[0].head_since_s is None:
             keep[0].head_since_s = now
         self._resend_from = line_number
+        # Every line from N on goes out again in order, ahead of everything else, including the lines an earlier
+        # request had already queued for resending.
+        again_ids = {id(c) for c in again}
+        self._queue = deque(c for c in self._queue if id(c) not in again_ids)
         self._queue.extendleft(reversed(again))
+
+    def _quiet_s(self) -> float:
+        """How long the printer must say nothing before what was on the wire at a flush is taken as all answered:
+        four median round trips, within 20 ms to 0.5 s."""
+        if not self._rtts:
+            return 0.1
+        ordered = sorted(self._rtts)
+        return min(max(4 * ordered[len(ordered) // 2], 0.02), 0.5)
+
+    def _end_drain(self) -> None:
+        # The printer has been quiet: every line that was on the wire at the flush was rejected or answered, so a
+        # rejection from now on is a fresh one.
+        self._drain_until = None
+        self._stale = 0
+
+    def _fragment_ran(self, now: float) -> None:
+        """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own."""
+        self.fragments_run += 1
+        job = self.job
+        if job is None or not job.active:
+            return
+        pieces = ", ".join(repr(text) for _, text in self._fragment_wires[:3])
+        message = (
+            f"print stopped after line {job.last_source_line} of {job.name}: after a line error the printer threw "
+            "away its receive buffer in the middle of a line and ran the rest of it as a command of its own (an ok "
+            f"that no command earned; the line was one of {pieces}), so a line ran out of place; "
+            "send-ahead cannot rule this out on this link: print with send_ahead=False (ping-pong)"
+        )
+        self._fail_everything_of_job(RemoteProtocolError(message), now)
 
     def _on_error(self, event: ErrorMessage, now: float) -> None:
         if event.kind is ErrorKind.THERMAL:
@@ -786,6 +887,9 @@ class Connection:
         self._stale = 0
         self._resend_from = None
         self._swallow_ok = False
+        self._drain_until = None
+        self._fragment_oks = 0
+        self._fragment_wires = []
 
     def cancel(self, command: Command) -> bool:
         """Withdraw a command whose caller gave up; return True if it was never written (so it never will be).
@@ -812,14 +916,15 @@ class Connection:
         """When the oldest command in flight times out (or a stalled stream is probed) unless the printer shows a
         sign of life first."""
         if not self._in_flight:
-            return None
-        return min(self._deadlines(self._in_flight[0]))
+            return self._drain_until
+        due = min(self._deadlines(self._in_flight[0]))
+        return due if self._drain_until is None else min(due, self._drain_until)
 
     def _deadlines(self, head: Command) -> tuple[float, float, float]:
         """(time out, write again, probe) for the oldest command; inf where that step does not apply."""
         start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
         resend_at = start + min(head.timeout_s, self.resend_timeout_s) if self._resending(head) else math.inf
-        probe_at = start + self.probe_delay_s() if self._may_probe() else math.inf
+        probe_at = start + self.probe_delay_s() if self._may_probe(head) else math.inf
         return start + head.timeout_s, resend_at, probe_at
 
     def _resending(self, head: Command) -> bool:
@@ -830,9 +935,16 @@ class Connection:
             and head.sends <= self.max_resends
         )
 
-    def _may_probe(self) -> bool:
+    def _may_probe(self, head: Command) -> bool:
         # Only while a job streams: outside prints a probe M105 could answer a user's own M105 (say M105 T9).
-        return self.job is not None and self.job.active and self._probe is None and self.numbered
+        return (
+            self.job is not None
+            and self.job.active
+            and self._probe is None
+            and self.numbered
+            and self._drain_until is None
+            and self._nudged is not head
+        )
 
     def probe_delay_s(self) -> float:
         """How long a streamed line may wait before a probe asks whether its `ok` was lost.
@@ -853,6 +965,8 @@ class Connection:
         answer within the timeout, with no busy keepalive, stalls the print: the job fails with a diagnosis.
         """
         self._now = now
+        if self._drain_until is not None and now >= self._drain_until:
+            self._end_drain()
         while self._in_flight:
             deadline = self.next_deadline()
             if deadline is None or now < deadline:
@@ -866,7 +980,13 @@ class Connection:
                 continue
             if now < timeout_at:
                 if now >= probe_at:
-                    self._send_probe(now)
+                    if self._queue and self._queue[0].wire:
+                        # Lines wait to be written again (one at a time, behind this one): the next of them is as
+                        # good a probe as an M105, and a new M105 would take a line number ahead of theirs.
+                        self._nudged = head
+                        self._nudge_pending = True
+                    else:
+                        self._send_probe(now)
                 return
             # No stale rejection can still be on its way after this much silence.
             self._stale = 0

@@ -30,14 +30,15 @@ def test_print_streams_the_file_and_reports(tmp_path: Path) -> None:
     result = runner.invoke(app, ["print", str(gcode), "--sim", "--sim-speed", "50"])
     assert result.exit_code == 0, result.output
     assert "done: 2000 commands" in result.output
-    assert "send-ahead" in result.output
+    assert "ping-pong" in result.output  # the default: no link fault can run a line twice
 
 
-def test_print_ping_pong(tmp_path: Path) -> None:
+@pytest.mark.parametrize("option", ["--send-ahead", "--window=96"])
+def test_print_send_ahead(tmp_path: Path, option: str) -> None:
     gcode = write_gcode(tmp_path / "part.gcode", 300)
-    result = runner.invoke(app, ["print", str(gcode), "--sim", "--sim-speed", "50", "--ping-pong"])
+    result = runner.invoke(app, ["print", str(gcode), "--sim", "--sim-speed", "50", option])
     assert result.exit_code == 0, result.output
-    assert "ping-pong" in result.output and "done: 300 commands" in result.output
+    assert "send-ahead" in result.output and "done: 300 commands" in result.output
 
 
 @pytest.mark.parametrize(

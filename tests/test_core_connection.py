@@ -15,7 +15,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from marlin_aio.commands import checksum, encode_command, number_command
-from marlin_aio.connection import MAX_REPLY_LINES, Command, Connection, Reply
+from marlin_aio.connection import CALM_LINES, MAX_REPLY_LINES, Command, Connection, Reply
 from marlin_aio.errors import (
     ChecksumRequiredError,
     CommandNotExecutedError,
@@ -31,7 +31,7 @@ from marlin_aio.errors import (
 )
 from marlin_aio.events import BusyKeepalive, EchoMessage, Event, Ok, TemperatureReport, UnrecognisedLine
 from marlin_aio.parsing import parse_endstops
-from marlin_aio.printjob import PrintJob
+from marlin_aio.printjob import PrintJob, PrintState
 
 Outcome = Reply | MarlinError
 
@@ -151,15 +151,16 @@ def test_fifo_matching_with_several_in_flight() -> None:
     assert conn.queued == 1
     assert conn.oldest_waiting() is commands[0]
 
-    receive(conn, "ok P15 B3", now=0.5)
+    # ADVANCED_OK names the line in each ok.
+    receive(conn, "ok N1 P15 B3", now=0.5)
     assert replies(conn) == [
-        ("M104 S200", Reply("M104 S200", (), Ok(planner_free=15, buffer_free=3), sent_s=0.0, answered_s=0.5))
+        ("M104 S200", Reply("M104 S200", (), Ok(1, planner_free=15, buffer_free=3), sent_s=0.0, answered_s=0.5))
     ]
     assert sent(conn.data_to_send(0.5)) == [wire("M105", 5)]  # the window opened by one
 
-    receive(conn, "ok P15 B3", now=1.0)
-    receive(conn, "X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000", "ok P15 B3", now=16.0)
-    receive(conn, "X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000", "ok P15 B3", now=16.5)
+    receive(conn, "ok N2 P15 B3", now=1.0)
+    receive(conn, "X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000", "ok N3 P15 B3", now=16.0)
+    receive(conn, "X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000", "ok N4 P15 B3", now=16.5)
     receive(conn, M105_OK, now=17.0)
     done = replies(conn)
     assert [text for text, _ in done] == ["M140 S60", "G28", "M114", "M105"]
@@ -178,7 +179,7 @@ def test_max_in_flight_is_respected() -> None:
     assert len(sent(conn.data_to_send(0.0))) == 3
     assert conn.data_to_send(0.0) == b""
     for step in range(7):
-        receive(conn, "ok")
+        receive(conn, f"ok N{step + 1}")
         assert conn.in_flight == 2
         assert len(sent(conn.data_to_send(0.0))) == 1
         assert conn.in_flight == 3
@@ -224,8 +225,8 @@ def test_reply_collects_echo_and_error_lines_but_not_reports_or_keepalives() -> 
     conn = Connection(max_in_flight=2, advanced_ok=True)
     submit_all(conn, "M9999", "G28")
     conn.data_to_send(0.0)
-    receive(conn, 'echo:Unknown command: "M9999"', AUTO_REPORT, "echo:busy: processing", "Error:Something odd", "ok")
-    receive(conn, "ok")
+    receive(conn, 'echo:Unknown command: "M9999"', AUTO_REPORT, "echo:busy: processing", "Error:Something odd", "ok N1")
+    receive(conn, "ok N2")
     done = replies(conn)
     assert done[0][1].lines == ('echo:Unknown command: "M9999"', "Error:Something odd")
     assert done[1][1].lines == ()
@@ -319,7 +320,7 @@ def test_ok_with_temperatures_completes_up_to_the_m105() -> None:
     assert isinstance(reply, Reply) and reply.temperatures is not None
     assert conn.in_flight == 1
     assert conn.oldest_waiting() is not None
-    receive(conn, "ok P15 B3", now=2.0)
+    receive(conn, "ok N4 P15 B3", now=2.0)
     assert [text for text, _ in replies(conn)] == ["G28"]
 
 
@@ -331,7 +332,7 @@ def test_stray_ok_with_temperatures_completes_nothing() -> None:
     assert conn.take_results() == []
     assert conn.stray_oks == 1
     assert conn.in_flight == 2
-    receive(conn, "ok", "ok")
+    receive(conn, "ok N1", "ok N2")
     assert [text for text, _ in replies(conn)] == ["G28", "M114"]
 
 
@@ -475,7 +476,7 @@ def test_a_dead_head_fails_everything_queued_behind_it_at_once_and_writes_none_o
     assert conn.data_to_send(1.0) == b""
 
 
-def test_stale_rejections_cause_no_extra_resends() -> None:
+def test_after_a_line_error_nothing_is_written_until_the_stale_lines_are_answered_then_one_at_a_time() -> None:
     conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
     texts = [f"G1 X{i}" for i in range(1, 6)]
     submit_all(conn, *texts)
@@ -484,18 +485,51 @@ def test_stale_rejections_cause_no_extra_resends() -> None:
     assert sent(conn.data_to_send(0.0)) == [wire(texts[4], 5)]
 
     # Line 2 arrives corrupted; lines 3, 4, 5 reach the printer after it flushed its buffer and are each rejected.
-    receive(conn, "Error:checksum mismatch, Last Line: 1", "Resend: 2", "ok")
-    assert sent(conn.data_to_send(0.0)) == [wire(texts[i], i + 1) for i in range(1, 5)]
-    for _ in range(3):
-        receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 1", "Resend: 2", "ok")
-        assert conn.data_to_send(0.0) == b""
+    # Writing line 2 again while they arrive would put it in the way of the next flush: wait for quiet.
+    receive(conn, "Error:checksum mismatch, Last Line: 1", "Resend: 2", "ok", now=0.01)
+    assert conn.data_to_send(0.01) == b""
+    for step in range(3):
+        now = 0.02 + step * 0.01
+        receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 1", "Resend: 2", "ok", now=now)
+        assert conn.data_to_send(now) == b""
     assert conn.resend_requests == 4
     assert [text for text, _ in replies(conn)] == ["G1 X1"]
+    quiet_at = conn.next_deadline()
+    assert quiet_at is not None and 0.04 < quiet_at <= 0.04 + 0.5
+    assert conn.data_to_send(quiet_at - 0.001) == b""
 
-    receive(conn, "ok N2 P14 B3", "ok N3 P13 B3", "ok N4 P12 B3", "ok N5 P11 B3")
+    # Quiet: every line goes out again, in order, one at a time (none on the wire behind another until the link
+    # has been clean for a while).
+    written = []
+    for number in range(2, 6):
+        written += sent(conn.data_to_send(quiet_at))
+        assert conn.in_flight == 1
+        receive(conn, f"ok N{number} P14 B3", now=quiet_at)
+    assert written == [wire(texts[i], i + 1) for i in range(1, 5)]
     assert [text for text, _ in replies(conn)] == texts[1:]
     assert conn.in_flight == 0
     assert conn.stray_oks == 0
+
+
+def test_the_window_opens_again_once_the_link_has_been_clean_for_a_while() -> None:
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
+    count = CALM_LINES + 20
+    texts = [f"G1 X{i}" for i in range(1, count + 1)]
+    conn.attach(PrintJob(texts), timeout_s=10.0)
+    assert len(sent(conn.data_to_send(0.0))) == 4
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok", now=0.001)
+    now = conn.next_deadline() or 0.0
+    widths = []
+    answered = 0
+    while answered < count:
+        batch = sent(conn.data_to_send(now))
+        widths.append(conn.in_flight)
+        for _ in batch:
+            answered += 1
+            receive(conn, f"ok N{answered}", now=now)
+        now += 0.001
+    assert widths[:CALM_LINES] == [1] * CALM_LINES
+    assert max(widths[CALM_LINES:]) == 4
 
 
 def test_discarded_lines_are_resent_when_the_printer_drops_them_silently() -> None:
@@ -505,30 +539,116 @@ def test_discarded_lines_are_resent_when_the_printer_drops_them_silently() -> No
     conn.data_to_send(0.0)
     # Line 1 is corrupted, and 2..4 sat in the receive buffer Marlin flushed: no word about them.
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")
-    assert sent(conn.data_to_send(0.0)) == [wire(texts[i], i + 1) for i in range(4)]
-    receive(conn, "ok", "ok", "ok", "ok")
+    now = conn.next_deadline() or 0.0
+    written = []
+    for number in range(1, 5):
+        written += sent(conn.data_to_send(now))
+        receive(conn, f"ok N{number}", now=now)
+    assert written == [wire(texts[i], i + 1) for i in range(4)]
     assert [text for text, _ in replies(conn)] == texts
 
 
-def test_resent_line_corrupted_again_is_resent_again() -> None:
+def test_resent_line_corrupted_again_is_resent_again_at_once() -> None:
     conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
     texts = [f"G1 X{i}" for i in range(1, 5)]
     submit_all(conn, *texts)
-    all_four = [wire(texts[i], i + 1) for i in range(4)]
-    assert sent(conn.data_to_send(0.0)) == all_four
+    conn.data_to_send(0.0)
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")  # 2..4 flushed silently
-    assert sent(conn.data_to_send(0.0)) == all_four
-    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")  # the resent line 1 hit by noise again
-    # That rejection is indistinguishable from a stale one for line 2, so nothing goes out at once; but a resent line
-    # that stays unanswered for resend_timeout_s (much shorter than the command timeout) is written again.
-    assert conn.data_to_send(0.0) == b""
-    deadline = conn.next_deadline()
-    assert deadline is not None and deadline <= conn.resend_timeout_s
-    conn.check_timeouts(deadline)
-    assert conn.take_results() == []
-    assert sent(conn.data_to_send(deadline)) == all_four
-    receive(conn, "ok", "ok", "ok", "ok")
+    quiet_at = conn.next_deadline() or 0.0
+    assert sent(conn.data_to_send(quiet_at)) == [wire(texts[0], 1)]
+    # The resent line is hit by noise again. Nothing else was on the wire (the quiet proved it), so this rejection is
+    # a fresh one: line 1 goes out again at once, with nothing to wait for.
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok", now=quiet_at)
+    assert sent(conn.data_to_send(quiet_at)) == [wire(texts[0], 1)]
+    for number in range(1, 5):
+        receive(conn, f"ok N{number}", now=quiet_at)
+        conn.data_to_send(quiet_at)
     assert [text for text, _ in replies(conn)] == texts
+
+
+def test_a_lost_ok_while_lines_wait_to_be_resent_is_probed_by_the_next_of_them() -> None:
+    # After a line error lines go out one at a time; if the ok of the one on the wire is lost, the next resend is
+    # let out after a short wait (a probe of its own: its answer proves the lost one ran), not after the timeout.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
+    texts = [f"G1 X{i}" for i in range(1, 5)]
+    job = PrintJob(texts)
+    conn.attach(job, timeout_s=10.0)
+    conn.data_to_send(0.0)
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")
+    quiet_at = conn.next_deadline() or 0.0
+    assert sent(conn.data_to_send(quiet_at)) == [wire(texts[0], 1)]
+    # Its ok is lost; nothing more goes out until the probe delay has passed.
+    assert conn.data_to_send(quiet_at + 0.01) == b""
+    probe_at = conn.next_deadline()
+    assert probe_at is not None and probe_at <= quiet_at + 1.0
+    conn.check_timeouts(probe_at)
+    assert sent(conn.data_to_send(probe_at)) == [wire(texts[1], 2)]
+    receive(conn, "ok N2", now=probe_at)
+    assert job.lines_acked == 2 and conn.lost_oks == 1
+    for number in (3, 4):
+        assert sent(conn.data_to_send(probe_at)) == [wire(texts[number - 1], number)]
+        receive(conn, f"ok N{number}", now=probe_at)
+    assert job.lines_acked == 4
+
+
+def test_the_tail_of_a_line_cut_by_a_flush_is_recognised_and_its_ok_answers_nothing() -> None:
+    # Line 1 is rejected while line 2 is half received: the flush keeps the first bytes of line 2, and the rest
+    # ("X2*...") arrives as a line of its own, which Marlin refuses as an unknown command, with an ok.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    texts = ["G1 X1", "G1 X2", "G1 X3"]
+    job = PrintJob(texts)
+    conn.attach(job, timeout_s=10.0)
+    conn.data_to_send(0.0)
+    tail = wire("G1 X2", 2)[6:].split("*")[0]
+    assert tail == "X2"
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok", f'echo:Unknown command: "{tail}"', "ok")
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok", now=0.01)
+    assert conn.fragments == 1 and conn.fragments_run == 0
+    now = conn.next_deadline() or 0.0
+    for number in range(1, 4):
+        assert sent(conn.data_to_send(now)) == [wire(texts[number - 1], number)]
+        receive(conn, "ok", now=now)
+    assert job.lines_acked == 3
+    assert conn.stray_oks == 0 and conn.lost_oks == 0
+
+
+def test_an_unknown_command_that_is_a_whole_print_line_still_stops_the_print() -> None:
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    job = PrintJob(["G1 X1", "M9999", "G1 X3"])
+    conn.attach(job, timeout_s=10.0)
+    conn.data_to_send(0.0)
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")
+    now = conn.next_deadline() or 0.0
+    conn.data_to_send(now)
+    receive(conn, "ok", now=now)
+    conn.data_to_send(now)
+    receive(conn, 'echo:Unknown command: "M9999"', "ok", now=now)
+    assert job.state is PrintState.FAILED
+    assert "M9999" in str(job.error)
+
+
+def test_a_cut_line_whose_tail_ran_stops_the_print_with_a_diagnosis() -> None:
+    # The flush cut line 2 right before its command: "G1 X2*..." arrived on its own and ran (a line out of place).
+    # Its ok is one that no command earned: the print stops and says so.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    job = PrintJob(["G1 X1", "G1 X2", "G1 X3"], name="part.gcode")
+    conn.attach(job, timeout_s=10.0)
+    conn.data_to_send(0.0)
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok", "ok")
+    assert conn.fragments_run == 1
+    assert job.state is PrintState.FAILED
+    message = str(job.error)
+    assert "ran out of place" in message and "send_ahead=False" in message and "part.gcode" in message
+
+
+def test_with_advanced_ok_a_plain_ok_never_answers_a_numbered_command() -> None:
+    conn = Connection(max_in_flight=4, advanced_ok=True)
+    submit_all(conn, "G28", "M114")
+    conn.data_to_send(0.0)
+    receive(conn, "ok P15 B3")  # no line number: not the ok of either
+    assert conn.take_results() == [] and conn.stray_oks == 1
+    receive(conn, "ok N1 P15 B3", "ok N2 P15 B3")
+    assert [text for text, _ in replies(conn)] == ["G28", "M114"]
 
 
 def test_max_resends_exceeded_fails_with_resend_limit_error() -> None:
@@ -886,8 +1006,8 @@ def test_window_respects_rx_buffer_bytes() -> None:
     assert all(len(number_command(c.text, i + 1)) + 1 == 12 for i, c in enumerate(commands))
     assert len(sent(conn.data_to_send(0.0))) == 3  # 3 x 12 bytes fit in 40, a fourth does not
     assert flying_bytes(conn, commands) == 36
-    for _ in range(6):
-        receive(conn, "ok")
+    for number in range(1, 7):
+        receive(conn, f"ok N{number}")
         assert len(sent(conn.data_to_send(0.0))) == 1
         assert flying_bytes(conn, commands) <= 40
     assert conn.queued == 0
@@ -932,7 +1052,7 @@ def test_cancel_of_a_written_command_drops_only_its_result() -> None:
     conn.data_to_send(0.0)
     assert conn.cancel(first) is False
     assert conn.in_flight == 2  # the printer will still answer it
-    receive(conn, "ok", "ok")
+    receive(conn, "ok N1", "ok N2")
     assert [text for text, _ in replies(conn)] == ["M114"]
     assert second.sends == 1
 
@@ -1106,28 +1226,6 @@ def test_a_damaged_m110_is_written_again() -> None:
     assert conn.data_to_send(0.0) == first
     receive(conn, "ok")
     assert [text for text, _ in replies(conn)] == ["M110 N0"]
-
-
-def test_a_probe_after_a_stale_looking_rejection_gets_the_line_resent_at_once() -> None:
-    # Four lines in flight; line 1 is corrupted and Marlin drops 2..4 silently. Line 1 goes out again and is
-    # corrupted again: that rejection looks stale (three were expected). The probe written after a short silence
-    # is rejected too, and that rejection must bring the resend at once, not after resend_timeout_s.
-    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
-    texts = [f"G1 X{i}" for i in range(1, 5)]
-    conn.attach(PrintJob(texts), timeout_s=10.0)  # a streaming job: the connection probes, as during a print
-    conn.data_to_send(0.0)
-    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")
-    assert len(sent(conn.data_to_send(0.0))) == 4
-    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")  # taken for stale
-    assert conn.data_to_send(0.0) == b""
-    probe_at = conn.next_deadline()
-    assert probe_at is not None and probe_at < conn.resend_timeout_s
-    conn.check_timeouts(probe_at)
-    probe = sent(conn.data_to_send(probe_at))
-    assert len(probe) == 1 and "M105" in probe[0]
-    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok")
-    again = sent(conn.data_to_send(probe_at))
-    assert again[:4] == [wire(texts[i], i + 1) for i in range(4)]
 
 
 def test_without_advanced_ok_commands_answered_by_plain_oks_go_one_at_a_time() -> None:

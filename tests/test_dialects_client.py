@@ -102,3 +102,18 @@ async def test_a_wait_that_times_out_names_the_heater_it_waited_for() -> None:
     ):
         with pytest.raises(marlin_aio.TemperatureTimeoutError, match="hotend 1 did not reach"):
             await printer.wait_for_temperatures(hotend=200, tool=1, timeout_s=0.2)
+
+
+async def test_lost_oks_of_the_handshake_and_of_the_m110_that_starts_a_print_cost_a_probe_not_the_print() -> None:
+    # Defect 8: one lost ok on the handshake's M110 or M115, or on the M110 N0 before a print, failed the connection
+    # or the print. Here the printer never sends those oks at all: each is proven processed by an answer behind it.
+    faults = Faults(drop_ok_codes=frozenset({"M110", "M115"}))
+    async with (
+        served(SimulatorConfig(motion_time_scale=0), faults) as server,
+        marlin_aio.connect(server.url, timeout_s=2.0) as printer,
+    ):
+        assert printer.firmware is not None and printer.firmware.name.startswith("Marlin")
+        progress = await printer.print_file([f"G1 X{i}\n" for i in range(20)])
+        assert progress.state is marlin_aio.PrintState.DONE
+        assert [c for c in server.printer.executed if c.startswith("G1")] == [f"G1 X{i}" for i in range(20)]
+        assert server.printer.executed.count("M110 N0") >= 2  # the handshake's and the print's

@@ -68,6 +68,8 @@ class CampaignResult:
     wrong_replies: int = 0
     unfinished_commands: int = 0
     end_s: float = 0.0
+    fragments: int = 0  # tails of cut lines the firmware refused, recognised by the host
+    fragments_run: int = 0  # tails of cut lines the firmware ran: the print stopped with that diagnosis
     problems: list[str] = field(default_factory=list)
     failures_by_kind: Counter[str] = field(default_factory=Counter)
 
@@ -212,6 +214,7 @@ def run_print(scenario: Scenario) -> CampaignResult:
             next_user = now + scenario.user_interval_s
 
     result.end_s = now
+    result.fragments, result.fragments_run = conn.fragments, conn.fragments_run
     result.state = job.state
     result.error = None if job.error is None else str(job.error)
     if job.active:
@@ -223,13 +226,35 @@ def run_print(scenario: Scenario) -> CampaignResult:
     executed = [text for text in printer.executed if text.startswith("G1 ")]
     result.lines_executed = len(executed)
     result.executed_in_order = executed == lines[: len(executed)]
-    if not result.executed_in_order:
+    # With send-ahead, a flush can cut a line in two and the firmware run its tail: the one fault no host can
+    # prevent with lines on the wire. The print must then stop at once, saying so, with that one line out of place.
+    diagnosed_fragment = (
+        job.state is PrintState.FAILED
+        and result.fragments_run > 0
+        and result.error is not None
+        and "ran out of place" in result.error
+        and _one_line_out_of_place(executed, lines)
+    )
+    if not result.executed_in_order and not diagnosed_fragment:
         result.problems.append("the firmware executed print lines out of order, twice or not at all")
     if job.state is PrintState.DONE and len(executed) != len(lines):
         result.problems.append(f"the print ended DONE with {len(executed)} of {len(lines)} lines executed")
-    if job.state is PrintState.FAILED and scenario.reset_at_line is None and scenario.silent_at_line is None:
+    if job.state is PrintState.DONE and result.fragments_run:
+        result.problems.append("a cut line ran on its own and the print still ended DONE")
+    expected_failure = scenario.reset_at_line is not None or scenario.silent_at_line is not None
+    if job.state is PrintState.FAILED and not expected_failure and not diagnosed_fragment:
         result.problems.append(f"the print failed on a link that should carry it: {result.error}")
     return result
+
+
+def _one_line_out_of_place(executed: list[str], lines: list[str]) -> bool:
+    """True if `executed` is the start of `lines` with one extra line somewhere in it (the tail of a cut line, which
+    the link may have damaged too)."""
+    for at in range(len(executed)):
+        rest = executed[:at] + executed[at + 1 :]
+        if rest == lines[: len(rest)]:
+            return True
+    return False
 
 
 def _check_reply(command: Command, reply: Reply, kind: str, result: CampaignResult) -> None:

@@ -262,6 +262,8 @@ class Faults:
     not_executed_ratio: float = 0.0
     """Share of commands a host-side bridge does not pass on: each is answered with
     `!! Lost communication with MCU 'mcu'` and `ok`, and is not run (not in `executed`)."""
+    drop_ok_codes: frozenset[str] = frozenset()
+    """Commands (by code: `"M110"`, `"M115"`) that run, print their reply lines, and never get their `ok`."""
 
 
 @dataclass(slots=True)
@@ -725,6 +727,8 @@ class SimulatedPrinter:
     def _send_ok(self, command: _Command) -> None:
         ratio = self.faults.drop_ok_ratio
         if ratio > 0.0 and self._drop_ok_rng.random() < ratio:
+            return
+        if command.code in self.faults.drop_ok_codes:
             return
         self._emit(self._ok_line(command))
 
