@@ -31,10 +31,10 @@ from marlin_aio.connection import Command, Connection, Reply
 from marlin_aio.errors import (
     ChecksumRequiredError,
     CommandTimeoutError,
-    LostReplyError,
     ConnectionLostError,
     HandshakeError,
     HandshakeTimeoutError,
+    LostReplyError,
     MarlinError,
     PrinterHaltedError,
     PrinterLockedError,
