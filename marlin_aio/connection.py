@@ -239,8 +239,9 @@ class Connection:
         # been quiet this long (every stale line and fragment has arrived and been answered), then resend.
         self._drain_until: float | None = None
         self._calm_left = 0  # print lines still to be answered one at a time after the last line error
+        self._accepted_through = 0  # the printer has taken every numbered line up to this one (it cannot reject it)
         self._fragment_wires: list[tuple[str, str]] = []  # (wire, text) of lines a flush may have cut in two
-        self._nudged: Command | None = None  # the oldest command when a queued resend was let out to probe it
+        self._probed_s = 0.0  # when the last probe (an M105, or a resend let out early) was written
         self._nudge_pending = False  # let the next resend out past the window, as a probe
         self._fragment_oks = 0  # oks still due for fragments the firmware reported as unknown commands
         self.fragments = 0  # pieces of lines the printer received on their own after a flush (and refused)
@@ -331,7 +332,7 @@ class Connection:
         chunks: list[bytes] = []
         # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.
         limit = self.rx_buffer_bytes - (self.probe_reserve_bytes if self.job is not None else 0)
-        window = 1 if self._calm_left > 0 else self.max_in_flight
+        calm = self._calm_left > 0
         while True:
             if self._queue:
                 command = self._queue[0]
@@ -343,7 +344,8 @@ class Connection:
             nudge = self._nudge_pending and bool(command.wire)
             self._nudge_pending = False
             if self._in_flight and (
-                (len(self._in_flight) >= window and not (command.probe or nudge))
+                (len(self._in_flight) >= self.max_in_flight and not command.probe)
+                or (calm and not (command.probe or nudge) and self._rejectable_in_flight())
                 or self._in_flight_bytes + self._wire_size(command) > (self.rx_buffer_bytes if command.probe else limit)
                 or not self._answer_stays_distinct(command)
             ):
@@ -362,6 +364,11 @@ class Connection:
                 command.job.sent()
             chunks.append(self._write(command, now))
         return b"".join(chunks)
+
+    def _rejectable_in_flight(self) -> bool:
+        """Is a numbered line on the wire that the printer may still reject (and so flush what follows it)?"""
+        through = self._accepted_through
+        return any(c.line_number is not None and c.line_number > through for c in self._in_flight)
 
     def _answer_stays_distinct(self, command: Command) -> bool:
         """May `command` go out now without its answer becoming confusable with another's if an ok is lost?
@@ -446,6 +453,7 @@ class Connection:
         command.line_number = self._line_number_for(command)
         if command.code == "M110":
             self._forget_history()
+            self._accepted_through = command.line_number - 1
         self._next_line = command.line_number + 1
         command.wire = number_command(command.text, command.line_number).encode("ascii") + b"\n"
         self._history[command.line_number] = command
@@ -616,6 +624,8 @@ class Connection:
 
     def _settle(self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float) -> None:
         """Finish one command taken off the FIFO: answered by `ok`, or (ok None) processed with its ok lost."""
+        if command.line_number is not None and command.line_number > self._accepted_through:
+            self._accepted_through = command.line_number
         if self._stale == 0 or (self._resend_from is not None and (command.line_number or 0) >= self._resend_from):
             # The firmware has reached the lines written again: nothing older can still answer.
             self._stale = 0
@@ -694,6 +704,8 @@ class Connection:
 
     def _on_resend(self, line_number: int, now: float, *, rejected: bool = False) -> None:
         self.resend_requests += 1
+        # The printer took every line before the one it asks for.
+        self._accepted_through = max(self._accepted_through, line_number - 1)
         # The ok right after a resend request answers nothing. (M999 prints `Resend:` and `ok` too, then its own ok.)
         self._swallow_ok = self.ok_after_resend
         if line_number != self._resend_from:
@@ -869,6 +881,7 @@ class Connection:
         self._halt_recoverable = False
         self._thermal_message = None
         self._next_line = 1
+        self._accepted_through = 0
 
     def _fail_everything(self, error: MarlinError) -> None:
         if self.job is not None:
@@ -924,7 +937,7 @@ class Connection:
         """(time out, write again, probe) for the oldest command; inf where that step does not apply."""
         start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
         resend_at = start + min(head.timeout_s, self.resend_timeout_s) if self._resending(head) else math.inf
-        probe_at = start + self.probe_delay_s() if self._may_probe(head) else math.inf
+        probe_at = max(start, self._probed_s) + self.probe_delay_s() if self._may_probe() else math.inf
         return start + head.timeout_s, resend_at, probe_at
 
     def _resending(self, head: Command) -> bool:
@@ -935,7 +948,7 @@ class Connection:
             and head.sends <= self.max_resends
         )
 
-    def _may_probe(self, head: Command) -> bool:
+    def _may_probe(self) -> bool:
         # Only while a job streams: outside prints a probe M105 could answer a user's own M105 (say M105 T9).
         return (
             self.job is not None
@@ -943,7 +956,6 @@ class Connection:
             and self._probe is None
             and self.numbered
             and self._drain_until is None
-            and self._nudged is not head
         )
 
     def probe_delay_s(self) -> float:
@@ -973,17 +985,20 @@ class Connection:
                 return
             head = self._in_flight[0]
             timeout_at, resend_at, probe_at = self._deadlines(head)
-            if now >= resend_at and head.line_number is not None:
-                # A resent line went unanswered: its rejection was probably taken for a stale one. Resend again.
+            last_in = self.trace.last_received
+            talking = last_in is not None and last_in.time_s > (head.head_since_s or 0.0)
+            if now >= resend_at and head.line_number is not None and talking:
+                # A resent line went unanswered while the printer talked: its rejection was probably taken for a
+                # stale one. Resend again. (A silent printer is not helped by resends: it times out below.)
                 self._stale = 0
                 self._resend(head.line_number, now)
                 continue
             if now < timeout_at:
                 if now >= probe_at:
+                    self._probed_s = now
                     if self._queue and self._queue[0].wire:
                         # Lines wait to be written again (one at a time, behind this one): the next of them is as
                         # good a probe as an M105, and a new M105 would take a line number ahead of theirs.
-                        self._nudged = head
                         self._nudge_pending = True
                     else:
                         self._send_probe(now)
@@ -1046,7 +1061,11 @@ class Connection:
         self._next_id += 1
         probe = Command(self._next_id, "M105", "M105", True, self.stream_timeout_s, now, probe=True)
         self._probe = probe
-        self._queue.appendleft(probe)
+        # Behind any lines waiting to be written again (their numbers come first), ahead of everything new.
+        at = 0
+        while at < len(self._queue) and self._queue[at].wire:
+            at += 1
+        self._queue.insert(at, probe)
 
     def _stall_job(self, head: Command, now: float) -> None:
         """The stream got no answer within the timeout: end the print with a diagnosis, drop its lines."""

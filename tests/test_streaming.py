@@ -67,9 +67,10 @@ async def test_clean_stream_executes_every_line_once_in_order(
     assert fast_sim.printer.rx_overflows == 0
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
-@pytest.mark.parametrize("send_ahead", [True, False], ids=["send-ahead", "ping-pong"])
-async def test_a_faulty_link_still_executes_every_line_once_in_order(seed: int, send_ahead: bool) -> None:
+async def test_a_faulty_link_still_executes_every_line_once_in_order() -> None:
+    # One run through the real serial stack; the fault campaign (tests/test_campaign.py) covers seeds and modes in
+    # simulated time.
+    seed, send_ahead = 1, False
     faults = Faults(corrupt_rx_ratio=0.02, drop_ok_ratio=0.005, noise_ratio=0.01)
     # Dwells inside the file: the printer sends busy keepalives while they run, which must not stall the stream.
     dwells = {index: "G4 P2500" for index in (3_000, 9_000, 15_000)}

@@ -70,6 +70,7 @@ class CampaignResult:
     end_s: float = 0.0
     fragments: int = 0  # tails of cut lines the firmware refused, recognised by the host
     fragments_run: int = 0  # tails of cut lines the firmware ran: the print stopped with that diagnosis
+    tail_ran_after_reset: bool = False  # the board reset mid-line and ran the rest of that line afterwards
     problems: list[str] = field(default_factory=list)
     failures_by_kind: Counter[str] = field(default_factory=Counter)
 
@@ -228,14 +229,17 @@ def run_print(scenario: Scenario) -> CampaignResult:
     result.executed_in_order = executed == lines[: len(executed)]
     # With send-ahead, a flush can cut a line in two and the firmware run its tail: the one fault no host can
     # prevent with lines on the wire. The print must then stop at once, saying so, with that one line out of place.
+    one_extra = not result.executed_in_order and _one_line_out_of_place(executed, lines)
+    failed_with = result.error if job.state is PrintState.FAILED and result.error is not None else ""
+    # (The line that ran may be a user's command or a poll rather than a print line.)
     diagnosed_fragment = (
-        job.state is PrintState.FAILED
-        and result.fragments_run > 0
-        and result.error is not None
-        and "ran out of place" in result.error
-        and _one_line_out_of_place(executed, lines)
+        (result.executed_in_order or one_extra) and result.fragments_run > 0 and "ran out of place" in failed_with
     )
-    if not result.executed_in_order and not diagnosed_fragment:
+    # A board that resets mid-line forgets the line numbering; the tail of the line then on the wire reaches the
+    # fresh board as a command of its own (the host cannot stop bytes already sent). The print has stopped with
+    # the reset's diagnosis.
+    result.tail_ran_after_reset = one_extra and scenario.reset_at_line is not None and "reset" in failed_with
+    if not result.executed_in_order and not (diagnosed_fragment or result.tail_ran_after_reset):
         result.problems.append("the firmware executed print lines out of order, twice or not at all")
     if job.state is PrintState.DONE and len(executed) != len(lines):
         result.problems.append(f"the print ended DONE with {len(executed)} of {len(lines)} lines executed")
