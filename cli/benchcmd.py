@@ -339,8 +339,8 @@ async def _check_order(printer: marlin_aio.Printer, settings: BenchSettings) -> 
         # Tasks resume in the order their futures were resolved, which is the order the oks were read.
         check.answered(n, _echo_numbers(reply.lines))
 
-    saved = connection.max_in_flight
-    connection.max_in_flight = _SEND_AHEAD_MAX_IN_FLIGHT
+    saved = connection.window
+    connection.set_window(_SEND_AHEAD_MAX_IN_FLIGHT, saved[1])
     start_s = loop.time()
     sent = 0
     try:
@@ -357,7 +357,7 @@ async def _check_order(printer: marlin_aio.Printer, settings: BenchSettings) -> 
         while tasks:
             await asyncio.wait(set(tasks))
     finally:
-        connection.max_in_flight = saved
+        connection.set_window(*saved)
         for task in tasks:
             task.cancel()
     if failure is not None:

@@ -409,12 +409,14 @@ class Printer:
         """Write M112 at once, ahead of anything queued; the printer halts and needs a reset.
 
         Every command still waiting fails with `PrinterHaltedError` right away.
+
+        Raises:
+            ConnectionLostError: the port is closed or lost, so M112 cannot reach the printer (cut its power).
         """
         if self._transport is None or self._lost is not None:
-            return
-        self._transport.write(self._conn.emergency("M112", now=self._running_loop().time()))
-        self._conn.halted = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
-        self._conn.fail_all(self._conn.halted)
+            reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
+            raise ConnectionLostError(f"cannot send the emergency stop (M112): {reason}")
+        self._transport.write(self._conn.emergency_stop(self._running_loop().time()))
         self._deliver_results()
 
     # ------------------------------------------------------------------------------------------- temperatures
@@ -656,10 +658,8 @@ class Printer:
         job = PrintJob.from_path(Path(source), check=check) if isinstance(source, str | Path) else PrintJob(source)
         await self._send_until_processed("M110 N0")  # the print's numbering starts fresh
         job.start_s = loop.time()
-        self._saved_window = (self._conn.max_in_flight, self._conn.rx_buffer_bytes)
-        self._conn.max_in_flight = 64 if send_ahead else 1
-        if window_bytes is not None:
-            self._conn.rx_buffer_bytes = window_bytes
+        self._saved_window = self._conn.window
+        self._conn.set_window(64 if send_ahead else 1, window_bytes or self._conn.rx_buffer_bytes)
         self._conn.attach(job, timeout_s=self.timeout_s if timeout_s is None else timeout_s)
         handle = PrintHandle(self, job, loop.create_future())
         self._print = handle
@@ -691,7 +691,7 @@ class Printer:
         if handle is None or handle._done.done() or not handle.job.finished:
             return
         if self._saved_window is not None:
-            self._conn.max_in_flight, self._conn.rx_buffer_bytes = self._saved_window
+            self._conn.set_window(*self._saved_window)
             self._saved_window = None
         job = handle.job
         if job.state is PrintState.FAILED and job.error is not None:

@@ -321,6 +321,34 @@ class Connection:
         self.trace.sent(now, wire.decode("ascii").rstrip("\n"))
         return wire
 
+    def emergency_stop(self, now: float) -> bytes:
+        """Return M112's bytes, to write at once ahead of anything queued; from now on the printer is halted (it
+        needs a reset), and every command still waiting fails with `PrinterHaltedError`."""
+        wire = self.emergency("M112", now=now)
+        self.halted = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
+        self._halt_recoverable = False
+        self._fail_everything(self.halted)
+        return wire
+
+    @property
+    def window(self) -> tuple[int, int]:
+        """(max_in_flight, rx_buffer_bytes): how many commands and unanswered bytes may be on the wire."""
+        return self.max_in_flight, self.rx_buffer_bytes
+
+    def set_window(self, max_in_flight: int, rx_buffer_bytes: int) -> None:
+        """Change how many commands and unanswered bytes may be on the wire (a print's send-ahead, a benchmark);
+        what is already in flight stays.
+
+        Raises:
+            ValueError: `max_in_flight` below 1 or `rx_buffer_bytes` below 16.
+        """
+        if max_in_flight < 1:
+            raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
+        if rx_buffer_bytes < 16:
+            raise ValueError(f"rx_buffer_bytes must be at least 16, got {rx_buffer_bytes}")
+        self.max_in_flight = max_in_flight
+        self.rx_buffer_bytes = rx_buffer_bytes
+
     def data_to_send(self, now: float) -> bytes:
         """Return the bytes to write now: resends first, then queued commands, then print job lines, as far as the
         window allows."""

@@ -216,6 +216,13 @@ async def test_emergency_stop_is_written_at_once_and_fails_what_waits(
     assert not any("G4 S11" in text for text in sent)
 
 
+async def test_emergency_stop_on_a_closed_printer_raises_instead_of_doing_nothing(pty_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(pty_sim.url) as printer:
+        pass
+    with pytest.raises(marlin_aio.ConnectionLostError, match="M112"):
+        printer.emergency_stop()
+
+
 async def test_bad_commands_are_rejected_before_anything_is_written(
     printer: marlin_aio.Printer, pty_sim: SimulatorServer
 ) -> None:

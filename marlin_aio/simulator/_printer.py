@@ -440,6 +440,12 @@ class SimulatedPrinter:
         self._emit(f"Error:Thermal Runaway, system stopped! Heater_ID: {heater}")
         self._kill()
 
+    @property
+    def thermal_steps(self) -> int:
+        """Grid steps the thermal model has integrated one by one, over all heaters (its work, for tests)."""
+        self._sync_thermal()
+        return sum(heater.integrated_steps for heater in self._heaters_by_name.values())
+
     def heater_celsius(self, name: str) -> float:
         """Current simulated temperature of heater `name`: "T0", "T1", ... "B" (bed) or "C" (chamber).
 
