@@ -170,7 +170,7 @@ async def marlin_polling(spec: Result) -> Result:
             collector.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await collector
-        timeouts = printer.connection.timeouts
+        timeouts = printer.stats.timeouts
     return {
         "readings": len(poll_times),
         "other_readings": other_readings,

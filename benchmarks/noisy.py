@@ -49,7 +49,7 @@ async def print_once(lines: int, corrupt: float, seed: int, *, send_ahead: bool)
                 progress = await printer.print_file((line(i) + "\n" for i in range(lines)), send_ahead=send_ahead)
                 state, resends = progress.state.name, progress.resends
             except marlin_aio.MarlinError as exc:
-                state, resends, error = "FAILED", printer.connection.resend_requests, str(exc)
+                state, resends, error = "FAILED", printer.stats.resend_requests, str(exc)
             seconds = time.perf_counter() - started
         executed = [c for c in server.printer.executed if c.startswith("G1 ")]
     return Run(state, executed == [line(i) for i in range(lines)], seconds, resends, error)

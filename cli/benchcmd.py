@@ -292,9 +292,7 @@ def _echo_numbers(lines: tuple[str, ...]) -> list[int]:
 async def _check_order(printer: marlin_aio.Printer, settings: BenchSettings) -> CorrectnessResult:
     loop = asyncio.get_running_loop()
     deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
-    connection = printer.connection
-    resends_before = connection.resend_requests
-    lost_before = connection.lost_oks
+    before = printer.stats
     check = OrderCheck()
     failure: marlin_aio.MarlinError | None = None
     numbered_oks = False  # the printer names the line in each ok (ADVANCED_OK): no witness needed
@@ -339,38 +337,37 @@ async def _check_order(printer: marlin_aio.Printer, settings: BenchSettings) -> 
         # Tasks resume in the order their futures were resolved, which is the order the oks were read.
         check.answered(n, _echo_numbers(reply.lines))
 
-    saved = connection.window
-    connection.set_window(_SEND_AHEAD_MAX_IN_FLIGHT, saved[1])
     start_s = loop.time()
     sent = 0
-    try:
-        while failure is None and ((sent < settings.lines) if deadline is None else (loop.time() < deadline)):
-            await slots.acquire()
-            start(one(sent), f"marlin-temp bench line {sent}")
-            if not numbered_oks:
-                # Without ADVANCED_OK only an M105's ok names its command: a witness behind each line.
-                start(witness(), f"marlin-temp bench witness {sent}")
-            sent += 1
-        if failure is None and numbered_oks:
-            # With ADVANCED_OK the next ok proves a lost one, but nothing follows the last line: this does.
-            start(witness(), "marlin-temp bench witness")
-        while tasks:
-            await asyncio.wait(set(tasks))
-    finally:
-        connection.set_window(*saved)
-        for task in tasks:
-            task.cancel()
+    with printer.sending_ahead(_SEND_AHEAD_MAX_IN_FLIGHT):
+        try:
+            while failure is None and ((sent < settings.lines) if deadline is None else (loop.time() < deadline)):
+                await slots.acquire()
+                start(one(sent), f"marlin-temp bench line {sent}")
+                if not numbered_oks:
+                    # Without ADVANCED_OK only an M105's ok names its command: a witness behind each line.
+                    start(witness(), f"marlin-temp bench witness {sent}")
+                sent += 1
+            if failure is None and numbered_oks:
+                # With ADVANCED_OK the next ok proves a lost one, but nothing follows the last line: this does.
+                start(witness(), "marlin-temp bench witness")
+            while tasks:
+                await asyncio.wait(set(tasks))
+        finally:
+            for task in tasks:
+                task.cancel()
+    after = printer.stats
     if failure is not None:
         raise failure
     return CorrectnessResult(
         lines_sent=sent,
         oks_in_order=check.in_order,
         out_of_order=check.out_of_order,
-        resends=connection.resend_requests - resends_before,
+        resends=after.resend_requests - before.resend_requests,
         timeouts=check.timeouts,
         max_in_flight=_SEND_AHEAD_MAX_IN_FLIGHT,
         elapsed_s=loop.time() - start_s,
-        lost_oks=connection.lost_oks - lost_before,
+        lost_oks=after.lost_oks - before.lost_oks,
         withheld=check.withheld,
         numbered_oks=numbered_oks,
     )
@@ -387,9 +384,8 @@ async def _measure_throughput(printer: marlin_aio.Printer, settings: BenchSettin
             count += 1
             yield STREAM_COMMAND
 
-    connection = printer.connection
-    window = connection.rx_buffer_bytes - connection.probe_reserve_bytes
-    received_before = printer.bytes_received
+    window = printer.send_ahead_window_bytes
+    received_before = printer.stats.bytes_received
     handle: marlin_aio.PrintHandle | None = None
     stall = None
     try:
@@ -399,12 +395,12 @@ async def _measure_throughput(printer: marlin_aio.Printer, settings: BenchSettin
         # A stalled stream (or an unanswered M110 N0 before it) is reported with the figures so far.
         stall = str(exc).split(";")[0]
     if handle is None:
-        return ThroughputResult(0, 0, printer.bytes_received - received_before, 0.0, 0, window, stall)
+        return ThroughputResult(0, 0, printer.stats.bytes_received - received_before, 0.0, 0, window, stall)
     progress = handle.progress
     return ThroughputResult(
         lines=progress.lines_acked,
         bytes_sent=progress.bytes_acked,
-        bytes_received=printer.bytes_received - received_before,
+        bytes_received=printer.stats.bytes_received - received_before,
         elapsed_s=progress.elapsed_s,
         resends=progress.resends,
         window_bytes=window,

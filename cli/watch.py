@@ -61,16 +61,16 @@ class _Baseline:
     @classmethod
     def now(cls, model: WatchModel, printer: marlin_aio.Printer) -> _Baseline:
         """The baseline for `printer`, just connected."""
-        conn = printer.connection
-        return cls(conn.timeouts, conn.failed, conn.resets, model.timeouts, model.errors)
+        stats = printer.stats
+        return cls(stats.timeouts, stats.failed, stats.resets, model.timeouts, model.errors)
 
 
 def _update_link_stats(model: WatchModel, printer: marlin_aio.Printer, since: float, baseline: _Baseline) -> float:
     """Copy counters and new round trips from the client into the model; return the newest round-trip time."""
-    conn = printer.connection
-    timeouts = conn.timeouts - baseline.timeouts
-    failures = conn.failed - baseline.failed - timeouts
-    resets = conn.resets - baseline.resets
+    stats = printer.stats
+    timeouts = stats.timeouts - baseline.timeouts
+    failures = stats.failed - baseline.failed - timeouts
+    resets = stats.resets - baseline.resets
     model.timeouts = baseline.model_timeouts + timeouts
     # watch has at most one command in flight (its poll), so a reset fails at most one. The larger count is what
     # went wrong without counting a reset twice, nor missing one that came between two polls.

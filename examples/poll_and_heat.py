@@ -80,7 +80,7 @@ async def run(port: str, seconds: float, hotend: float, bed: float) -> int:
 
     polls = [r for r in readings if r.source == "poll"]
     intervals = [b.monotonic_s - a.monotonic_s for a, b in itertools.pairwise(polls)]
-    conn = printer.connection
+    stats = printer.stats
     print(outcome)
     print(f"readings: {len(readings)} ({len(polls)} from polls) in {wall:.1f} s = {len(polls) / wall:.1f} polls/s")
     if intervals:
@@ -89,13 +89,12 @@ async def run(port: str, seconds: float, hotend: float, bed: float) -> int:
         print(f"poll interval: median {statistics.median(intervals) * 1000:.2f} ms, p99 {p99 * 1000:.2f} ms")
     print(f"client CPU: {cpu:.2f} s over {wall:.1f} s ({cpu / wall * 60:.2f} CPU s per minute)")
     print(
-        f"commands: {conn.submitted} sent = {conn.answered} answered + {conn.failed} failed + {conn.cancelled} "
-        f"withdrawn + {conn.in_flight + conn.queued} pending; {conn.timeouts} timeouts, "
-        f"{conn.resend_requests} resend requests, {conn.stray_oks} stray oks"
+        f"commands: {stats.submitted} sent = {stats.answered} answered + {stats.failed} failed + "
+        f"{stats.cancelled} withdrawn + {stats.in_flight + stats.queued} pending; {stats.timeouts} timeouts, "
+        f"{stats.resend_requests} resend requests, {stats.stray_oks} stray oks"
     )
-    accounted = conn.answered + conn.failed + conn.cancelled + conn.in_flight + conn.queued == conn.submitted
-    print("every command accounted for" if accounted else "MISMATCH: some command is unaccounted for")
-    return 0 if accounted else 1
+    print("every command accounted for" if stats.accounted else "MISMATCH: some command is unaccounted for")
+    return 0 if stats.accounted else 1
 
 
 def main() -> int:

@@ -56,6 +56,7 @@ from marlin_aio.events import (
 from marlin_aio.framing import LineSplitter
 from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
+from marlin_aio.stats import LinkStats
 from marlin_aio.temperatures import HeaterReading, TemperatureReading, Temperatures, parse_temperatures
 from marlin_aio.trace import Trace, TraceEntry
 
@@ -83,6 +84,7 @@ __all__ = [
     "HeaterReading",
     "HostAction",
     "LineSplitter",
+    "LinkStats",
     "LostReplyError",
     "MarlinError",
     "Ok",

@@ -46,13 +46,12 @@ from marlin_aio.events import (
     Event,
     FirmwareInfo,
     Ok,
-    OverlongLine,
     TargetTemperature,
     TemperatureReport,
-    UnrecognisedLine,
 )
 from marlin_aio.parsing import parse_endstops, parse_position
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
+from marlin_aio.stats import LinkStats
 from marlin_aio.temperatures import TemperatureReading, Temperatures
 from marlin_aio.trace import Trace
 
@@ -179,10 +178,8 @@ class Printer:
         self.firmware: FirmwareInfo | None = None
         self.capabilities: dict[str, bool] = {}
         self._targets: dict[str, float] = {}  # from Repetier-style target lines, for reports that lack targets
-        self.bytes_received = 0
         #: (answered at, round trip) of the latest replies, on the loop's clock: for latency figures.
         self.round_trips: deque[tuple[float, float]] = deque(maxlen=8192)
-        self.garbage_lines = 0
         self._transport: asyncio.Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._waiters: dict[int, asyncio.Future[Reply]] = {}
@@ -356,21 +353,22 @@ class Printer:
             )
 
     def _silence_explanation(self) -> str:
-        if self.bytes_received == 0:
+        stats = self._conn.stats()
+        if stats.bytes_received == 0:
             return (
                 f"no answer from {self.port} within {self.timeout_s:g} s: nothing was received "
                 "(is this the printer's port, and is it powered?)"
             )
-        if self.garbage_lines:
+        if stats.garbage_lines:
             other = 115_200 if self.baudrate != 115_200 else 250_000
             return (
-                f"no answer from {self.port} within {self.timeout_s:g} s: {self.bytes_received} bytes of garbage "
+                f"no answer from {self.port} within {self.timeout_s:g} s: {stats.bytes_received} bytes of garbage "
                 f"received; wrong baud rate? {self.baudrate} is set, try {other}"
             )
         said = [entry.text for entry in self._conn.trace.entries() if entry.direction == "received"][-3:]
         quoted = "; it said: " + " | ".join(repr(line) for line in said) if said else ""
         return (
-            f"no 'ok' from {self.port} within {self.timeout_s:g} s, though it sent {self.bytes_received} bytes{quoted}"
+            f"no 'ok' from {self.port} within {self.timeout_s:g} s, though it sent {stats.bytes_received} bytes{quoted}"
         )
 
     # ------------------------------------------------------------------------------------------- commands
@@ -748,9 +746,32 @@ class Printer:
         return self._conn.trace
 
     @property
-    def connection(self) -> Connection:
-        """The protocol state (counters such as `timeouts`, `resend_requests`, `resets`)."""
-        return self._conn
+    def stats(self) -> LinkStats:
+        """A snapshot of the link's counters (commands answered and failed, timeouts, resends, resets, lost oks,
+        bytes received), taken now; it does not change afterwards."""
+        return self._conn.stats()
+
+    @property
+    def send_ahead_window_bytes(self) -> int:
+        """How many unanswered bytes a send-ahead print keeps on the wire by default: the printer's receive buffer
+        less the room kept for a probe or a command of yours."""
+        return self._conn.rx_buffer_bytes - self._conn.probe_reserve_bytes
+
+    @contextlib.contextmanager
+    def sending_ahead(self, max_in_flight: int) -> Generator[None]:
+        """Let up to `max_in_flight` commands share the wire while the block runs (a benchmark's concurrent
+        `send()`s); the window is restored afterwards. Commands whose answers could be confused still go one at a
+        time (see `marlin_aio.connection`).
+
+        Raises:
+            ValueError: `max_in_flight` is below 1.
+        """
+        saved = self._conn.window
+        self._conn.set_window(max_in_flight, saved[1])
+        try:
+            yield
+        finally:
+            self._conn.set_window(*saved)
 
     @property
     def is_connected(self) -> bool:
@@ -767,7 +788,6 @@ class Printer:
     def _on_data(self, data: bytes) -> None:
         loop = self._running_loop()
         now = loop.time()
-        self.bytes_received += len(data)
         events = self._conn.receive_data(data, now)
         if events:
             if self._line_seen is not None:
@@ -796,8 +816,6 @@ class Printer:
         elif kind is FirmwareInfo:
             assert isinstance(event, FirmwareInfo)
             self.firmware = event
-        elif kind is OverlongLine or (kind is UnrecognisedLine and "\ufffd" in getattr(event, "text", "")):
-            self.garbage_lines += 1
 
     def _reading(self, temperatures: Temperatures, now: float, source: str) -> TemperatureReading:
         """A reading of `temperatures`, with the targets of Repetier-style `TargetExtr0:` lines filled in where the

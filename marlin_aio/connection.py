@@ -74,6 +74,7 @@ from marlin_aio.events import (
     Event,
     FirmwareInfo,
     Ok,
+    OverlongLine,
     PrinterLocked,
     ResendRequest,
     Start,
@@ -83,6 +84,7 @@ from marlin_aio.events import (
 )
 from marlin_aio.parsing import EventParser
 from marlin_aio.printjob import PrintJob, PrintState
+from marlin_aio.stats import LinkStats
 from marlin_aio.temperatures import Temperatures
 from marlin_aio.trace import Trace
 
@@ -258,6 +260,8 @@ class Connection:
         self.locked = False  # the printer said "Printer locked!" and has not run a command since
         self.requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
         self.garbage_lines = 0  # lines of noise received (not given to any command)
+        self.bytes_received = 0
+        self._submitted = 0  # commands accepted by submit() (print lines and probes are not commands of anyone's)
         self.timeouts = 0
         # Every submitted command ends up counted once: answered + failed + cancelled + still queued or in flight.
         self.answered = 0
@@ -282,6 +286,7 @@ class Connection:
         if not checked:
             if self.halted is not None:
                 raise self.halted
+            self._submitted += 1
             self._next_id += 1
             command = Command(self._next_id, text, command_code(text), use_numbers, timeout_s, now)
             self._queue.append(command)
@@ -301,6 +306,7 @@ class Connection:
             raise self.halted
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be positive, got {timeout_s}")
+        self._submitted += 1
         self._next_id += 1
         command = Command(self._next_id, stripped, code, use_numbers, timeout_s, now)
         self._queue.append(command)
@@ -514,6 +520,7 @@ class Connection:
         as an answer may open the window for more.
         """
         self._now = now
+        self.bytes_received += len(data)
         events: list[Event] = []
         for text, event in self._parser.receive_data(data):
             self.trace.received(now, text)
@@ -558,7 +565,7 @@ class Connection:
             self._on_error(event, now)
         elif kind is Start:
             self._on_start()
-        elif kind is UnrecognisedLine and _is_garbage(text):
+        elif kind is OverlongLine or (kind is UnrecognisedLine and _is_garbage(text)):
             # Noise from the link (a baud glitch, a reset) is nobody's reply.
             self.garbage_lines += 1
         elif kind is UnknownCommand and self._is_fragment(event):
@@ -1156,10 +1163,31 @@ class Connection:
             self.failed += 1
         self._results.append((command, outcome))
 
+    def stats(self) -> LinkStats:
+        """A frozen snapshot of the counters."""
+        return LinkStats(
+            submitted=self._submitted,
+            answered=self.answered,
+            failed=self.failed,
+            cancelled=self.cancelled,
+            in_flight=len(self._in_flight),
+            queued=len(self._queue),
+            timeouts=self.timeouts,
+            resend_requests=self.resend_requests,
+            resets=self.resets,
+            lost_oks=self.lost_oks,
+            stray_oks=self.stray_oks,
+            garbage_lines=self.garbage_lines,
+            probes=self.probes,
+            fragments=self.fragments,
+            fragments_run=self.fragments_run,
+            bytes_received=self.bytes_received,
+        )
+
     @property
     def submitted(self) -> int:
         """How many commands were accepted by `submit()` in all."""
-        return self._next_id
+        return self._submitted
 
     def take_results(self) -> list[tuple[Command, Reply | MarlinError]]:
         """Return and forget the commands finished since the last call, with their reply or error."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import os
 
 import pytest
@@ -67,8 +68,8 @@ async def test_polling_at_100_hz_while_other_commands_run(
         # G4 S4 holds the queue 4 simulated seconds (0.2 s here): some 20 poll slots pass behind it. They must be
         # skipped, not queued up to burst out afterwards: at most the one poll already waiting may remain.
         await printer.send("G4 S4")
-        assert printer.connection.queued == 0
-        assert printer.connection.in_flight <= 1
+        assert printer.stats.queued == 0
+        assert printer.stats.in_flight <= 1
         entries = printer.trace.entries()
     collector.cancel()
     dwell_sent = max(i for i, e in enumerate(entries) if e.direction == "sent" and "G4 S4" in e.text)
@@ -76,7 +77,7 @@ async def test_polling_at_100_hz_while_other_commands_run(
     assert not any(e.direction == "sent" for e in entries[dwell_sent + 1 : dwell_ok]), "a poll went out mid-dwell"
     assert all(reply.lines == () for reply in replies)
     assert executed_codes(pty_sim, "G1 ") == moves
-    assert printer.connection.timeouts == 0
+    assert printer.stats.timeouts == 0
     poll_times = [r.monotonic_s for r in readings if r.source == "poll"]
     assert poll_times == sorted(poll_times)
 
@@ -115,7 +116,7 @@ async def test_long_m190_with_keepalives_never_times_out() -> None:
         collector.cancel()
         assert reply.latency_s > 0.5
         assert len(wait_lines) >= 3
-        assert printer.connection.timeouts == 0
+        assert printer.stats.timeouts == 0
         assert server.printer.heater_celsius("B") >= 44.0
 
 
@@ -145,7 +146,7 @@ async def test_corrupted_lines_are_resent_and_executed_exactly_once(pty_sim: Sim
         moves = [f"G1 X{i} Y{i % 7} F9000" for i in range(80)]
         for move in moves:
             await printer.send(move)
-        assert printer.connection.resend_requests > 0
+        assert printer.stats.resend_requests > 0
     assert executed_codes(pty_sim, "G1 ") == moves
 
 
@@ -168,7 +169,7 @@ async def test_a_reset_fails_the_waiting_command_and_the_link_recovers(
         await pending
     reading = await printer.temperatures()
     assert reading.hotend is not None
-    assert printer.connection.resets == 1
+    assert printer.stats.resets == 1
 
 
 async def test_thermal_runaway_halts_with_the_printers_message(
@@ -214,6 +215,21 @@ async def test_emergency_stop_is_written_at_once_and_fails_what_waits(
     sent = [e.text for e in printer.trace.entries() if e.direction == "sent"]
     assert sent[-1] == "M112"
     assert not any("G4 S11" in text for text in sent)
+
+
+async def test_stats_is_a_frozen_snapshot_that_accounts_for_every_command(
+    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+) -> None:
+    before = printer.stats
+    await printer.send("M105")
+    await printer.send("M114")
+    after = printer.stats
+    assert after.answered == before.answered + 2
+    assert after.bytes_received > before.bytes_received
+    assert after.accounted and after.in_flight == after.queued == 0
+    assert before.answered == after.answered - 2  # the earlier snapshot did not move
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        after.timeouts = 5  # type: ignore[misc]
 
 
 async def test_emergency_stop_on_a_closed_printer_raises_instead_of_doing_nothing(pty_sim: SimulatorServer) -> None:

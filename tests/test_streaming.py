@@ -80,7 +80,7 @@ async def test_a_faulty_link_still_executes_every_line_once_in_order() -> None:
         marlin_aio.connect(server.url, timeout_s=5.0) as printer,
     ):
         progress = await printer.print_file(gcode_file(extra=dwells), send_ahead=send_ahead)
-        corrupted_lines = printer.connection.resend_requests
+        corrupted_lines = printer.stats.resend_requests
     assert moves(server) == [g1_line(i) for i in range(LINES)]
     assert [c for c in server.printer.executed if c.startswith("G4")] == ["G4 P2500"] * 3
     assert progress.lines_acked == LINES + 3
@@ -126,7 +126,7 @@ async def test_a_printer_that_goes_silent_fails_the_print_with_a_diagnosis(gcode
         assert ">>" in error.trace and "<<" in error.trace
         assert len(error.trace.splitlines()) >= 10
         # The link itself stays usable for the caller's next decision (the printer is silent, so it times out).
-        assert printer.connection.job is None
+        assert printer.stats.in_flight == printer.stats.queued == 0
         del stalled_at
 
 
@@ -252,7 +252,7 @@ async def test_a_long_dwell_in_the_file_does_not_stall_while_keepalives_arrive()
         marlin_aio.connect(server.url, timeout_s=0.5) as printer,
     ):
         progress = await printer.print_file(lines, send_ahead=True)
-        assert printer.connection.timeouts == 0
+        assert printer.stats.timeouts == 0
     assert progress.lines_acked == 101
     assert moves(server) == [g1_line(i) for i in range(100)]
     assert "G4 S40" in server.printer.executed
