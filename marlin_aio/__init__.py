@@ -54,6 +54,7 @@ from marlin_aio.events import (
     UnrecognisedLine,
 )
 from marlin_aio.framing import LineSplitter
+from marlin_aio.linkstate import LinkState
 from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
 from marlin_aio.stats import LinkStats
@@ -84,6 +85,7 @@ __all__ = [
     "HeaterReading",
     "HostAction",
     "LineSplitter",
+    "LinkState",
     "LinkStats",
     "LostReplyError",
     "MarlinError",

@@ -49,6 +49,7 @@ from marlin_aio.events import (
     TargetTemperature,
     TemperatureReport,
 )
+from marlin_aio.linkstate import LinkState
 from marlin_aio.parsing import parse_endstops, parse_position
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
 from marlin_aio.stats import LinkStats
@@ -195,6 +196,7 @@ class Printer:
         self._halt_notified: PrinterHaltedError | None = None
         self._print: PrintHandle | None = None
         self._saved_window: tuple[int, int] | None = None
+        self._connecting = False  # the handshake is under way
         #: While a print streams, polls slow down to this interval so they do not compete with the stream.
         self.print_poll_interval_s = 1.0
 
@@ -221,11 +223,14 @@ class Printer:
         transport, _ = await _serial.open_link(self.port, self.baudrate, lambda: _LinkProtocol(self))
         self._transport = transport
         if self._handshake_enabled:
+            self._connecting = True
             try:
                 await self._handshake()
             except BaseException:
                 await self.close()
                 raise
+            finally:
+                self._connecting = False
 
     async def close(self) -> None:
         """Close the port. Commands still waiting fail with `ConnectionLostError`; safe to call twice."""
@@ -772,6 +777,16 @@ class Printer:
             yield
         finally:
             self._conn.set_window(*saved)
+
+    @property
+    def state(self) -> LinkState:
+        """Where the link stands: CONNECTING, READY, LOCKED, STOPPED (M999 resumes), HALTED (needs a reset) or
+        LOST (closed, or the port went away)."""
+        if self._transport is None or self._lost is not None:
+            return LinkState.LOST
+        if self._connecting:
+            return LinkState.CONNECTING
+        return self._conn.state
 
     @property
     def is_connected(self) -> bool:

@@ -82,6 +82,7 @@ from marlin_aio.events import (
     UnknownCommand,
     UnrecognisedLine,
 )
+from marlin_aio.linkstate import LinkState
 from marlin_aio.parsing import EventParser
 from marlin_aio.printjob import PrintJob, PrintState
 from marlin_aio.stats import LinkStats
@@ -250,14 +251,14 @@ class Connection:
         self.fragments_run = 0  # pieces of lines the printer ran on their own: a line ran out of place
         self._results: list[tuple[Command, Reply | MarlinError]] = []
         self._thermal_message: str | None = None
-        self.halted: PrinterHaltedError | None = None
-        self._halt_recoverable = False  # a stop() halt, which M999 clears; a kill() needs a reset
+        self._halt: PrinterHaltedError | None = None  # why the printer halted or stopped; raised to new commands
+        self._stopped = False  # the halt is a stop() that M999 clears (ErrorKind.STOPPED), not a kill()
         self.resets = 0
         self.resend_requests = 0
         self.stray_oks = 0
         self.lost_oks = 0  # oks proven lost: a later answer showed that their command had been processed
         self._exact_oks = advanced_ok  # the printer names lines in its oks (ADVANCED_OK): plain oks identify themselves
-        self.locked = False  # the printer said "Printer locked!" and has not run a command since
+        self._locked = False  # the printer said "Printer locked!" and has not run a command since
         self.requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
         self.garbage_lines = 0  # lines of noise received (not given to any command)
         self.bytes_received = 0
@@ -284,8 +285,8 @@ class Connection:
         """
         use_numbers = (self.numbered if numbered is None else numbered) or self.requires_numbers
         if not checked:
-            if self.halted is not None:
-                raise self.halted
+            if self._halt is not None:
+                raise self._halt
             self._submitted += 1
             self._next_id += 1
             command = Command(self._next_id, text, command_code(text), use_numbers, timeout_s, now)
@@ -302,8 +303,8 @@ class Connection:
                     f"Marlin's {MAX_COMMAND_BYTES}-byte limit"
                 )
         code = command_code(stripped)
-        if self.halted is not None and code != "M999":
-            raise self.halted
+        if self._halt is not None and code != "M999":
+            raise self._halt
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         self._submitted += 1
@@ -331,10 +332,27 @@ class Connection:
         """Return M112's bytes, to write at once ahead of anything queued; from now on the printer is halted (it
         needs a reset), and every command still waiting fails with `PrinterHaltedError`."""
         wire = self.emergency("M112", now=now)
-        self.halted = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
-        self._halt_recoverable = False
-        self._fail_everything(self.halted)
+        self._halt = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
+        self._stopped = False
+        self._fail_everything(self._halt)
         return wire
+
+    @property
+    def state(self) -> LinkState:
+        """READY, LOCKED (refusing commands until unlocked), STOPPED (M999 resumes) or HALTED (needs a reset)."""
+        if self._halt is not None:
+            return LinkState.STOPPED if self._stopped else LinkState.HALTED
+        return LinkState.LOCKED if self._locked else LinkState.READY
+
+    @property
+    def halted(self) -> PrinterHaltedError | None:
+        """Why the printer halted or stopped (the error new commands fail with), or None while it runs."""
+        return self._halt
+
+    @property
+    def locked(self) -> bool:
+        """True while the printer refuses commands as locked (PASSWORD_FEATURE)."""
+        return self._locked
 
     @property
     def window(self) -> tuple[int, int]:
@@ -579,7 +597,7 @@ class Connection:
                 if kind is PrinterLocked:
                     # The ok that follows answers a command that was refused, not run.
                     head.refusal = text
-                    self.locked = True
+                    self._locked = True
                 elif head.job is not None:
                     head.refusal = text  # a print line the firmware did not understand was not printed
         elif head is not None and kind in (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability):
@@ -665,12 +683,12 @@ class Connection:
             # The firmware has reached the lines written again: nothing older can still answer.
             self._stale = 0
             self._resend_from = None
-        if command.code == "M999" and self._halt_recoverable:
+        if command.code == "M999" and self._stopped:
             # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
-            self.halted = None
-            self._halt_recoverable = False
-        if command.refusal is None and self.locked and not command.orphan and command.code != "M511":
-            self.locked = False  # a command ran normally: the printer was unlocked (M511 or its screen)
+            self._halt = None
+            self._stopped = False
+        if command.refusal is None and self._locked and not command.orphan and command.code != "M511":
+            self._locked = False  # a command ran normally: the printer was unlocked (M511 or its screen)
         if command.refusal is not None and not command.orphan and not command.probe:
             self._refused(command, now)
         elif command.job is not None:
@@ -867,13 +885,14 @@ class Connection:
     def _on_error(self, event: ErrorMessage, now: float) -> None:
         if event.kind is ErrorKind.THERMAL:
             self._thermal_message = event.message
-            self._halt(ThermalRunawayError(f"thermal protection tripped: {event.message}"))
-        elif event.kind is ErrorKind.HALTED:
+            self._halt_with(ThermalRunawayError(f"thermal protection tripped: {event.message}"), stopped=False)
+        elif event.kind is ErrorKind.HALTED or event.kind is ErrorKind.STOPPED:
             if self._thermal_message is not None:
                 message = f"thermal protection tripped: {self._thermal_message} ({event.message})"
-                self._halt(ThermalRunawayError(message))
+                self._halt_with(ThermalRunawayError(message), stopped=False)
             else:
-                self._halt(PrinterHaltedError(f"the printer halted: {event.message}"))
+                error = PrinterHaltedError(f"the printer halted: {event.message}")
+                self._halt_with(error, stopped=event.kind is ErrorKind.STOPPED)
         elif event.kind is ErrorKind.NOT_EXECUTED and self._in_flight:
             head = self._in_flight[0]
             head.add_line(f"!! {event.message}")
@@ -901,19 +920,21 @@ class Connection:
                     self._finish(command, error)
                 return
 
-    def _halt(self, error: PrinterHaltedError) -> None:
-        if self.halted is None or isinstance(error, ThermalRunawayError):
-            self.halted = error
-        message = str(self.halted).lower()
-        self._halt_recoverable = "stopped due to errors" in message and "kill()" not in message
-        self._fail_everything(self.halted)
+    def _halt_with(self, error: PrinterHaltedError, *, stopped: bool) -> None:
+        """The printer halted (`stopped`: a stop() that M999 clears; otherwise it needs a reset)."""
+        if self._halt is None or isinstance(error, ThermalRunawayError):
+            self._halt = error
+        # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill().
+        self._stopped = stopped if self._halt is error else self._stopped and stopped
+        self._fail_everything(self._halt)
 
     def _on_start(self) -> None:
         self.resets += 1
         # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
         self._fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
-        self.halted = None
-        self._halt_recoverable = False
+        self._halt = None
+        self._stopped = False
+        self._locked = False
         self._thermal_message = None
         self._next_line = 1
         self._accepted_through = 0

@@ -94,7 +94,8 @@ class ErrorKind(Enum):
     # resend request nor an ok follows.
     CHECKSUM_REQUIRED = "checksum_required"
     THERMAL = "thermal"  # thermal protection tripped; the printer halts
-    HALTED = "halted"  # the printer stopped (kill() or stop()) and needs a reset or M999
+    HALTED = "halted"  # the printer halted (kill()): only a reset brings it back
+    STOPPED = "stopped"  # the printer stopped (stop(): "Printer stopped due to errors"): M999 resumes it
     # A `!!` line that is not a halt (`!! Lost communication with MCU 'mcu'` from a host-side bridge): the command
     # that the next ok answers was not run.
     NOT_EXECUTED = "not_executed"

@@ -39,7 +39,8 @@ _FIRMWARE_FIELD = re.compile(r"([A-Z_]+):")
 # Repetier-style targets: `TargetExtr0:200`, `TargetBed:60.5`, `TargetChamber:45`.
 _TARGET = re.compile(r"Target(?:Extr(\d{1,3})|(Bed)|(Chamber))[ \t]*:[ \t]*(-?\d{1,12}(?:\.\d{0,12})?)")
 _THERMAL_WORDS = ("thermal runaway", "thermal malfunction", "heating failed", "maxtemp", "mintemp")
-_HALT_WORDS = ("printer halted", "kill() called", "printer stopped due to errors")
+_HALT_WORDS = ("printer halted", "kill() called")
+_STOP_WORDS = ("printer stopped due to errors",)
 
 
 def _classify_ok(text: str) -> Ok:
@@ -79,6 +80,8 @@ def _error_kind(message: str, bang: bool) -> ErrorKind:
         return ErrorKind.THERMAL
     if any(word in lowered for word in _HALT_WORDS):
         return ErrorKind.HALTED
+    if any(word in lowered for word in _STOP_WORDS):
+        return ErrorKind.STOPPED
     # A `!!` line that is not a halt comes from a host-side bridge that did not pass the command on.
     return ErrorKind.NOT_EXECUTED if bang else ErrorKind.OTHER
 

@@ -234,7 +234,10 @@ async def test_stats_is_a_frozen_snapshot_that_accounts_for_every_command(
 
 async def test_emergency_stop_on_a_closed_printer_raises_instead_of_doing_nothing(pty_sim: SimulatorServer) -> None:
     async with marlin_aio.connect(pty_sim.url) as printer:
-        pass
+        assert printer.state is marlin_aio.LinkState.READY
+        printer.emergency_stop()
+        assert printer.state is marlin_aio.LinkState.HALTED
+    assert printer.state is marlin_aio.LinkState.LOST
     with pytest.raises(marlin_aio.ConnectionLostError, match="M112"):
         printer.emergency_stop()
 

@@ -30,6 +30,7 @@ from marlin_aio.errors import (
     ThermalRunawayError,
 )
 from marlin_aio.events import BusyKeepalive, EchoMessage, Event, Ok, TemperatureReport, UnrecognisedLine
+from marlin_aio.linkstate import LinkState
 from marlin_aio.parsing import parse_endstops
 from marlin_aio.printjob import PrintJob, PrintState
 
@@ -739,7 +740,7 @@ def test_a_locked_printer_refuses_commands_with_its_own_error() -> None:
     [(_, error)] = outcomes(conn)
     assert isinstance(error, PrinterLockedError)
     assert "M511" in str(error)
-    assert conn.locked
+    assert conn.locked and conn.state is LinkState.LOCKED
     submit_all(conn, "M511 P1234", "M115")
     conn.data_to_send(0.1)
     receive(conn, "ok", now=0.1)
@@ -748,7 +749,7 @@ def test_a_locked_printer_refuses_commands_with_its_own_error() -> None:
     conn.data_to_send(0.2)
     receive(conn, "ok", now=0.2)
     assert [text for text, _ in replies(conn)] == ["M115"]
-    assert not conn.locked
+    assert not conn.locked and conn.state is LinkState.READY
 
 
 def test_a_print_line_the_printer_did_not_run_stops_the_print_with_its_message() -> None:
@@ -918,10 +919,16 @@ def test_plain_halt_fails_everything_with_printer_halted_error() -> None:
         assert type(error) is PrinterHaltedError
         assert "kill() called" in str(error)
     assert type(conn.halted) is PrinterHaltedError
+    assert conn.state is LinkState.HALTED  # kill(): only a reset helps
     with pytest.raises(PrinterHaltedError):
         conn.submit("M105", timeout_s=5.0, now=1.0)
     conn.submit("M999", timeout_s=5.0, now=1.0)  # the one command a halted printer may still take
     assert conn.queued == 1
+    conn.data_to_send(1.0)
+    receive(conn, "ok", now=1.1)
+    assert conn.state is LinkState.HALTED  # M999 does not undo a kill()
+    receive(conn, "start", now=2.0)
+    assert conn.state is LinkState.READY
 
 
 def test_m999_after_stop_lets_commands_through_again() -> None:
@@ -931,12 +938,13 @@ def test_m999_after_stop_lets_commands_through_again() -> None:
     receive(conn, "Error:Printer stopped due to errors. Fix the error and use M999 to restart.")
     [(_, error)] = outcomes(conn)
     assert type(error) is PrinterHaltedError
+    assert conn.state is LinkState.STOPPED
     submit_all(conn, "M999", now=1.0)
     assert conn.data_to_send(1.0) == (wire("M999", 2) + "\n").encode()
     # Marlin's M999 clears the stop, then flush_and_request_resend() asks for the next line, then M999's own ok.
     receive(conn, "Resend: 3", "ok", "ok", now=1.1)
     assert [text for text, _ in replies(conn)] == ["M999"]
-    assert conn.halted is None
+    assert conn.halted is None and conn.state is LinkState.READY
     submit_all(conn, "M105", now=2.0)
     assert conn.data_to_send(2.0) == (wire("M105", 3) + "\n").encode()
 

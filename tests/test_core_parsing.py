@@ -164,15 +164,18 @@ def test_thermal_errors(message: str) -> None:
 
 
 @pytest.mark.parametrize(
-    "message",
+    ("message", "kind"),
     [
-        "Printer halted. kill() called!",
-        "Printer stopped due to errors. Fix the error and use M999 to restart. (Temperature is reset. Set it after "
-        "restarting)",
+        ("Printer halted. kill() called!", ErrorKind.HALTED),
+        (
+            "Printer stopped due to errors. Fix the error and use M999 to restart. (Temperature is reset. Set it "
+            "after restarting)",
+            ErrorKind.STOPPED,  # stop(), which M999 clears, unlike kill()
+        ),
     ],
 )
-def test_halt_errors(message: str) -> None:
-    assert classify_line(f"Error:{message}") == ErrorMessage(message=message, kind=ErrorKind.HALTED)
+def test_halt_errors(message: str, kind: ErrorKind) -> None:
+    assert classify_line(f"Error:{message}") == ErrorMessage(message=message, kind=kind)
 
 
 @pytest.mark.parametrize("message", ["Unknown thing", "M105 Invalid extruder 9", "Z probe failed"])
