@@ -22,7 +22,7 @@ from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
-from marlin_aio.printjob import PrintState
+from marlin_aio import PrintState
 from marlin_aio.simulator._campaign import Scenario, run_print
 
 

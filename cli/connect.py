@@ -10,7 +10,7 @@ from enum import IntEnum
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio.commands import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS
+from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS
 from marlin_aio.simulator import SimulatorConfig, serve_pty
 
 __all__ = ["EXIT_CODES_HELP", "ConnectOptions", "Exit", "UsageProblem", "exit_code_for", "open_printer"]

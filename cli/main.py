@@ -18,12 +18,7 @@ from rich.console import Console
 from rich.markup import escape
 
 import marlin_aio
-from marlin_aio.commands import (
-    DEFAULT_MAX_BED_CELSIUS,
-    DEFAULT_MAX_CHAMBER_CELSIUS,
-    DEFAULT_MAX_HOTEND_CELSIUS,
-    check_target,
-)
+from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, check_target
 
 from .connect import EXIT_CODES_HELP, ConnectOptions, Exit, UsageProblem, exit_code_for
 

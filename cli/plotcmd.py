@@ -64,8 +64,7 @@ def plot_log(path: Path, output: Path | None, show: bool, console: Console) -> s
 def _terminal_plot(
     elapsed: list[float], series: dict[str, list[tuple[float | None, float | None]]], width: int
 ) -> object:
-    from marlin_aio import TemperatureReading, Temperatures
-    from marlin_aio.temperatures import HeaterReading
+    from marlin_aio import HeaterReading, TemperatureReading, Temperatures
 
     from .model import WatchModel
     from .render import chart

@@ -13,7 +13,16 @@ from __future__ import annotations
 
 from marlin_aio._serial import PortInfo, list_ports
 from marlin_aio.client import DEFAULT_BAUDRATE, Printer, PrintHandle, connect
-from marlin_aio.commands import checksum, encode_command, number_command, strip_comment
+from marlin_aio.commands import (
+    DEFAULT_MAX_BED_CELSIUS,
+    DEFAULT_MAX_CHAMBER_CELSIUS,
+    DEFAULT_MAX_HOTEND_CELSIUS,
+    check_target,
+    checksum,
+    encode_command,
+    number_command,
+    strip_comment,
+)
 from marlin_aio.connection import Command, Connection, Reply
 from marlin_aio.errors import (
     ChecksumRequiredError,
@@ -65,6 +74,9 @@ __version__ = "0.1.0"
 
 __all__ = [
     "DEFAULT_BAUDRATE",
+    "DEFAULT_MAX_BED_CELSIUS",
+    "DEFAULT_MAX_CHAMBER_CELSIUS",
+    "DEFAULT_MAX_HOTEND_CELSIUS",
     "BusyKeepalive",
     "Capability",
     "ChecksumRequiredError",
@@ -118,6 +130,7 @@ __all__ = [
     "TraceEntry",
     "UnrecognisedLine",
     "__version__",
+    "check_target",
     "checksum",
     "classify_line",
     "connect",
