@@ -1,0 +1,220 @@
+"""The simulated board's temperature commands: targets (M104/M109, M140/M190, M141/M191), M105 and M155, and
+`heater_states()`, the report line that M105, the heater waits and the printer's auto-report all print.
+
+Part of the G-code handlers (`_gcode`, whose table maps the codes to these functions), in a file of their own
+because the heater wait is the longest piece of command logic. Each is `handler(printer, command)` like the
+others and works on the printer's heaters (`_thermal.Heater`) directly.
+
+M109/M190/M191 wait as `Temperature::wait_for_hotend()` / `wait_for_bed()` do in Marlin 2.1: a wait line every
+second (` W:<seconds left>`, or plain with `plain_wait_lines`), 10 s residency in a 1 C window, restarted beyond
+3 C; M108 ends the wait; a cooling wait (`R`) gives up when cooling stalls. With `repetier_targets` a new target
+gets a line of its own before the `ok`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from marlin_aio.simulator._config import US_PER_S
+from marlin_aio.simulator._intake import Command, parse_parameters
+from marlin_aio.simulator._thermal import STEP_US, Heater
+
+if TYPE_CHECKING:
+    from marlin_aio.simulator._gcode import Task
+    from marlin_aio.simulator._printer import SimulatedPrinter
+
+__all__ = ["heater_states", "m104", "m105", "m109", "m140", "m141", "m155", "m190", "m191"]
+
+# TEMP_RESIDENCY_TIME / TEMP_WINDOW / TEMP_HYSTERESIS (the bed and chamber use the same defaults).
+_RESIDENCY_US = 10 * US_PER_S
+_WINDOW_CELSIUS = 1.0
+_HYSTERESIS_CELSIUS = 3.0
+# MIN_COOLING_SLOPE_DEG over MIN_COOLING_SLOPE_TIME: an `R` wait that stops cooling gives up.
+_COOLING_SLOPE_CELSIUS = 1.5
+_COOLING_SLOPE_US = 60 * US_PER_S
+_WAIT_REPORT_US = US_PER_S
+
+
+def _target_extruder(printer: SimulatedPrinter, command: Command, parameters: dict[str, float | None]) -> int | None:
+    """get_target_extruder_from_command(): T<n> or the active extruder; None (and a message) if invalid."""
+    tool = parameters.get("T")
+    if tool is None:
+        return printer._active_extruder
+    extruder = int(tool)
+    if 0 <= extruder < len(printer._hotends):
+        return extruder
+    printer._emit(f"echo:{command.code} Invalid extruder {extruder}")
+    return None
+
+
+def m104(printer: SimulatedPrinter, command: Command) -> None:
+    """M104 S<celsius> [T<n>]: set a hotend's target and go on."""
+    _set_hotend(printer, command)
+
+
+def m109(printer: SimulatedPrinter, command: Command) -> Task | None:
+    """M109 S|R<celsius> [T<n>]: set a hotend's target and wait for it (S: only when heating)."""
+    return _set_hotend(printer, command, wait=True)
+
+
+def _set_hotend(printer: SimulatedPrinter, command: Command, *, wait: bool = False) -> Task | None:
+    parameters = parse_parameters(command.args)
+    extruder = _target_extruder(printer, command, parameters)
+    if extruder is None:
+        return None
+    heater = printer._hotends[extruder]
+    return _set_target(printer, heater, parameters, wait, extruder)
+
+
+def _set_target(
+    printer: SimulatedPrinter, heater: Heater, parameters: dict[str, float | None], wait: bool, extruder: int
+) -> Task | None:
+    """M104/M109, M140/M190, M141/M191: S sets and waits only for heating, R waits both ways."""
+    no_wait_for_cooling = parameters.get("S") is not None
+    celsius = parameters.get("S") if no_wait_for_cooling else parameters.get("R")
+    if celsius is None:
+        return None
+    printer._sync_thermal()
+    heater.set_target(float(int(celsius)))  # celsius_t is an integer in Marlin 2.1
+    if printer.config.repetier_targets:
+        printer._emit(f"{_target_label(printer, heater, extruder)}:{int(heater.target_celsius)}")
+    heating = heater.target_celsius > heater.celsius
+    if wait and (heating or not no_wait_for_cooling):
+        return _wait_for_heater(printer, heater, extruder)
+    return None
+
+
+def _target_label(printer: SimulatedPrinter, heater: Heater, extruder: int) -> str:
+    """The Repetier name of a heater's target: `TargetExtr<n>`, `TargetBed` or `TargetChamber`."""
+    if heater is printer._bed:
+        return "TargetBed"
+    if heater is printer._chamber:
+        return "TargetChamber"
+    return f"TargetExtr{extruder}"
+
+
+def _wait_for_heater(printer: SimulatedPrinter, heater: Heater, extruder: int) -> Task:
+    """Temperature::wait_for_hotend() / wait_for_bed(): a W: line every second, 10 s residency in a 1 C
+    window, restarted beyond 3 C; M108 ends it at once; cooling waits give up when cooling stalls."""
+    printer._wait_for_heatup = True
+    target = heater.target_celsius
+    wants_to_cool = heater.celsius > target
+    next_print = printer._t
+    residency_start: int | None = None
+    first_loop = True
+    old_celsius = 9999.0
+    next_cool_check: int | None = None
+    while True:
+        printer._sync_thermal()
+        now = printer._t
+        if now >= next_print:
+            next_print = now + _WAIT_REPORT_US
+            if printer.config.plain_wait_lines:
+                printer._emit(heater_states(printer, extruder))
+            else:
+                left = "?" if residency_start is None else str((_RESIDENCY_US - now + residency_start) // US_PER_S)
+                printer._emit(f"{heater_states(printer, extruder)} W:{left}")
+        celsius = heater.celsius
+        difference = abs(target - celsius)
+        if residency_start is None:
+            if difference < _WINDOW_CELSIUS:
+                # Marlin starts the clock a third later when the heater is already there on the first pass.
+                residency_start = now + (_RESIDENCY_US // 3 if first_loop else 0)
+        elif difference > _HYSTERESIS_CELSIUS:
+            residency_start = now
+        first_loop = False
+        if wants_to_cool and (next_cool_check is None or now >= next_cool_check):
+            if old_celsius - celsius < _COOLING_SLOPE_CELSIUS:
+                return
+            next_cool_check = now + _COOLING_SLOPE_US
+            old_celsius = celsius
+        if not printer._wait_for_heatup:
+            return
+        # Sleep until the temperature could enter the window (or, once inside, leave the hysteresis band).
+        margin = difference - _WINDOW_CELSIUS if residency_start is None else _HYSTERESIS_CELSIUS - difference
+        wake = min(next_print, (now // STEP_US + heater.steps_to_change(margin)) * STEP_US)
+        if residency_start is not None:
+            residency_end = residency_start + _RESIDENCY_US
+            if now >= residency_end:
+                return
+            wake = min(wake, residency_end)
+        if next_cool_check is not None:
+            wake = min(wake, next_cool_check)
+        yield wake
+
+
+def m105(printer: SimulatedPrinter, command: Command) -> None:
+    """M105 [T<n>]: the temperatures, on the `ok` line itself."""
+    printer._skip_ok = True  # M105 answers on its own `ok T:...` line, or not at all
+    extruder = _target_extruder(printer, command, parse_parameters(command.args))
+    if extruder is not None:
+        printer._emit("ok" + heater_states(printer, extruder))
+
+
+def m140(printer: SimulatedPrinter, command: Command) -> None:
+    """M140 S<celsius>: set the bed's target and go on."""
+    assert printer._bed is not None
+    _set_target(printer, printer._bed, parse_parameters(command.args), False, printer._active_extruder)
+
+
+def m190(printer: SimulatedPrinter, command: Command) -> Task | None:
+    """M190 S|R<celsius>: set the bed's target and wait for it (S: only when heating)."""
+    assert printer._bed is not None
+    return _set_target(printer, printer._bed, parse_parameters(command.args), True, printer._active_extruder)
+
+
+def m141(printer: SimulatedPrinter, command: Command) -> None:
+    """M141 S<celsius>: set the chamber's target and go on."""
+    assert printer._chamber is not None
+    _set_target(printer, printer._chamber, parse_parameters(command.args), False, printer._active_extruder)
+
+
+def m191(printer: SimulatedPrinter, command: Command) -> Task | None:
+    """M191 S|R<celsius>: set the chamber's target and wait for it (S: only when heating)."""
+    assert printer._chamber is not None
+    return _set_target(printer, printer._chamber, parse_parameters(command.args), True, printer._active_extruder)
+
+
+def m155(printer: SimulatedPrinter, command: Command) -> None:
+    """M155 S<seconds>: report the temperatures this often (0: stop), as AUTO_REPORT_TEMPERATURES does."""
+    seconds = parse_parameters(command.args).get("S")
+    if seconds is None:
+        return
+    printer._report_us = min(max(int(seconds), 0), 60) * US_PER_S
+    printer._next_report = printer._t + printer._report_us if printer._report_us else None
+
+
+def heater_states(printer: SimulatedPrinter, extruder: int) -> str:
+    """print_heater_states(): ` T:.. /.. B:.. /.. @:.. B@:..`, starting with a space."""
+    printer._sync_thermal()
+    hotends = printer._hotends
+    hotend = hotends[extruder]
+    # Repetier-style firmwares report targets on lines of their own, not after each reading.
+    field = _reading if printer.config.repetier_targets else _reading_and_target
+    parts = [field("T", hotend)]
+    if printer._bed is not None:
+        parts.append(field("B", printer._bed))
+    if printer._chamber is not None:
+        parts.append(field("C", printer._chamber))
+    if len(hotends) > 1:
+        parts.extend(field(f"T{i}", h) for i, h in enumerate(hotends))
+    parts.append(f" @:{hotend.power_127}")
+    if printer._bed is not None:
+        parts.append(f" B@:{printer._bed.power_127}")
+    if printer._chamber is not None:
+        parts.append(f" C@:{printer._chamber.power_127}")
+    if len(hotends) > 1:
+        parts.extend(f" @{i}:{h.power_127}" for i, h in enumerate(hotends))
+    return "".join(parts)
+
+
+def _celsius(value: float) -> str:
+    return f"{value + 0.0:.2f}"  # + 0.0 turns -0.0 into 0.0, which Marlin would print without a sign
+
+
+def _reading_and_target(letter: str, heater: Heater) -> str:
+    return f" {letter}:{_celsius(heater.celsius)} /{_celsius(heater.target_celsius)}"
+
+
+def _reading(letter: str, heater: Heater) -> str:
+    return f" {letter}:{_celsius(heater.celsius)}"
