@@ -171,7 +171,7 @@ def test_fifo_matching_with_several_in_flight() -> None:
     assert done[3][1].temperatures.heaters["T"].target == 200.0
     assert conn.in_flight == 0
     assert conn.oldest_waiting() is None
-    assert conn.stray_oks == 0
+    assert conn.stats().stray_oks == 0
 
 
 def test_max_in_flight_is_respected() -> None:
@@ -254,9 +254,9 @@ def test_unsolicited_lines_while_nothing_is_pending() -> None:
     assert conn.take_results() == []
     assert conn.halted is None
     assert conn.next_deadline() is None
-    assert conn.stray_oks == 0
+    assert conn.stats().stray_oks == 0
     receive(conn, "ok", M105_OK)
-    assert conn.stray_oks == 2
+    assert conn.stats().stray_oks == 2
     assert conn.take_results() == []
     # Nothing left over: the next command gets the next ok.
     submit_all(conn, "M114")
@@ -293,11 +293,11 @@ def test_advanced_ok_completes_older_commands_whose_oks_were_lost() -> None:
     assert "was processed but its ok was lost" in str(done[0][1])
     reply = done[2][1]
     assert isinstance(reply, Reply) and reply.ok.line_number == 3
-    assert conn.lost_oks == 2
+    assert conn.stats().lost_oks == 2
     assert conn.in_flight == 1
     receive(conn, "ok N4 P11 B3", now=2.0)
     assert [text for text, _ in replies(conn)] == ["G1 X4"]
-    assert conn.stray_oks == 0
+    assert conn.stats().stray_oks == 0
 
 
 def test_advanced_ok_for_the_head_completes_one() -> None:
@@ -331,7 +331,7 @@ def test_stray_ok_with_temperatures_completes_nothing() -> None:
     conn.data_to_send(0.0)
     receive(conn, M105_OK)  # answers an M105 we gave up on; no M105 is in flight
     assert conn.take_results() == []
-    assert conn.stray_oks == 1
+    assert conn.stats().stray_oks == 1
     assert conn.in_flight == 2
     receive(conn, "ok N1", "ok N2")
     assert [text for text, _ in replies(conn)] == ["G28", "M114"]
@@ -385,8 +385,8 @@ def test_checksum_error_resends_the_line_byte_identical() -> None:
 
     receive(conn, "Error:checksum mismatch, Last Line: 5", "Resend: 6", "ok", now=0.1)
     assert conn.take_results() == []  # the ok after a resend request answers nothing
-    assert conn.stray_oks == 0
-    assert conn.resend_requests == 1
+    assert conn.stats().stray_oks == 0
+    assert conn.stats().resend_requests == 1
     assert conn.data_to_send(0.1) == first
     receive(conn, "ok N6 P14 B3", now=0.2)
     [(text, reply)] = replies(conn)
@@ -438,7 +438,7 @@ def test_a_noise_line_between_resend_and_its_ok_does_not_make_that_ok_an_answer(
     assert conn.data_to_send(0.1) == first
     receive(conn, "ok", now=0.2)
     assert [text for text, _ in replies(conn)] == ["G1 X1"]
-    assert conn.garbage_lines == 1
+    assert conn.stats().garbage_lines == 1
 
 
 def test_reply_lines_are_bounded_and_counted() -> None:
@@ -493,7 +493,7 @@ def test_after_a_line_error_nothing_is_written_until_the_stale_lines_are_answere
         now = 0.02 + step * 0.01
         receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 1", "Resend: 2", "ok", now=now)
         assert conn.data_to_send(now) == b""
-    assert conn.resend_requests == 4
+    assert conn.stats().resend_requests == 4
     assert [text for text, _ in replies(conn)] == ["G1 X1"]
     quiet_at = conn.next_deadline()
     assert quiet_at is not None and 0.04 < quiet_at <= 0.04 + 0.5
@@ -509,7 +509,7 @@ def test_after_a_line_error_nothing_is_written_until_the_stale_lines_are_answere
     assert written == [wire(texts[i], i + 1) for i in range(1, 5)]
     assert [text for text, _ in replies(conn)] == texts[1:]
     assert conn.in_flight == 0
-    assert conn.stray_oks == 0
+    assert conn.stats().stray_oks == 0
 
 
 def test_the_window_opens_again_once_the_link_has_been_clean_for_a_while() -> None:
@@ -585,7 +585,7 @@ def test_a_lost_ok_while_lines_wait_to_be_resent_is_probed_by_the_next_of_them()
     conn.check_timeouts(probe_at)
     assert sent(conn.data_to_send(probe_at)) == [wire(texts[1], 2)]
     receive(conn, "ok N2", now=probe_at)
-    assert job.lines_acked == 2 and conn.lost_oks == 1
+    assert job.lines_acked == 2 and conn.stats().lost_oks == 1
     for number in (3, 4):
         assert sent(conn.data_to_send(probe_at)) == [wire(texts[number - 1], number)]
         receive(conn, f"ok N{number}", now=probe_at)
@@ -604,13 +604,13 @@ def test_the_tail_of_a_line_cut_by_a_flush_is_recognised_and_its_ok_answers_noth
     assert tail == "X2"
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok", f'echo:Unknown command: "{tail}"', "ok")
     receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok", now=0.01)
-    assert conn.fragments == 1 and conn.fragments_run == 0
+    assert conn.stats().fragments == 1 and conn.stats().fragments_run == 0
     now = conn.next_deadline() or 0.0
     for number in range(1, 4):
         assert sent(conn.data_to_send(now)) == [wire(texts[number - 1], number)]
         receive(conn, "ok", now=now)
     assert job.lines_acked == 3
-    assert conn.stray_oks == 0 and conn.lost_oks == 0
+    assert conn.stats().stray_oks == 0 and conn.stats().lost_oks == 0
 
 
 def test_an_unknown_command_that_is_a_whole_print_line_still_stops_the_print() -> None:
@@ -636,7 +636,7 @@ def test_a_cut_line_whose_tail_ran_stops_the_print_with_a_diagnosis() -> None:
     conn.attach(job, timeout_s=10.0)
     conn.data_to_send(0.0)
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok", "ok")
-    assert conn.fragments_run == 1
+    assert conn.stats().fragments_run == 1
     assert job.state is PrintState.FAILED
     message = str(job.error)
     assert "ran out of place" in message and "send_ahead=False" in message and "part.gcode" in message
@@ -647,7 +647,7 @@ def test_with_advanced_ok_a_plain_ok_never_answers_a_numbered_command() -> None:
     submit_all(conn, "G28", "M114")
     conn.data_to_send(0.0)
     receive(conn, "ok P15 B3")  # no line number: not the ok of either
-    assert conn.take_results() == [] and conn.stray_oks == 1
+    assert conn.take_results() == [] and conn.stats().stray_oks == 1
     receive(conn, "ok N1 P15 B3", "ok N2 P15 B3")
     assert [text for text, _ in replies(conn)] == ["G28", "M114"]
 
@@ -822,7 +822,7 @@ def test_check_timeouts_fails_only_the_head() -> None:
     assert "last received ' T:195.91 /200.00 B:35.56 /60.00 @:25 B@:127' 1.0 s ago" in message
     assert "last sent 'N3 M114*" in message
     assert "2 more commands waiting behind it" in message
-    assert conn.timeouts == 1
+    assert conn.stats().timeouts == 1
 
     # The G28 keeps its place for one more timeout, so that a late ok lands on it; the printer is talking, so
     # the commands behind it wait on. M105's answer shows that the G28 ran, and frees its place.
@@ -972,7 +972,7 @@ def test_start_mid_session_fails_everything_and_restarts_numbering() -> None:
     done = outcomes(conn)
     assert [text for text, _ in done] == ["G1 X2", "G1 X3", "G1 X4"]
     assert all(isinstance(error, PrinterResetError) for _, error in done)
-    assert conn.resets == 1
+    assert conn.stats().resets == 1
     assert conn.in_flight == 0
     assert conn.queued == 0
     submit_all(conn, "M105")
@@ -1186,7 +1186,7 @@ def run_session(
     assert [command for command, _ in results] == commands  # every command completed exactly once, in order
     assert all(isinstance(outcome, Reply) for _, outcome in results), results
     assert firmware.executed == texts  # and the printer ran each one exactly once, in order
-    assert conn.stray_oks == 0
+    assert conn.stats().stray_oks == 0
 
 
 _TEXTS = st.lists(st.sampled_from(["G1 X10", "G1 Y5", "M105", "M114", "G4 P0", "M400", "M104 S0"]), max_size=12)

@@ -215,7 +215,8 @@ def run_print(scenario: Scenario) -> CampaignResult:
             next_user = now + scenario.user_interval_s
 
     result.end_s = now
-    result.fragments, result.fragments_run = conn.fragments, conn.fragments_run
+    stats = conn.stats()
+    result.fragments, result.fragments_run = stats.fragments, stats.fragments_run
     result.state = job.state
     result.error = None if job.error is None else str(job.error)
     if job.active:

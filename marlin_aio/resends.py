@@ -1,0 +1,324 @@
+"""Numbered lines and getting them through: line numbers, the history of lines sent, and recovery when the printer
+asks for a line again.
+
+After a line-number or checksum error Marlin prints `Resend: N` then an `ok` that answers nothing, and throws away
+what sat in its receive buffer; so every line from N on is written again from the history, and the rejections of
+lines that were already on the wire ("stale") do not start more resends.
+
+Why a print line runs exactly once, in order. Every line is numbered, and Marlin runs a numbered line only if it
+follows the last one it ran, so a line written twice is never run twice. The exception is a firmware fact: when
+Marlin rejects a line it throws away its receive buffer, and a line that was half received is cut in two; its tail
+arrives later as an unnumbered line of its own. Marlin refuses most tails (`Unknown command`, recognised by
+`is_fragment`, whose ok then answers nothing), but a tail that begins at the command word runs, out of place. Only
+a line written behind an unanswered one can be cut, so ping-pong (one line in flight) is exact on any link. With
+send-ahead, after a line error nothing is written until the printer has been quiet (`draining`: every stale line and
+tail has arrived), then one line at a time for `CALM_LINES` lines while a line on the wire may still be rejected; a
+tail that ran shows as an ok that no command earned while draining, and the connection stops the print saying so.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from marlin_aio.commands import number_command
+from marlin_aio.errors import MarlinError, RemoteProtocolError, ResendLimitError
+from marlin_aio.matching import InFlight
+from marlin_aio.replies import Command
+
+__all__ = ["CALM_LINES", "Resends"]
+
+#: After a line error, how many print lines must be answered without another before send-ahead writes more than
+#: one line at a time again. One line at a time never leaves a line on the wire behind one the firmware may reject.
+CALM_LINES = 100
+
+
+class Resends:
+    """Line numbering and resend recovery for one connection.
+
+    Args:
+        max_resends: how often one line may be requested again before the link is declared too noisy.
+        ok_after_resend: the firmware follows every `Resend:` with an `ok` that answers nothing (Marlin 2.1).
+        resend_timeout_s: while lines are being resent, how long a resent line may go unanswered (with the printer
+            talking) before it is written again (its rejection may have been taken for a stale one).
+    """
+
+    def __init__(self, *, max_resends: int, ok_after_resend: bool, resend_timeout_s: float) -> None:
+        self.max_resends = max_resends
+        self.ok_after_resend = ok_after_resend
+        self.resend_timeout_s = resend_timeout_s
+        self.next_line = 1  # after reset (or M110 N0) Marlin expects line 1
+        self.accepted_through = 0  # the printer has taken every numbered line up to this one (it cannot reject it)
+        self._history: dict[int, Command] = {}  # numbered lines by number, for resends
+        self._history_order: deque[int] = deque()
+        self.resend_from: int | None = None  # the resend being carried out
+        self._stale = 0  # answers still due for lines written before the last resend request
+        self._swallow_ok = False  # the ok right after a resend request answers nothing
+        self._after_line_error = False  # the last line was `Error:...Last Line` (a rejection, not an M999 request)
+        # After a line error with more lines on the wire behind the rejected one: write nothing until the printer has
+        # been quiet this long (every stale line and fragment has arrived and been answered), then resend.
+        self.drain_until: float | None = None
+        self._calm_left = 0  # print lines still to be answered one at a time after the last line error
+        self.fragment_wires: list[tuple[str, str]] = []  # (wire, text) of lines a flush may have cut in two
+        self._fragment_oks = 0  # oks still due for fragments the firmware reported as unknown commands
+        self.nudge_pending = False  # let the next resend out past the window, as a probe
+        self.requests = 0
+        self.fragments = 0  # pieces of lines the printer received on their own after a flush (and refused)
+        self.fragments_run = 0  # pieces of lines the printer ran on their own: a line ran out of place
+
+    # ------------------------------------------------------------------------------------------- numbering
+
+    def line_number_for(self, command: Command) -> int:
+        """The number `command` gets when it is written."""
+        if command.code == "M110":
+            # M110 sets the counter: number the line with the value it sets, as Marlin's own hosts do.
+            words = command.text.split()
+            return next((int(w[1:]) for w in words[1:] if w[:1] in "Nn" and w[1:].isdigit()), 0)
+        return self.next_line
+
+    def wire_size(self, command: Command) -> int:
+        """The bytes `command` takes on the wire (an upper bound before it has its number)."""
+        if command.wire:
+            return len(command.wire)
+        if not command.numbered:
+            return len(command.text) + 1
+        # "N<n> <text>*<checksum>\n": the checksum has at most 3 digits, so this is never too small.
+        return len(command.text) + len(str(self.line_number_for(command))) + 7
+
+    def assign_wire(self, command: Command, history_size: int) -> None:
+        """Give `command` its line number (if numbered) and its bytes, and keep it for resends."""
+        if not command.numbered:
+            command.wire = command.text.encode("ascii") + b"\n"
+            return
+        command.line_number = self.line_number_for(command)
+        if command.code == "M110":
+            self.forget_history()
+            self.accepted_through = command.line_number - 1
+        self.next_line = command.line_number + 1
+        command.wire = number_command(command.text, command.line_number).encode("ascii") + b"\n"
+        self._history[command.line_number] = command
+        self._history_order.append(command.line_number)
+        while len(self._history_order) > history_size:
+            self._history.pop(self._history_order.popleft(), None)
+
+    def forget_history(self) -> None:
+        """Forget every line sent (the numbering restarts, or the printer forgot them)."""
+        self._history.clear()
+        self._history_order.clear()
+
+    def restart_numbering(self) -> None:
+        """The board reset: it expects line 1 and has taken nothing."""
+        self.next_line = 1
+        self.accepted_through = 0
+
+    # ------------------------------------------------------------------------------------------- requests
+
+    def note_line(self, is_line_error: bool | None, now: float, quiet_s: float) -> bool:
+        """Every line received passes here first (`is_line_error` None for an `ok`, which does not count as the
+        line before a `Resend:`); return whether the line before it was a line error.
+
+        A noise line between `Resend:` and its `ok` does not end the wait for that ok: both are printed by one
+        call in Marlin's queue.cpp, so any line between them came from the link, not from the firmware.
+        """
+        if self.drain_until is not None:
+            # The printer is still answering what was on the wire when it threw its buffer away.
+            self.drain_until = max(self.drain_until, now + quiet_s)
+        after_line_error = self._after_line_error
+        if is_line_error is not None:
+            self._after_line_error = is_line_error
+        return after_line_error
+
+    def take_ok(self) -> bool:
+        """True if the `ok` just received answers nothing (it follows a `Resend:`, or a refused fragment)."""
+        if self._swallow_ok:
+            self._swallow_ok = False
+            return True
+        if self._fragment_oks:
+            self._fragment_oks -= 1
+            return True
+        return False
+
+    def on_request(
+        self, line_number: int, flight: InFlight, queue: deque[Command], now: float, *, rejected: bool, quiet_s: float
+    ) -> MarlinError | None:
+        """The printer asked for `line_number` again; return the error that ends everything, if it must.
+
+        `rejected`: the request follows a line error (not M999's own request for the next line).
+        """
+        self.requests += 1
+        # The printer took every line before the one it asks for.
+        self.accepted_through = max(self.accepted_through, line_number - 1)
+        # The ok right after a resend request answers nothing. (M999 prints `Resend:` and `ok` too, then its own ok.)
+        self._swallow_ok = self.ok_after_resend
+        if line_number != self.resend_from:
+            # A request for another line means the firmware has got past every stale line.
+            self._stale = 0
+        elif self._stale > 0:
+            # The rejection of a line that was already on the wire when this resend began: expected, no action.
+            # (If it was in fact the resent line failing again, the resend deadline recovers.)
+            self._stale -= 1
+            return None
+        head = flight.head
+        if line_number == self.next_line:
+            if rejected and head is not None and head.code == "M110":
+                # The M110 itself was damaged: the firmware's counter is not reset, and it asks for the line after
+                # its old one, which happens to be our next. Write the M110 again; it sets the counter whatever
+                # its own number.
+                flight.popleft(now)
+                queue.appendleft(head)
+                return self._limit_error(head, line_number)
+            # Otherwise the printer has every line we sent (M999 asks this way): nothing to write again.
+            return None
+        return self.resend(line_number, flight, queue, now, quiet_s)
+
+    def resend(
+        self, line_number: int, flight: InFlight, queue: deque[Command], now: float, quiet_s: float
+    ) -> MarlinError | None:
+        """Write every line from `line_number` on again; return the error that ends everything, if it must."""
+        first = self._history.get(line_number)
+        if first is None:
+            return RemoteProtocolError(
+                f"the printer asked for line {line_number}, which was never sent or is too old to resend "
+                f"(next line is {self.next_line})"
+            )
+        if first.job is not None:
+            first.job.resends += 1
+        error = self._limit_error(first, line_number)
+        if error is not None:
+            return error
+        # Marlin rejected one line and threw away its receive buffer: every numbered line from N on that is on
+        # the wire will be rejected or lost. Take them out of the in-flight FIFO (all but the one this rejection
+        # answers will each send a stale rejection, or nothing) and write every line from N on again, in order,
+        # ahead of new commands.
+        owed = {id(c) for c in flight}
+        keep: list[Command] = []
+        removed = 0
+        behind: list[Command] = []  # written after the rejected line: on the wire when the firmware flushed
+        for command in flight:
+            if removed:
+                behind.append(command)
+            if command.line_number is not None and command.line_number >= line_number:
+                removed += 1
+            else:
+                keep.append(command)
+        self._stale = max(removed - 1, 0)
+        self._calm_left = CALM_LINES
+        if behind:
+            # One of those lines may have been cut in two by the flush; its tail arrives as a line of its own. Hold
+            # every write until the printer has answered all of them, so nothing new is cut, and recognise the
+            # pieces (`is_fragment`).
+            self.drain_until = now + quiet_s
+            self.fragment_wires = [(c.wire.decode("ascii").rstrip("\n"), c.text) for c in behind]
+        queued = {id(c) for c in queue}
+        again: list[Command] = []
+        for number in range(line_number, self.next_line):
+            resend = self._history.get(number)
+            if resend is None:
+                continue
+            if id(resend) not in owed and id(resend) not in queued:
+                # Not in flight and not queued: its caller already had a result (a timeout). Resend it so the
+                # numbering goes on, but its answer completes nothing.
+                resend.orphan = True
+            again.append(resend)
+        flight.keep_only(keep, now, restart_head=False)
+        self.resend_from = line_number
+        # Every line from N on goes out again in order, ahead of everything else, including the lines an earlier
+        # request had already queued for resending.
+        again_ids = {id(c) for c in again}
+        rest = [c for c in queue if id(c) not in again_ids]
+        queue.clear()
+        queue.extend(again)
+        queue.extend(rest)
+        return None
+
+    def resend_overdue(
+        self, head: Command, flight: InFlight, queue: deque[Command], now: float, quiet_s: float
+    ) -> MarlinError | None:
+        """A resent line went unanswered while the printer talked: its rejection was probably taken for a stale
+        one. Write it (and what follows) again."""
+        self._stale = 0
+        assert head.line_number is not None
+        return self.resend(head.line_number, flight, queue, now, quiet_s)
+
+    def _limit_error(self, command: Command, line_number: int) -> MarlinError | None:
+        if command.sends <= self.max_resends:
+            return None
+        return ResendLimitError(
+            f"the printer asked for line {line_number} ({command.text!r}) {command.sends} times; "
+            "the link is too noisy (check the cable, baud rate and grounding)"
+        )
+
+    # ------------------------------------------------------------------------------------------- after a flush
+
+    @property
+    def draining(self) -> bool:
+        """True while nothing may be written: the printer is still answering what was on the wire at a flush."""
+        return self.drain_until is not None
+
+    def drain_over(self, now: float) -> bool:
+        """End the drain if the printer has been quiet long enough; return True while it still lasts."""
+        if self.drain_until is None:
+            return False
+        if now < self.drain_until:
+            return True
+        # The printer has been quiet: every line that was on the wire at the flush was rejected or answered, so a
+        # rejection from now on is a fresh one.
+        self.drain_until = None
+        self._stale = 0
+        return False
+
+    @property
+    def calm(self) -> bool:
+        """True while lines go out one at a time after a line error (no line behind one that may be rejected)."""
+        return self._calm_left > 0
+
+    def rejectable(self, flight: InFlight) -> bool:
+        """Is a numbered line on the wire that the printer may still reject (and so flush what follows it)?"""
+        through = self.accepted_through
+        return any(c.line_number is not None and c.line_number > through for c in flight)
+
+    def is_fragment(self, piece: str) -> bool:
+        """Is `piece` (the text of an `Unknown command`) part of a line that a flush cut in two?
+
+        Its text is then part of a line written behind a rejected one, but not that line's whole command (a line
+        whose command the firmware does not know is refused with its own text, and that refusal stops a print).
+        """
+        return any(piece != text and piece in wire for wire, text in self.fragment_wires)
+
+    def fragment_refused(self) -> None:
+        """The firmware refused a fragment (`Unknown command`); the ok after it answers nothing."""
+        self.fragments += 1
+        self._fragment_oks += 1
+
+    def settled(self, command: Command, *, answered_line: bool) -> None:
+        """`command` came off the FIFO (`answered_line`: a print line answered by its own ok)."""
+        if command.line_number is not None and command.line_number > self.accepted_through:
+            self.accepted_through = command.line_number
+        if self._stale == 0 or (self.resend_from is not None and (command.line_number or 0) >= self.resend_from):
+            # The firmware has reached the lines written again: nothing older can still answer.
+            self._stale = 0
+            self.resend_from = None
+        if answered_line and self._calm_left and self.resend_from is None and self.drain_until is None:
+            self._calm_left -= 1
+
+    def resending(self, head: Command) -> bool:
+        """True if `head` is a line being written again (so it gets the shorter resend deadline)."""
+        return (
+            self.resend_from is not None
+            and head.line_number is not None
+            and head.line_number >= self.resend_from
+            and head.sends <= self.max_resends
+        )
+
+    def forget_stale(self) -> None:
+        """Enough silence has passed that no stale rejection can still be on its way."""
+        self._stale = 0
+
+    def clear(self) -> None:
+        """Everything in flight is gone (a reset, a halt, the link lost): no resend is under way."""
+        self.forget_history()
+        self._stale = 0
+        self.resend_from = None
+        self._swallow_ok = False
+        self.drain_until = None
+        self._fragment_oks = 0
+        self.fragment_wires = []
