@@ -1,6 +1,7 @@
 """Serving a `SimulatedPrinter` on a pseudo-terminal or a TCP port, with asyncio.
 
-The printer is sans-I/O; this module is the only place that knows about file descriptors, sockets and clocks.
+The printer is sans-I/O; this module (with `_endpoints` for the file descriptors and sockets) is the only place
+that knows about I/O and clocks.
 It is callback-driven rather than task-driven: bytes from the host are handed to the printer in the reader
 callback, and a single timer is kept pointing at the printer's `next_wakeup()`. An idle printer therefore costs
 nothing between events, which matters when it runs beside a Raspberry Pi-class client being benchmarked.
@@ -20,42 +21,29 @@ runs on a select() loop, which keeps time to the microsecond.) About 10 ms of th
 of the wire; the rest wait in the pty or socket, where a host that writes too much finds its writes
 blocking, as with a real serial port.
 
-Opening a port resets most boards (DTR), and each TCP client finds the board reset. A pty cannot see DTR, and the
-server holds the slave open, so it sees no open either; with `reset_on_open` it watches the terminal's settings
-instead: the slave gets EXTPROC and the master packet mode (TIOCPKT), so every `tcsetattr()` on the slave reaches
-the master as a TIOCPKT_IOCTL packet. pyserial's `open()` always sets the port up that way, and its reads and
-flushes do not, so a client finds the board booting a moment after it opened the port, after the flush that
-ends pyserial's `open()` (which would otherwise throw the banner away). This is Linux behaviour.
-
-Only os, pty, tty and termios are used for the pseudo-terminal, never the serial package (the client's business).
+The pseudo-terminal and the TCP port are endpoints (`_endpoints.PtyEndpoint`, `_endpoints.TcpEndpoint`) behind
+one small interface, so nothing here depends on which one serves; each client that opens the port finds the board
+reset, as DTR resets a real one (on a pty with `reset_on_open`, see `_endpoints`).
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import fcntl
-import os
-import pty
-import socket
-import struct
 import sys
-import termios
-import tty
 from collections.abc import Callable
 from types import TracebackType
 from typing import Literal
 
-from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
+from marlin_aio.simulator._config import Faults, SimulatorConfig
+from marlin_aio.simulator._endpoints import PtyEndpoint, TcpEndpoint
+from marlin_aio.simulator._printer import SimulatedPrinter
 from marlin_aio.simulator._wire import Wire
 
 __all__ = ["SimulatorServer", "serve_pty", "serve_tcp"]
 
 _READ_CHUNK = 65536
-# Output the host has not read yet, beyond what the kernel holds. A board's transmit path is not an endless
-# queue either; past this, output is dropped rather than delivered stale minutes later.
-_MAX_PENDING_OUTPUT = 4096
-# With a baud rate: output still waiting for the wire beyond this is dropped, for the same reason.
+# With a baud rate: output still waiting for the wire beyond this is dropped. A board's transmit path is not an
+# endless queue either; past this, output is lost rather than delivered stale minutes later.
 _MAX_WIRE_OUTPUT = 16384
 # With a baud rate: how often at most a busy wire hands over what has arrived.
 _WIRE_TICK_S = 0.001
@@ -63,12 +51,6 @@ _WIRE_TICK_S = 0.001
 # has gone on), so they mostly wait in the pty or socket and a flood is held back there.
 _READ_AHEAD_S = 0.01
 _MIN_READ_AHEAD = 32
-# With reset_on_open: how long after the port's set-up the board prints its banner (a real one takes 1-3 s in
-# its bootloader; this is short so a handshake is not slowed down, and long enough to come after pyserial's flush).
-_OPEN_RESET_DELAY_S = 0.05
-# Linux values; the termios module names neither.
-_EXTPROC = 0o200000
-_TIOCPKT_IOCTL = 0x40
 
 
 class SimulatorServer:
@@ -103,13 +85,12 @@ class SimulatorServer:
             raise ValueError(f"baud_rate must be positive, got {baud_rate!r}")
         if reset_on_open and (kind != "pty" or not sys.platform.startswith("linux")):
             raise ValueError("reset_on_open is for a pty on Linux; a TCP server resets on every connect anyway")
-        self._reset_on_open = reset_on_open
-        self._open_reset: asyncio.TimerHandle | None = None
+        # The one place that looks at the kind: everything after talks to the endpoint.
+        self._endpoint: PtyEndpoint | TcpEndpoint = (
+            PtyEndpoint(self, reset_on_open=reset_on_open) if kind == "pty" else TcpEndpoint(self, host=host, port=port)
+        )
         self.printer = SimulatedPrinter(config, faults, now=0.0, boot=True)
         """The firmware being served."""
-        self._kind = kind
-        self._host = host
-        self._port = port
         self._time_scale = time_scale
         self._clock = clock
         self._url: str | None = None
@@ -119,12 +100,6 @@ class SimulatorServer:
         self._timer_due = 0.0
         self._paused = False
         self._closed = False
-        self._master_fd: int | None = None
-        self._slave_fd: int | None = None
-        self._pending = bytearray()
-        self._server: asyncio.Server | None = None
-        self._transport: asyncio.Transport | None = None
-        self._reading = False  # the pty reader is registered, or the TCP transport is reading
         self._baud_rate = baud_rate
         self._rx_wire = Wire(baud_rate) if baud_rate is not None else None
         self._tx_wire = Wire(baud_rate) if baud_rate is not None else None
@@ -154,7 +129,7 @@ class SimulatorServer:
     @property
     def connected(self) -> bool:
         """Whether a host can currently exchange bytes: the pty is open, or a TCP client is connected."""
-        return self._master_fd is not None if self._kind == "pty" else self._transport is not None
+        return self._endpoint.connected
 
     async def start(self) -> None:
         """Open the pseudo-terminal or the listening socket and start serving.
@@ -169,12 +144,7 @@ class SimulatorServer:
         self._started_at = self._loop.time()
         if self._paused:
             self._paused_at = self._started_at
-        if self._kind == "pty":
-            self._open_pty()
-        else:
-            self._server = await self._loop.create_server(lambda: _Connection(self), self._host, self._port)
-            port = self._server.sockets[0].getsockname()[1]
-            self._url = f"socket://{self._host}:{port}"
+        self._url = await self._endpoint.open(self._loop)
         # On a pty the boot banner waits in the terminal, where a client that does not flush on open finds it;
         # on TCP nobody is listening yet, and each client gets a banner of its own when it connects.
         self._flush()
@@ -187,17 +157,7 @@ class SimulatorServer:
         self._closed = True
         self._cancel_timer()
         self._cancel_wire_timer()
-        if self._open_reset is not None:
-            self._open_reset.cancel()
-            self._open_reset = None
-        self._close_pty()
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
-        if self._server is not None:
-            self._server.close()
-            await self._server.wait_closed()
-            self._server = None
+        await self._endpoint.close()
 
     async def __aenter__(self) -> SimulatorServer:
         await self.start()
@@ -236,13 +196,7 @@ class SimulatorServer:
         A pty is gone for good afterwards (its path no longer works). The TCP port keeps listening, and the next
         client to connect finds the board reset, as when a USB cable is plugged back in.
         """
-        if self._kind == "pty":
-            self._close_pty()
-        elif self._transport is not None:
-            transport, self._transport = self._transport, None
-            self._reading = False
-            self._clear_wires()
-            transport.close()
+        self._endpoint.hang_up()
 
     def pause(self) -> None:
         """Freeze the board: nothing is read, run or written until `resume()` (the host's bytes wait)."""
@@ -303,10 +257,15 @@ class SimulatorServer:
         self._schedule_wire()
 
     def _send_to_host(self, data: bytes) -> None:
-        if self._kind == "pty":
-            self._write_pty(data)
-        elif self._transport is not None:
-            self._transport.write(data)
+        self._endpoint.write(data)
+
+    def _reset_on_connect(self) -> None:
+        """A client opened the port: the board resets (DTR), so it starts from the banner; not while paused."""
+        if self._closed or self._paused:
+            return
+        self.printer.reset(self.now())
+        self._flush()
+        self._reschedule()
 
     def _reschedule(self) -> None:
         if self._loop is None or self._closed or self._paused or self._clock is not None:
@@ -386,185 +345,16 @@ class SimulatorServer:
         want = not self._paused and not self._closed
         if want and self._rx_wire is not None:
             # Hysteresis: stop at the full read-ahead, go on once half of it has been handed over.
-            limit = self._read_ahead if self._reading else self._read_ahead // 2
+            limit = self._read_ahead if self._endpoint.reading else self._read_ahead // 2
             want = self._rx_wire.pending < limit
-        if want == self._reading:
-            return
-        if self._kind == "pty":
-            if self._master_fd is None or self._loop is None:
-                return
-            if want:
-                self._loop.add_reader(self._master_fd, self._on_pty_readable)
-            else:
-                self._loop.remove_reader(self._master_fd)
-        else:
-            if self._transport is None:
-                return
-            if want:
-                self._transport.resume_reading()
-            else:
-                self._transport.pause_reading()
-        self._reading = want
+        if want != self._endpoint.reading:
+            self._endpoint.set_reading(want)
 
-    # -------------------------------------------------------------------------------------------------- pty
-
-    def _open_pty(self) -> None:
-        assert self._loop is not None
-        master_fd, slave_fd = pty.openpty()
-        # Raw at once: otherwise the line discipline echoes the host's bytes back and turns \n into \r\n.
-        tty.setraw(slave_fd)
-        if self._reset_on_open:
-            attributes = termios.tcgetattr(slave_fd)
-            attributes[3] |= _EXTPROC  # lflag; in raw mode it changes nothing but the reporting
-            termios.tcsetattr(slave_fd, termios.TCSANOW, attributes)
-            fcntl.ioctl(master_fd, termios.TIOCPKT, struct.pack("i", 1))
-        os.set_blocking(master_fd, False)
-        self._master_fd = master_fd
-        # Held open for the server's life, so the master sees no hang-up while no client has the port open.
-        self._slave_fd = slave_fd
-        self._url = os.ttyname(slave_fd)
-        self._reading = False
-        self._update_reading()
-
-    def _close_pty(self) -> None:
-        if self._master_fd is not None:
-            if self._loop is not None:
-                self._loop.remove_reader(self._master_fd)
-                self._loop.remove_writer(self._master_fd)
-            os.close(self._master_fd)
-            self._master_fd = None
-        if self._slave_fd is not None:
-            os.close(self._slave_fd)
-            self._slave_fd = None
-        self._reading = False
-        self._pending.clear()
-        self._clear_wires()
-
-    def _on_pty_readable(self) -> None:
-        if self._master_fd is None:
-            return
-        size = _READ_CHUNK
-        if self._rx_wire is not None:
-            size = max(1, self._read_ahead - self._rx_wire.pending)
-        if self._reset_on_open:
-            size += 1  # room for the packet's status byte, so a read always makes progress
-        try:
-            data = os.read(self._master_fd, size)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            # EIO and friends: the terminal is gone; stop listening rather than spin on an error.
-            self._close_pty()
-            return
-        if data and self._reset_on_open:
-            # Packet mode: a status byte first; 0 (TIOCPKT_DATA) means the host's bytes follow.
-            status, data = data[0], data[1:]
-            if status & _TIOCPKT_IOCTL:
-                self._port_opened()
-            if status:
-                return
-        if data:
-            self._receive_from_host(data)
-
-    def _port_opened(self) -> None:
-        """The client set the port up (opened it): the board resets, as DTR would make it, a moment later."""
-        assert self._loop is not None
-        self._clear_wires()  # what was on the wire belonged to the previous session
-        if self._open_reset is not None:
-            self._open_reset.cancel()
-        self._open_reset = self._loop.call_later(_OPEN_RESET_DELAY_S, self._reset_after_open)
-
-    def _reset_after_open(self) -> None:
-        self._open_reset = None
-        if self._closed or self._paused:
-            return
-        self.printer.reset(self.now())
-        self._flush()
-        self._reschedule()
-
-    def _write_pty(self, data: bytes) -> None:
-        if self._master_fd is None:
-            return
-        if self._pending:
-            self._queue_output(data)
-            return
-        try:
-            written = os.write(self._master_fd, data)
-        except (BlockingIOError, InterruptedError):
-            written = 0
-        except OSError:
-            return
-        if written < len(data):
-            self._queue_output(data[written:])
-            assert self._loop is not None
-            self._loop.add_writer(self._master_fd, self._on_pty_writable)
-
-    def _queue_output(self, data: bytes) -> None:
-        room = _MAX_PENDING_OUTPUT - len(self._pending)
-        if room > 0:
-            self._pending += data[:room]
-
-    def _on_pty_writable(self) -> None:
-        if self._master_fd is None:
-            return
-        try:
-            written = os.write(self._master_fd, self._pending)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            written = len(self._pending)
-        del self._pending[:written]
-        if not self._pending:
-            assert self._loop is not None
-            self._loop.remove_writer(self._master_fd)
-
-    # -------------------------------------------------------------------------------------------------- tcp
-
-    def _accept(self, transport: asyncio.Transport) -> bool:
-        if self._transport is not None or self._closed:
-            return False  # one client at a time, like a serial port
-        self._transport = transport
-        self._reading = True  # a new transport reads until told otherwise
-        self._clear_wires()
-        sock = transport.get_extra_info("socket")
-        if sock is not None:
-            with contextlib.suppress(OSError):
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._update_reading()
-        if self._paused:
-            return True
-        # Opening the port resets the board (DTR), so each client starts from the banner.
-        self.printer.reset(self.now())
-        self._flush()
-        self._reschedule()
-        return True
-
-    def _lost(self, transport: asyncio.Transport) -> None:
-        if self._transport is transport:
-            self._transport = None
-            self._reading = False
-            self._clear_wires()
-
-
-class _Connection(asyncio.Protocol):
-    def __init__(self, server: SimulatorServer) -> None:
-        self._server = server
-        self._transport: asyncio.Transport | None = None
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        if self._server._accept(transport):
-            self._transport = transport
-        else:
-            transport.close()
-
-    def data_received(self, data: bytes) -> None:
-        if self._transport is not None and self._server._transport is self._transport:
-            self._server._receive_from_host(data)
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        if self._transport is not None:
-            self._server._lost(self._transport)
+    def _read_size(self) -> int:
+        """How many bytes to read from the host at most: with a baud rate, no more than the read-ahead allows."""
+        if self._rx_wire is None:
+            return _READ_CHUNK
+        return max(1, self._read_ahead - self._rx_wire.pending)
 
 
 def serve_pty(
