@@ -508,6 +508,19 @@ def test_every_dialect_switch_has_a_flag() -> None:
     assert faults == Faults()
 
 
+def test_the_shared_option_table_builds_the_serve_settings() -> None:
+    from marlin_aio.simulator._options import SimulatorSettings, build_parser, simulator_settings
+
+    arguments = build_parser("marlin-temp sim").parse_args(
+        ["--tcp", "0", "--time-scale", "5", "--baud", "9600", "--no-bed", "--seed", "3", "--drop-ok", "0.5"]
+    )
+    settings = simulator_settings(arguments)
+    assert (settings.tcp_port, settings.host, settings.time_scale, settings.baud_rate) == (0, "127.0.0.1", 5.0, 9600)
+    assert settings.config == SimulatorConfig(has_bed=False, seed=3)
+    assert settings.faults == Faults(drop_ok_ratio=0.5)
+    assert simulator_settings(build_parser().parse_args([])) == SimulatorSettings()
+
+
 async def test_command_serves_a_locked_repetier_dialect_over_tcp() -> None:
     process, url = await _start_command(
         sys.executable,

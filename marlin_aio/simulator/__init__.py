@@ -9,7 +9,8 @@ does the same from a shell. With `baud_rate` (`--baud`) the link runs at a UART'
 
 from __future__ import annotations
 
-from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
+from marlin_aio.simulator._config import Faults, SimulatorConfig
+from marlin_aio.simulator._printer import SimulatedPrinter
 from marlin_aio.simulator._record import BoundedRecord
 from marlin_aio.simulator._serve import SimulatorServer, serve_pty, serve_tcp
 from marlin_aio.simulator._workload import generate_moves

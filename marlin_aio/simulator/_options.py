@@ -1,0 +1,279 @@
+"""The simulator's command-line options, defined once: `marlin-sim` builds its parser from them, and any other
+command that serves the simulator (`marlin-temp sim`) can hand its arguments to the same definition.
+
+`SIMULATOR_OPTIONS` is the table: each row is one flag with its help text and the field it sets, in
+`SimulatorConfig`, in `Faults`, or in how it is served (`SimulatorSettings`). Options of the printer and its
+faults have no default of their own: an option not given leaves its field at the dataclass's default, so the
+defaults live in one place. `simulator_settings()` turns the parsed options into the settings, and
+`SimulatorSettings.server()` into a server ready to start.
+
+argparse keeps this dependency-free and quick to start (the Typer CLI can forward its arguments here).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from marlin_aio.simulator._config import Faults, SimulatorConfig
+from marlin_aio.simulator._serve import SimulatorServer, serve_pty, serve_tcp
+
+__all__ = [
+    "DIALECT_SWITCHES",
+    "SIMULATOR_OPTIONS",
+    "SimulatorOption",
+    "SimulatorSettings",
+    "add_simulator_options",
+    "build_parser",
+    "simulator_settings",
+]
+
+
+def _ratio(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1, got {text}")
+    return value
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def _not_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
+    return value
+
+
+def _password(text: str) -> str:
+    try:
+        SimulatorConfig(password=text)  # the rule lives with the option it guards
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+@dataclass(frozen=True)
+class SimulatorOption:
+    """One command-line option: its flag, how its text is read, and the field its value sets."""
+
+    flag: str
+    """`--drop-ok`."""
+    target: Literal["serve", "config", "faults"]
+    """Where the value goes: `SimulatorSettings`, `SimulatorConfig` or `Faults`."""
+    dest: str
+    """The field it sets there (also the argparse `dest`)."""
+    help: str
+    parse: Callable[[str], object] | None = None
+    """Reads the option's text (raising `argparse.ArgumentTypeError`); None for an on/off flag."""
+    metavar: str | None = None
+    choices: Sequence[int] | None = None
+    negated: bool = False
+    """An on/off flag that turns its field off (`--no-bed` sets `has_bed` to False)."""
+    group: str | None = None
+    """The help section it is listed in, if not the main one."""
+    default: object = None
+    """The value when not given; only for serve options (printer and fault fields keep their own default)."""
+
+
+#: The on/off dialect switches of SimulatorConfig: each is a flag named after its field (`--bare-busy` sets
+#: `bare_busy`), so adding one here is all it takes.
+DIALECT_SWITCHES: tuple[tuple[str, str], ...] = (
+    ("checksum_required", "refuse unnumbered lines: 'Error: Missing checksum', no ok, not run"),
+    ("plain_wait_lines", "M109/M190/M191 wait lines without ' W:'"),
+    ("bare_busy", "keepalives as 'busy:processing', without 'echo:'"),
+    ("repetier_targets", "'TargetExtr0:200'-style target lines, reports without ' /target'"),
+    ("m114_on_ok", "M114 answers on its ok line: 'ok X:.. Y:.. Z:.. E:.. Count ...'"),
+)
+
+_DIALECTS = "dialects"
+_GROUP_DESCRIPTIONS = {_DIALECTS: "firmware variants and options a host meets in the field"}
+
+#: Every option of `marlin-sim`, in the order `--help` lists them.
+SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
+    SimulatorOption(
+        "--tcp",
+        "serve",
+        "tcp_port",
+        "serve on TCP 127.0.0.1:PORT (0 picks a free port)",
+        parse=int,
+        metavar="PORT",
+    ),
+    SimulatorOption(
+        "--host", "serve", "host", "TCP address to listen on (default %(default)s)", parse=str, default="127.0.0.1"
+    ),
+    SimulatorOption(
+        "--time-scale",
+        "serve",
+        "time_scale",
+        "simulated seconds per real second (default 1)",
+        parse=_positive,
+        metavar="TIME_SCALE",
+        default=1.0,
+    ),
+    SimulatorOption(
+        "--baud",
+        "serve",
+        "baud_rate",
+        "pace both directions like a UART at RATE bits/s, 10 bits a byte, in real time (default: unpaced)",
+        parse=_positive_int,
+        metavar="RATE",
+    ),
+    SimulatorOption(
+        "--motion-time-scale",
+        "config",
+        "motion_time_scale",
+        "factor on how long moves take; 0 makes them instant (default 1)",
+        parse=_not_negative,
+        metavar="FACTOR",
+    ),
+    SimulatorOption(
+        "--reset-on-open",
+        "serve",
+        "reset_on_open",
+        "pty (Linux): reset and print the banner when a client opens the port, as DTR resets a board"
+        " (a TCP client always finds the board reset)",
+        default=False,
+    ),
+    SimulatorOption("--advanced-ok", "config", "advanced_ok", "ok N<line> P<planner> B<buffer> (ADVANCED_OK)"),
+    SimulatorOption("--extruders", "config", "extruders", "hotends (1-8)", parse=int, metavar="N", choices=range(1, 9)),
+    SimulatorOption("--chamber", "config", "has_chamber", "add a heated chamber (M141, C: in M105)"),
+    SimulatorOption("--no-bed", "config", "has_bed", "no heated bed", negated=True),
+    SimulatorOption(
+        "--no-emergency-parser", "config", "emergency_parser", "M108/M112/M410 wait their turn", negated=True
+    ),
+    SimulatorOption("--rx-buffer", "config", "rx_buffer_size", "serial receive buffer", parse=int, metavar="BYTES"),
+    SimulatorOption("--seed", "config", "seed", "seed for every random fault decision", parse=int, metavar="SEED"),
+    SimulatorOption("--corrupt-rx", "faults", "corrupt_rx_ratio", "share of lines corrupted", _ratio, "RATIO"),
+    SimulatorOption("--drop-ok", "faults", "drop_ok_ratio", "share of oks not sent", _ratio, "RATIO"),
+    SimulatorOption("--noise", "faults", "noise_ratio", "share of lines after noise", _ratio, "RATIO"),
+    SimulatorOption(
+        "--silent-after-lines",
+        "faults",
+        "silent_after_lines",
+        "stall, answering nothing more, after running N numbered lines",
+        parse=_positive_int,
+        metavar="N",
+    ),
+    SimulatorOption(
+        "--not-executed",
+        "faults",
+        "not_executed_ratio",
+        "share of commands answered \"!! Lost communication with MCU 'mcu'\" and ok, and not run",
+        parse=_ratio,
+        metavar="RATIO",
+    ),
+    *(
+        SimulatorOption("--" + name.replace("_", "-"), "config", name, help_text, group=_DIALECTS)
+        for name, help_text in DIALECT_SWITCHES
+    ),
+    SimulatorOption(
+        "--password",
+        "config",
+        "password",
+        "PASSWORD_FEATURE: locked until 'M511 P<PASSWORD>' (again after every reset)",
+        parse=_password,
+        metavar="PASSWORD",
+        group=_DIALECTS,
+    ),
+)
+
+
+def add_simulator_options(parser: argparse.ArgumentParser) -> None:
+    """Add every option of `SIMULATOR_OPTIONS` to `parser` (the dialects in a section of their own)."""
+    groups: dict[str | None, argparse.ArgumentParser | argparse._ArgumentGroup] = {None: parser}
+    for option in SIMULATOR_OPTIONS:
+        if option.group is not None and option.group not in groups:
+            groups[option.group] = parser.add_argument_group(option.group, _GROUP_DESCRIPTIONS[option.group])
+        # Printer and fault options not given stay out of the namespace, so their fields keep the default.
+        default = option.default if option.target == "serve" else argparse.SUPPRESS
+        arguments: dict[str, Any] = {"dest": option.dest, "default": default, "help": option.help}
+        if option.parse is None:
+            arguments["action"] = "store_false" if option.negated else "store_true"
+        else:
+            arguments.update(type=option.parse, metavar=option.metavar)
+            if option.choices is not None:
+                arguments["choices"] = option.choices
+        groups[option.group].add_argument(option.flag, **arguments)
+
+
+def build_parser(prog: str = "marlin-sim") -> argparse.ArgumentParser:
+    """The whole simulator command line as `prog` shows it."""
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description="Serve a simulated Marlin 2.1 printer. Prints the URL to open as the first line on stdout.",
+    )
+    add_simulator_options(parser)
+    return parser
+
+
+@dataclass(frozen=True)
+class SimulatorSettings:
+    """What a simulator command line asks for: the printer, its faults, and how it is served."""
+
+    config: SimulatorConfig = field(default_factory=SimulatorConfig)
+    faults: Faults = field(default_factory=Faults)
+    tcp_port: int | None = None
+    """Serve on this TCP port (0: any free one); None serves a pseudo-terminal."""
+    host: str = "127.0.0.1"
+    time_scale: float = 1.0
+    baud_rate: int | None = None
+    reset_on_open: bool = False
+
+    def server(self) -> SimulatorServer:
+        """A server for these settings, not started yet (`async with settings.server() as server:`).
+
+        Raises:
+            ValueError: if `reset_on_open` is asked of TCP or off Linux.
+        """
+        if self.tcp_port is not None:
+            return serve_tcp(
+                self.config,
+                self.faults,
+                host=self.host,
+                port=self.tcp_port,
+                time_scale=self.time_scale,
+                baud_rate=self.baud_rate,
+            )
+        return serve_pty(
+            self.config,
+            self.faults,
+            time_scale=self.time_scale,
+            baud_rate=self.baud_rate,
+            reset_on_open=self.reset_on_open,
+        )
+
+
+def simulator_settings(arguments: argparse.Namespace) -> SimulatorSettings:
+    """The settings that options parsed by a parser with `add_simulator_options()` ask for."""
+    values: dict[str, dict[str, Any]] = {"serve": {}, "config": {}, "faults": {}}
+    for option in SIMULATOR_OPTIONS:
+        if hasattr(arguments, option.dest):
+            values[option.target][option.dest] = getattr(arguments, option.dest)
+    return SimulatorSettings(SimulatorConfig(**values["config"]), Faults(**values["faults"]), **values["serve"])
