@@ -64,7 +64,7 @@ def plot_log(path: Path, output: Path | None, show: bool, console: Console) -> s
 def _terminal_plot(
     elapsed: list[float], series: dict[str, list[tuple[float | None, float | None]]], width: int
 ) -> object:
-    from marlin_aio import HeaterReading, TemperatureReading, Temperatures
+    from marlin_aio import HeaterReading, ReadingSource, TemperatureReading, Temperatures
 
     from .model import WatchModel
     from .render import chart
@@ -78,5 +78,5 @@ def _terminal_plot(
             if actual is not None:
                 heaters[key] = HeaterReading(actual=actual, target=target)
         if heaters:
-            model.add(TemperatureReading(Temperatures(heaters), time_s, time_s, "log"))
+            model.add(TemperatureReading(Temperatures(heaters), time_s, time_s, ReadingSource.LOG))
     return chart(model, width=width, height=16, now=elapsed[-1])

@@ -67,7 +67,13 @@ from marlin_aio.linkstate import LinkState
 from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
 from marlin_aio.stats import LinkStats
-from marlin_aio.temperatures import HeaterReading, TemperatureReading, Temperatures, parse_temperatures
+from marlin_aio.temperatures import (
+    HeaterReading,
+    ReadingSource,
+    TemperatureReading,
+    Temperatures,
+    parse_temperatures,
+)
 from marlin_aio.trace import Trace, TraceEntry
 
 __version__ = "0.1.0"
@@ -116,6 +122,7 @@ __all__ = [
     "PrinterHaltedError",
     "PrinterLockedError",
     "PrinterResetError",
+    "ReadingSource",
     "RemoteProtocolError",
     "Reply",
     "ResendLimitError",

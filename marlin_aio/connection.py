@@ -343,8 +343,10 @@ class Connection:
                 if job_command is None:
                     break
                 command = job_command
-            nudge = resends.nudge_pending and bool(command.wire)
-            resends.nudge_pending = False
+            # After a probe deadline, the lines waiting to be resent and the probe behind them go out together.
+            nudge = resends.nudge_pending and (bool(command.wire) or command.probe)
+            if not nudge:
+                resends.nudge_pending = False
             if flight and (
                 (len(flight) >= self.max_in_flight and not command.probe)
                 or (calm and not (command.probe or nudge) and resends.rejectable(flight))
@@ -368,6 +370,7 @@ class Connection:
             command.sends += 1
             if command.sent_s is None:
                 command.sent_s = now
+            command.written_s = now
             flight.append(command, now)
             self.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
             chunks.append(command.wire)
@@ -698,8 +701,15 @@ class Connection:
     def _probe(self, now: float) -> None:
         self._feed.probed_s = now
         if self._queue and self._queue[0].wire:
-            # Lines wait to be written again (one at a time, behind this one): the next of them is as good a probe
-            # as an M105, and a new M105 would take a line number ahead of theirs.
+            # Lines wait to be written again, one at a time, behind this one, whose ok may be lost. With plain oks
+            # only an M105's `ok T:` can prove that, so the probe goes behind those lines (its number comes after
+            # theirs) and they all go out now. One at a time (ping-pong) the next of them is the probe.
+            if self.max_in_flight > 1:
+                at = 0
+                while at < len(self._queue) and self._queue[at].wire:
+                    at += 1
+                self._resends.forget_stale()
+                self._queue.insert(at, self._feed.new_probe(self._new_id(), now))
             self._resends.nudge_pending = True
             return
         # A probe follows several round trips of silence: no rejection of a line written before the last resend

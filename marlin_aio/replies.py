@@ -63,7 +63,8 @@ class Command:
     submitted_s: float
     line_number: int | None = None
     wire: bytes = b""
-    sent_s: float | None = None
+    sent_s: float | None = None  # when it was first written
+    written_s: float | None = None  # when it was last written (a resend writes it again)
     head_since_s: float | None = None  # when it became the oldest command waiting for an ok
     alive_s: float | None = None  # last busy keepalive / wait line while it was the oldest
     lines: list[str] = field(default_factory=list)

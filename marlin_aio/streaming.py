@@ -101,9 +101,10 @@ class JobFeed:
         return self.probe
 
     def answered(self, command: Command, now: float) -> None:
-        """A line was answered by its own ok: remember the round trip if it went out once."""
-        if command.sends == 1 and command.sent_s is not None:
-            self.rtts.append(now - command.sent_s)
+        """A line was answered by an ok: remember the round trip since it was last written (a resent line's too,
+        so a link that starts noisy learns its pace before its first clean line)."""
+        if command.written_s is not None:
+            self.rtts.append(now - command.written_s)
 
     def probe_delay_s(self) -> float:
         """How long a streamed line may wait before a probe asks whether its `ok` was lost.

@@ -9,8 +9,9 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from enum import StrEnum
 
-__all__ = ["HeaterReading", "TemperatureReading", "Temperatures", "parse_temperatures"]
+__all__ = ["HeaterReading", "ReadingSource", "TemperatureReading", "Temperatures", "parse_temperatures"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -167,18 +168,31 @@ def parse_temperatures(text: str) -> Temperatures | None:
     return Temperatures(heaters=heaters, waiting=waiting, wait_remaining_s=remaining)
 
 
+class ReadingSource(StrEnum):
+    """What produced a temperature reading (a string too, so it compares with and prints as "poll" and so on)."""
+
+    POLL = "poll"
+    """The `ok T:...` of an M105."""
+    AUTO = "auto"
+    """An auto-report (M155)."""
+    WAIT = "wait"
+    """A wait line of M109/M190/M191."""
+    LOG = "log"
+    """Read back from a temperature log (`marlin-temp plot`), not from a printer."""
+
+
 @dataclass(frozen=True, slots=True)
 class TemperatureReading:
     """One temperature report as the client received it, stamped on arrival.
 
     `monotonic_s` is the event loop's clock (for intervals and rates), `wall_time_s` is `time.time()` (for logs).
-    `source` is "poll" (an M105 reply), "auto" (M155 auto-report) or "wait" (an M109/M190 wait line).
+    `source` says what produced it: an M105 reply, an auto-report or a wait line.
     """
 
     temperatures: Temperatures
     monotonic_s: float
     wall_time_s: float
-    source: str
+    source: ReadingSource
 
     @property
     def hotend(self) -> HeaterReading | None:

@@ -1,0 +1,323 @@
+"""The asyncio side of one serial link: the transport, the protocol core, and the futures of waiting callers.
+
+`Link` is the thin layer the sans-I/O `Connection` needs: it writes what the core says to write, feeds it what the
+port reads, arms one timer for the core's next deadline, and resolves each caller's future with its own result.
+Everything above it (the handshake, the poller, the temperature feed, prints) uses its public methods only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections import deque
+from collections.abc import Callable
+
+from marlin_aio import _serial
+from marlin_aio.connection import Connection, Reply
+from marlin_aio.errors import ConnectionLostError, MarlinError, PrinterHaltedError
+from marlin_aio.events import Event
+from marlin_aio.linkstate import LinkState
+from marlin_aio.printjob import PrintJob
+from marlin_aio.stats import LinkStats
+from marlin_aio.trace import Trace
+
+__all__ = ["Link"]
+
+#: What the link tells its owner: each event received (with its time), and each failure of the whole link.
+EventListener = Callable[[Event, float], None]
+FailureListener = Callable[[MarlinError], None]
+
+
+class _Protocol(asyncio.Protocol):
+    """Hands the transport's callbacks to the link; holds no state of its own."""
+
+    def __init__(self, link: Link) -> None:
+        self._link = link
+
+    def data_received(self, data: bytes) -> None:
+        self._link.data_received(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._link.connection_lost(exc)
+
+
+class Link:
+    """One open port and its protocol state.
+
+    Args:
+        port: a device path or a pyserial URL.
+        baudrate: the port's speed.
+        connection: the protocol core to drive.
+        on_event: called with every event received and its time on the loop's clock.
+        on_failure: called once when the printer halts (each halt) or the link is lost.
+        after_results: called after every batch of finished commands was delivered (a print may have ended).
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baudrate: int,
+        connection: Connection,
+        *,
+        on_event: EventListener,
+        on_failure: FailureListener,
+        after_results: Callable[[], None],
+    ) -> None:
+        self.port = port
+        self.baudrate = baudrate
+        self._conn = connection
+        self._on_event = on_event
+        self._on_failure = on_failure
+        self._after_results = after_results
+        self._transport: asyncio.Transport | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._closed: asyncio.Future[None] | None = None
+        self._lost: MarlinError | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self._waiters: dict[int, asyncio.Future[Reply]] = {}
+        self._callbacks: dict[int, Callable[[Reply | MarlinError], None]] = {}
+        self._halt_notified: PrinterHaltedError | None = None
+        #: Set by every batch of lines received while it is not None (the handshake waits for the banner to end).
+        self.line_seen: asyncio.Event | None = None
+        #: (answered at, round trip) of the latest replies, on the loop's clock: for latency figures.
+        self.round_trips: deque[tuple[float, float]] = deque(maxlen=8192)
+
+    # ------------------------------------------------------------------------------------------- lifecycle
+
+    async def open(self) -> None:
+        """Open the port.
+
+        Raises:
+            ConnectError: the port could not be opened (its subclasses say why).
+        """
+        self._loop = asyncio.get_running_loop()
+        self._closed = self._loop.create_future()
+        self._lost = None
+        transport, _ = await _serial.open_link(self.port, self.baudrate, lambda: _Protocol(self))
+        self._transport = transport
+
+    async def close(self) -> None:
+        """Close the port; commands still waiting fail with `ConnectionLostError`. Safe to call twice."""
+        self._cancel_timer()
+        if self._lost is None:
+            self._fail(ConnectionLostError(f"the connection to {self.port} was closed"))
+        transport, self._transport = self._transport, None
+        if transport is not None and not transport.is_closing():
+            transport.close()
+        if self._closed is not None and transport is not None:
+            # pyserial-asyncio-fast closes the port in an executor and then calls connection_lost.
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(self._closed), 2.0)
+
+    @property
+    def lost(self) -> MarlinError | None:
+        """Why the link ended (closed or lost), or None while it is open (or not opened yet)."""
+        return self._lost
+
+    @property
+    def is_open(self) -> bool:
+        """True while the port is open and the link has not been lost."""
+        return self._transport is not None and self._lost is None
+
+    @property
+    def state(self) -> LinkState:
+        """The core's state, or LOST while the port is not open."""
+        return self._conn.state if self.is_open else LinkState.LOST
+
+    # ------------------------------------------------------------------------------------------- reading state
+
+    def now(self) -> float:
+        """The event loop's clock, which every time on this link is measured by.
+
+        Raises:
+            RuntimeError: the link was never opened.
+        """
+        if self._loop is None:
+            raise RuntimeError("the printer is not open: use 'async with connect(...) as printer'")
+        return self._loop.time()
+
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop:
+        """The event loop the link runs on.
+
+        Raises:
+            RuntimeError: the link was never opened.
+        """
+        if self._loop is None:
+            raise RuntimeError("the printer is not open: use 'async with connect(...) as printer'")
+        return self._loop
+
+    @property
+    def trace(self) -> Trace:
+        """The last lines sent and received."""
+        return self._conn.trace
+
+    def stats(self) -> LinkStats:
+        """A snapshot of the counters."""
+        return self._conn.stats()
+
+    @property
+    def halted(self) -> PrinterHaltedError | None:
+        """Why the printer halted, or None while it runs."""
+        return self._conn.halted
+
+    @property
+    def requires_numbers(self) -> bool:
+        """The printer runs only numbered lines."""
+        return self._conn.requires_numbers
+
+    @property
+    def window(self) -> tuple[int, int]:
+        """(max_in_flight, rx_buffer_bytes) of the core."""
+        return self._conn.window
+
+    def set_window(self, max_in_flight: int, rx_buffer_bytes: int) -> None:
+        """Change the core's window (see `Connection.set_window`)."""
+        self._conn.set_window(max_in_flight, rx_buffer_bytes)
+
+    @property
+    def send_ahead_window_bytes(self) -> int:
+        """Unanswered bytes a streaming print may keep on the wire: the buffer less the probe's room."""
+        return self._conn.rx_buffer_bytes - self._conn.probe_reserve_bytes
+
+    # ------------------------------------------------------------------------------------------- commands
+
+    async def send(self, command: str, *, timeout_s: float, numbered: bool | None = None) -> Reply:
+        """Send one command and return its reply; if the caller is cancelled before it was written, it never is.
+
+        Raises:
+            ValueError: the command is malformed.
+            MarlinError: its own failure (timeout, halt, reset, lost link, lost reply).
+        """
+        now = self.now()
+        if self._lost is not None:
+            raise self._lost
+        entry = self._conn.submit(command, timeout_s=timeout_s, now=now, numbered=numbered)
+        future: asyncio.Future[Reply] = self.loop.create_future()
+        self._waiters[entry.id] = future
+        self.flush()
+        try:
+            return await future
+        except asyncio.CancelledError:
+            self._conn.cancel(entry)
+            raise
+        finally:
+            self._waiters.pop(entry.id, None)
+
+    def submit_quietly(self, command: str, *, timeout_s: float, done: Callable[[Reply | MarlinError], None]) -> bool:
+        """Queue a command nobody awaits (the poller's M105, built by the caller and known valid); `done` gets its
+        outcome. Return False (nothing queued) while the printer is halted or the link is down."""
+        if self._lost is not None or self._conn.halted is not None:
+            return False
+        entry = self._conn.submit(command, timeout_s=timeout_s, now=self.now(), checked=False)
+        self._callbacks[entry.id] = done
+        self.flush()
+        return True
+
+    def emergency_stop(self) -> None:
+        """Write M112 at once; everything waiting fails with `PrinterHaltedError`.
+
+        Raises:
+            ConnectionLostError: the port is closed or lost.
+        """
+        if self._transport is None or self._lost is not None:
+            reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
+            raise ConnectionLostError(f"cannot send the emergency stop (M112): {reason}")
+        self._transport.write(self._conn.emergency_stop(self.now()))
+        self.deliver_results()
+
+    def attach(self, job: PrintJob, *, timeout_s: float) -> None:
+        """Stream `job` (see `Connection.attach`)."""
+        self._conn.attach(job, timeout_s=timeout_s)
+        self.flush()
+
+    def flush_input(self) -> None:
+        """Throw away whatever the port has read and not yet handed over, and any half line."""
+        if self._transport is not None:
+            _serial.flush_input(self._transport)
+        self._conn.discard_partial_input()
+
+    # ------------------------------------------------------------------------------------------- plumbing
+
+    def data_received(self, data: bytes) -> None:
+        """Feed bytes read from the port to the core, and hand on what they brought."""
+        now = self.now()
+        events = self._conn.receive_data(data, now)
+        if events:
+            if self.line_seen is not None:
+                self.line_seen.set()
+            for event in events:
+                self._on_event(event, now)
+        self.deliver_results()
+        self.flush()
+
+    def deliver_results(self) -> None:
+        """Resolve the futures (and callbacks) of every command the core finished; tell of a new halt."""
+        for command, outcome in self._conn.take_results():
+            callback = self._callbacks.pop(command.id, None)
+            if callback is not None:
+                callback(outcome)
+                continue
+            future = self._waiters.get(command.id)
+            if future is None or future.done():
+                continue
+            if isinstance(outcome, Reply):
+                self.round_trips.append((outcome.answered_s, outcome.latency_s))
+                future.set_result(outcome)
+            else:
+                future.set_exception(outcome)
+        self._after_results()
+        halted = self._conn.halted
+        if halted is not None and halted is not self._halt_notified:
+            # Readers of temperatures learn of a halt even when no command was waiting for an answer.
+            self._halt_notified = halted
+            self._on_failure(halted)
+        self._arm_timer()
+
+    def flush(self) -> None:
+        """Write whatever the core has to send now."""
+        if self._transport is None or self._lost is not None or not self._conn.has_data_to_send:
+            return
+        data = self._conn.data_to_send(self.now())
+        if data:
+            self._transport.write(data)
+            self._arm_timer()
+
+    def _arm_timer(self) -> None:
+        deadline = self._conn.next_deadline()
+        if deadline is None:
+            self._cancel_timer()
+            return
+        # Keep an earlier timer: when it fires it re-arms for the real deadline. That makes the common case (the
+        # deadline moving later with every answer) free of timer churn.
+        if self._timer is not None and self._timer.when() <= deadline:
+            return
+        self._cancel_timer()
+        self._timer = self.loop.call_at(deadline, self._on_timer)
+
+    def _cancel_timer(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._conn.check_timeouts(self.now())
+        self.deliver_results()
+        self.flush()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        """The transport went away (or finished closing)."""
+        if self._lost is None:
+            reason = f": {exc}" if exc is not None else ""
+            self._fail(ConnectionLostError(f"the connection to {self.port} was lost{reason}"))
+        self._cancel_timer()
+        self._transport = None
+        if self._closed is not None and not self._closed.done():
+            self._closed.set_result(None)
+
+    def _fail(self, error: MarlinError) -> None:
+        self._lost = error
+        self._conn.fail_all(error)
+        self.deliver_results()
+        self._on_failure(error)
