@@ -232,6 +232,38 @@ async def test_stats_is_a_frozen_snapshot_that_accounts_for_every_command(
         after.timeouts = 5  # type: ignore[misc]
 
 
+async def test_a_closed_printer_opens_again_and_an_open_one_refuses_to(pty_sim: SimulatorServer) -> None:
+    printer = marlin_aio.Printer(pty_sim.url)
+    async with printer:
+        with pytest.raises(RuntimeError, match="already open"):
+            await printer.open()
+        await printer.send("M105")
+    assert printer.state is marlin_aio.LinkState.LOST
+    with pytest.raises(marlin_aio.ConnectionLostError):
+        await printer.send("M105")
+    async with printer:  # a fresh link on the same port
+        assert printer.state is marlin_aio.LinkState.READY
+        reading = await printer.read_temperatures()
+        assert reading.source is marlin_aio.ReadingSource.POLL
+        assert printer.stats.answered >= 1
+
+
+async def test_a_reader_that_falls_behind_loses_its_oldest_readings_never_the_error(
+    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+) -> None:
+    readings = printer.temperature_readings()
+    async with printer.poll_temperatures(0.001):
+        await anext(readings)  # subscribed; from here on this reader does not keep up
+        while printer.readings_dropped < 5:
+            await printer.read_temperatures()
+    printer.emergency_stop()
+    kept = 0
+    with pytest.raises(marlin_aio.PrinterHaltedError):
+        async for _ in readings:
+            kept += 1
+    assert kept <= 1000  # the queue's bound; the halt still got through
+
+
 async def test_emergency_stop_on_a_closed_printer_raises_instead_of_doing_nothing(pty_sim: SimulatorServer) -> None:
     async with marlin_aio.connect(pty_sim.url) as printer:
         assert printer.state is marlin_aio.LinkState.READY
