@@ -1,0 +1,109 @@
+"""The state the rooms of the protocol core share, and the few acts that touch all of it.
+
+`Connection` (`marlin_aio.connection`) is built from this base and two rooms that add behaviour to it:
+`marlin_aio.receiving` (what each line from the printer means) and `marlin_aio.deadlines` (what happens when
+nothing comes). The state is declared here, in one place, so each room reads as plain methods over it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from marlin_aio.errors import MarlinError, PrinterHaltedError
+from marlin_aio.matching import InFlight
+from marlin_aio.parsing import EventParser
+from marlin_aio.replies import Command, Reply
+from marlin_aio.resends import Resends
+from marlin_aio.streaming import JobFeed
+from marlin_aio.trace import Trace
+
+__all__ = ["CoreState"]
+
+
+class CoreState:
+    """The FIFO, the queue, the resend and print-job state, the halt and lock, the counters, the results."""
+
+    def __init__(
+        self,
+        *,
+        numbered: bool = True,
+        max_in_flight: int = 1,
+        rx_buffer_bytes: int = 128,
+        trace_size: int = 64,
+        max_resends: int = 10,
+        resend_timeout_s: float = 3.0,
+        ok_after_resend: bool = True,
+        advanced_ok: bool = False,
+    ) -> None:
+        if max_in_flight < 1:
+            raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
+        if rx_buffer_bytes < 16:
+            raise ValueError(f"rx_buffer_bytes must be at least 16, got {rx_buffer_bytes}")
+        self.numbered = numbered
+        self.max_in_flight = max_in_flight
+        self.rx_buffer_bytes = rx_buffer_bytes
+        self.trace = Trace(trace_size)
+        self._parser = EventParser()
+        self._resends = Resends(
+            max_resends=max_resends, ok_after_resend=ok_after_resend, resend_timeout_s=resend_timeout_s
+        )
+        self._feed = JobFeed()
+        self._queue: deque[Command] = deque()  # accepted, not yet written
+        self._in_flight = InFlight()  # written, waiting for an ok, in the order they were written
+        self._results: list[tuple[Command, Reply | MarlinError]] = []
+        self._now = 0.0  # the latest time any call was given, for results that happen as a side effect
+        self._next_id = 0
+        self._exact_oks = advanced_ok  # the printer names lines in its oks (ADVANCED_OK): plain oks identify themselves
+        self._thermal_message: str | None = None
+        self._halt: PrinterHaltedError | None = None  # why the printer halted or stopped; raised to new commands
+        self._stopped = False  # the halt is a stop() that M999 clears (ErrorKind.STOPPED), not a kill()
+        self._locked = False  # the printer said "Printer locked!" and has not run a command since
+        self.requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
+        # Counters (read them through `stats()`). Every submitted command ends up counted once: answered + failed
+        # + cancelled + still queued or in flight.
+        self._submitted = self._answered = self._failed = self._cancelled = 0
+        self._timeouts = self._resets = self._stray_oks = self._lost_oks = self._garbage_lines = 0
+        self._bytes_received = 0
+
+    def _new_id(self) -> int:
+        self._next_id += 1
+        return self._next_id
+
+    def _fail_everything(self, error: MarlinError) -> None:
+        feed = self._feed
+        if feed.job is not None:
+            # Nothing is replayed into a board that reset or halted: the print ends here, at the line it reached.
+            feed.job.fail(feed.job_error(error), self._now)
+        feed.detach()
+        for command in (*self._in_flight, *self._queue):
+            if not command.orphan and command.job is None and not command.probe:
+                self._finish(command, error)
+        self._in_flight.clear()
+        self._queue.clear()
+        self._resends.clear()
+
+    def _check(self, error: MarlinError | None) -> None:
+        if error is not None:
+            self._fail_everything(error)
+
+    def _stop_job(self, error: MarlinError, now: float) -> None:
+        """End the print with `error`; lines already written stay in the FIFO as orphans (their oks are still
+        due), unwritten ones go."""
+        job = self._feed.job
+        if job is not None:
+            job.fail(error, now)
+        self._feed.job = None
+        self._feed.next = None
+        for command in self._in_flight:
+            if command.job is not None:
+                command.orphan = True
+        kept = [c for c in self._queue if c.job is None]
+        self._queue.clear()
+        self._queue.extend(kept)
+
+    def _finish(self, command: Command, outcome: Reply | MarlinError) -> None:
+        if isinstance(outcome, Reply):
+            self._answered += 1
+        else:
+            self._failed += 1
+        self._results.append((command, outcome))

@@ -1,0 +1,266 @@
+"""What each line from the printer means: answers matched to commands, resend requests, errors, halts, resets.
+
+Every received line is parsed into an event and dispatched here (`_handle`). An `ok` completes the oldest command
+it can answer (`marlin_aio.matching`); `Resend:` goes to `marlin_aio.resends`; busy keepalives and wait lines push
+the oldest command's deadline out; `Error:` lines halt, stop or refuse; `start` means the board reset.
+"""
+
+from __future__ import annotations
+
+from marlin_aio.corestate import CoreState
+from marlin_aio.errors import (
+    ChecksumRequiredError,
+    CommandNotExecutedError,
+    LostReplyError,
+    MarlinError,
+    PrinterHaltedError,
+    PrinterLockedError,
+    PrinterResetError,
+    RemoteProtocolError,
+    ThermalRunawayError,
+)
+from marlin_aio.events import (
+    BusyKeepalive,
+    Capability,
+    EchoMessage,
+    ErrorKind,
+    ErrorMessage,
+    Event,
+    FirmwareInfo,
+    Ok,
+    OverlongLine,
+    PrinterLocked,
+    ResendRequest,
+    Start,
+    TemperatureReport,
+    UnknownCommand,
+    UnrecognisedLine,
+)
+from marlin_aio.matching import attribute, match_ok
+from marlin_aio.replies import Command, Reply, is_noise
+
+__all__ = ["Receiving"]
+
+#: Commands that wait for heaters; every temperature report while they run shows the printer is alive.
+_HEATER_WAITS = frozenset({"M109", "M190", "M191"})
+
+#: Reply-line events a command collects while it is the oldest waiting.
+_REPLY_LINES = (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability)
+
+
+class Receiving(CoreState):
+    """The receiving side of `Connection`."""
+
+    def receive_data(self, data: bytes, now: float) -> list[Event]:
+        """Feed bytes read from the printer; return the events of the lines they complete.
+
+        Results (answered and failed commands) collect in `take_results()`; call `data_to_send()` afterwards,
+        as an answer may open the window for more.
+        """
+        self._now = now
+        self._bytes_received += len(data)
+        events: list[Event] = []
+        for text, event in self._parser.receive_data(data):
+            self.trace.received(now, text)
+            self._handle(text, event, now)
+            events.append(event)
+        return events
+
+    def discard_partial_input(self) -> None:
+        """Forget an unfinished line (call after flushing the port's input: its end will never arrive)."""
+        self._parser.clear()
+
+    def _handle(self, text: str, event: Event, now: float) -> None:
+        # An ok leaves the "last line was a line error" mark alone: only other lines are between an error and
+        # its `Resend:`.
+        is_line_error = None if type(event) is Ok else isinstance(event, ErrorMessage) and event.kind is ErrorKind.LINE
+        after_line_error = self._resends.note_line(is_line_error, now, self._feed.quiet_s())
+        head = self._in_flight.head
+        match event:
+            case Ok():
+                self._on_ok(event, now)
+            case BusyKeepalive():
+                if head is not None:
+                    head.alive_s = now  # the printer is alive and working on the oldest command
+            case TemperatureReport() if event.temperatures.waiting or (head is not None and head.code in _HEATER_WAITS):
+                # Marlin marks its wait lines with W:; other firmwares send plain reports while M109/M190 wait.
+                if head is not None:
+                    head.alive_s = now
+            case ResendRequest():
+                self._check(
+                    self._resends.on_request(
+                        event.line_number,
+                        self._in_flight,
+                        self._queue,
+                        now,
+                        rejected=after_line_error,
+                        quiet_s=self._feed.quiet_s(),
+                    )
+                )
+            case ErrorMessage():
+                self._on_error(event, now)
+            case Start():
+                self._on_start()
+            case OverlongLine():
+                self._garbage_lines += 1  # noise from the link (a baud glitch, a reset) is nobody's reply
+            case UnrecognisedLine() if is_noise(text):
+                self._garbage_lines += 1
+            case UnknownCommand() if self._resends.is_fragment(event.command):
+                # The tail of a line cut in two by a flush, which the firmware read as a command of its own and
+                # refused: its ok answers nothing.
+                self._resends.fragment_refused()
+            case PrinterLocked() | UnknownCommand():
+                if head is not None:
+                    head.add_line(text)
+                    if isinstance(event, PrinterLocked):
+                        # The ok that follows answers a command that was refused, not run.
+                        head.refusal = text
+                        self._locked = True
+                    elif head.job is not None:
+                        head.refusal = text  # a print line the firmware did not understand was not printed
+            case _ if head is not None and isinstance(event, _REPLY_LINES):
+                head.add_line(text)
+
+    def _on_ok(self, ok: Ok, now: float) -> None:
+        if self._resends.take_ok():
+            return
+        # Which in-flight command does this ok answer? The oldest one whose answer can look like it; every command
+        # ahead of that one was processed (Marlin answers in order) but its own ok was lost.
+        index = match_ok(self._in_flight, ok, exact_oks=self._exact_oks) if self._in_flight else None
+        if index is None:
+            self._stray_oks += 1
+            if self._resends.draining and ok.temperatures is None:
+                self._fragment_ran(now)
+            return
+        if ok.line_number is not None:
+            self._exact_oks = True
+        skipped = [self._in_flight.popleft(now) for _ in range(index)]
+        command = self._in_flight.popleft(now)
+        lines = attribute(skipped, command)
+        for lost in skipped:
+            self._lost_oks += 1
+            self._settle(lost, None, None, now)
+        self._settle(command, ok, lines, now)
+
+    def _settle(self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float) -> None:
+        """Finish one command taken off the FIFO: answered by `ok`, or (ok None) processed with its ok lost."""
+        refused = command.refusal is not None and not command.orphan and not command.probe
+        self._resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
+        if command.code == "M999" and self._stopped:
+            # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
+            self._halt = None
+            self._stopped = False
+        if command.refusal is None and self._locked and not command.orphan and command.code != "M511":
+            self._locked = False  # a command ran normally: the printer was unlocked (M511 or its screen)
+        if refused:
+            self._refused(command, now)
+        elif command.job is not None:
+            # A print line needs no reply: a later answer proves it ran, whether its own ok came or not.
+            if ok is not None:
+                self._feed.answered(command, now)
+            command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
+        elif command.probe:
+            self._feed.probe = None
+        elif command.orphan:
+            return
+        elif ok is None or lines is None:
+            what = "its ok was lost" if ok is None else "the ok of a command before it was lost"
+            self._finish(
+                command,
+                LostReplyError(
+                    f"{command.text!r} was processed but {what}, so which reply lines are its own cannot be "
+                    "proven; it was not handed another command's answer",
+                    command=command.text,
+                ),
+            )
+        else:
+            sent = now if command.sent_s is None else command.sent_s
+            self._finish(command, Reply(command.text, lines, ok, sent, now, command.lines_dropped))
+
+    def _refused(self, command: Command, now: float) -> None:
+        """The printer answered `command` with an ok but said it did not run it."""
+        said = command.refusal or ""
+        error: MarlinError
+        if "locked" in said.lower():
+            error = PrinterLockedError(
+                f"the printer is locked and refused {command.text!r} ({said.removeprefix('echo:')}): "
+                "unlock it with M511 P<password> (connect with password=..., or --password) or on its screen"
+            )
+        else:
+            error = CommandNotExecutedError(f"the printer did not run {command.text!r}: it said {said!r}")
+        if command.job is not None:
+            job = command.job
+            job.in_flight -= 1
+            where = f"line {command.source_line} of {job.name}"
+            # Nothing after the refused line may run in its place: the print stops here, with the printer's words.
+            self._stop_job(type(error)(f"print stopped at {where}: {error}"), now)
+            return
+        self._finish(command, error)
+
+    def _fragment_ran(self, now: float) -> None:
+        """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own."""
+        self._resends.fragments_run += 1
+        job = self._feed.job
+        if job is None or not job.active:
+            return
+        pieces = ", ".join(repr(text) for _, text in self._resends.fragment_wires[:3])
+        message = (
+            f"print stopped after line {job.last_source_line} of {job.name}: after a line error the printer threw "
+            "away its receive buffer in the middle of a line and ran the rest of it as a command of its own (an ok "
+            f"that no command earned; the line was one of {pieces}), so a line ran out of place; "
+            "send-ahead cannot rule this out on this link: print with send_ahead=False (ping-pong)"
+        )
+        self._stop_job(RemoteProtocolError(message), now)
+
+    def _on_error(self, event: ErrorMessage, now: float) -> None:
+        head = self._in_flight.head
+        match event.kind:
+            case ErrorKind.THERMAL:
+                self._thermal_message = event.message
+                self._halt_with(ThermalRunawayError(f"thermal protection tripped: {event.message}"), stopped=False)
+            case ErrorKind.HALTED | ErrorKind.STOPPED if self._thermal_message is not None:
+                message = f"thermal protection tripped: {self._thermal_message} ({event.message})"
+                self._halt_with(ThermalRunawayError(message), stopped=False)
+            case ErrorKind.HALTED | ErrorKind.STOPPED:
+                halted = PrinterHaltedError(f"the printer halted: {event.message}")
+                self._halt_with(halted, stopped=event.kind is ErrorKind.STOPPED)
+            case ErrorKind.NOT_EXECUTED if head is not None:
+                head.add_line(f"!! {event.message}")
+                head.refusal = f"!! {event.message}"
+            case ErrorKind.CHECKSUM_REQUIRED:
+                self._on_checksum_required(event.message, now)
+            case ErrorKind.OTHER if head is not None:
+                head.add_line(f"Error:{event.message}")
+
+    def _on_checksum_required(self, message: str, now: float) -> None:
+        # The firmware ran nothing and will send no ok for the oldest unnumbered command: fail it now, and number
+        # every command from here on.
+        self.requires_numbers = True
+        command = next((c for c in self._in_flight if c.line_number is None), None)
+        if command is None:
+            return
+        self._in_flight.remove(command, now)
+        if not command.orphan and command.job is None and not command.probe:
+            error = ChecksumRequiredError(
+                f"the printer refused {command.text!r} without a line number and checksum "
+                f"('Error:{message}'); it needs numbered commands"
+            )
+            self._finish(command, error)
+
+    def _halt_with(self, error: PrinterHaltedError, *, stopped: bool) -> None:
+        """The printer halted (`stopped`: a stop() that M999 clears; otherwise it needs a reset)."""
+        if self._halt is None or isinstance(error, ThermalRunawayError):
+            self._halt = error
+        # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill().
+        self._stopped = stopped if self._halt is error else self._stopped and stopped
+        self._fail_everything(self._halt)
+
+    def _on_start(self) -> None:
+        self._resets += 1
+        # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
+        self._fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
+        self._halt = None
+        self._stopped = False
+        self._locked = False
+        self._thermal_message = None
+        self._resends.restart_numbering()
