@@ -8,7 +8,6 @@ async function the tests can call too. Every failure ends as one line on stderr 
 from __future__ import annotations
 
 import asyncio
-import signal
 from collections.abc import Coroutine
 from pathlib import Path
 from typing import Annotated, Any, NoReturn, TypeVar
@@ -421,32 +420,20 @@ def ports() -> None:
 # ------------------------------------------------------------------------------------------- sim
 
 
-@app.command("sim")
-def simulate(
-    tcp: Annotated[
-        int | None, typer.Option("--tcp", help="Serve on this TCP port (0: any free) instead of a pty.")
-    ] = None,
-    speed: Annotated[float, typer.Option("--speed", help="Simulated seconds per real second.", min=0.01)] = 1.0,
-) -> None:
+@app.command(
+    "sim",
+    context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []},
+    add_help_option=False,
+)
+def simulate(ctx: typer.Context) -> None:
     """Run the simulated printer on a pseudo-terminal (or TCP) and print its address; Ctrl-C stops it.
 
-    Open the printed device path (or socket:// URL) with any host program, e.g. marlin-temp watch --port PATH.
+    Takes every marlin-sim option (marlin-temp sim --help lists them): one definition serves both commands. Open
+    the printed device path (or socket:// URL) with any host program, e.g. marlin-temp watch --port PATH.
     """
-    from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
+    from marlin_aio.simulator.__main__ import main as simulator_main
 
-    async def serve() -> None:
-        server = (
-            serve_tcp(SimulatorConfig(), port=tcp, time_scale=speed)
-            if tcp is not None
-            else serve_pty(SimulatorConfig(), time_scale=speed)
-        )
-        async with server:
-            print(server.url, flush=True)
-            _stderr().print(f"simulated Marlin printer on {server.url}; Ctrl-C stops it", style="dim")
-            stop = asyncio.Event()
-            loop = asyncio.get_running_loop()
-            for signum in (signal.SIGINT, signal.SIGTERM):
-                loop.add_signal_handler(signum, stop.set)
-            await stop.wait()
-
-    run(serve())
+    # --speed is this command's older name for marlin-sim's --time-scale.
+    args = ["--time-scale" if arg == "--speed" else arg for arg in ctx.args]
+    args = [f"--time-scale={arg.removeprefix('--speed=')}" if arg.startswith("--speed=") else arg for arg in args]
+    raise typer.Exit(simulator_main(args, prog="marlin-temp sim"))

@@ -149,3 +149,20 @@ async def test_watch_reconnect_keeps_retrying_and_resumes(tmp_path: Path) -> Non
         with pytest.raises(asyncio.CancelledError):
             await watching
     assert "retrying in 2 s" in errors.export_text()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [(["sim", "--drop-ok", "2"], "between 0 and 1"), (["sim", "--bogus"], "unrecognized arguments: --bogus")],
+)
+def test_sim_takes_marlin_sims_options_and_rejects_bad_ones_in_one_line(args: list[str], message: str) -> None:
+    result = runner.invoke(app, args)
+    assert result.exit_code == Exit.USAGE
+    assert message in one_line(result.output)
+
+
+def test_sim_help_lists_the_options_marlin_sim_has() -> None:
+    result = runner.invoke(app, ["sim", "--help"])
+    assert result.exit_code == 0
+    assert "marlin-temp sim" in result.output
+    assert all(option in result.output for option in ("--corrupt-rx", "--checksum-required", "--tcp"))

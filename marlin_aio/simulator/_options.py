@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, NoReturn
 
 from marlin_aio.simulator._config import Faults, SimulatorConfig
 from marlin_aio.simulator._serve import SimulatorServer, serve_pty, serve_tcp
@@ -223,9 +223,16 @@ def add_simulator_options(parser: argparse.ArgumentParser) -> None:
         groups[option.group].add_argument(option.flag, **arguments)
 
 
+class _OneLineErrors(argparse.ArgumentParser):
+    """Bad input gets one line that says what is wrong (and where to look), not the whole usage."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (--help lists the options)\n")
+
+
 def build_parser(prog: str = "marlin-sim") -> argparse.ArgumentParser:
     """The whole simulator command line as `prog` shows it."""
-    parser = argparse.ArgumentParser(
+    parser = _OneLineErrors(
         prog=prog,
         description="Serve a simulated Marlin 2.1 printer. Prints the URL to open as the first line on stdout.",
     )
