@@ -125,7 +125,7 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
             yield printer, f"{server.url} (simulated)"
         return
     port = options.port or _choose_port(console)
-    rates = [options.baud] if options.baud else [250_000, 115_200]
+    rates = [options.baud] if options.baud else list(marlin_aio.BAUD_RATES)
     for index, baud in enumerate(rates):
         try:
             printer = options.printer(port, baud)

@@ -22,9 +22,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO
 
-from marlin_aio import TemperatureReading
-
-from .model import heater_name
+from marlin_aio import TemperatureReading, heater_name
 
 __all__ = ["LogFormat", "LogSummary", "TemperatureLog", "read_log"]
 

@@ -10,19 +10,9 @@ import statistics
 from collections import deque
 from dataclasses import dataclass
 
-from marlin_aio import TemperatureReading
+from marlin_aio import HEATER_NAMES, TemperatureReading, heater_name
 
-__all__ = ["HEATER_NAMES", "HeaterStatus", "LinkStats", "WatchModel"]
-
-#: Display names for Marlin's sensor letters; tools show as "hotend 0", "hotend 1".
-HEATER_NAMES = {"T": "hotend", "B": "bed", "C": "chamber", "L": "cooler", "P": "probe", "M": "board", "R": "redundant"}
-
-
-def heater_name(key: str) -> str:
-    """`"T0"` gives `"hotend 0"`, `"B"` gives `"bed"`."""
-    if key[0] == "T" and key[1:].isdigit():
-        return f"hotend {key[1:]}"
-    return HEATER_NAMES.get(key, key)
+__all__ = ["HEATER_NAMES", "HeaterStatus", "LinkStats", "WatchModel", "heater_name"]
 
 
 @dataclass(frozen=True, slots=True)

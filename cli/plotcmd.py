@@ -6,9 +6,10 @@ from pathlib import Path
 
 from rich.console import Console
 
+from marlin_aio import heater_name
+
 from .connect import UsageProblem
 from .logfile import read_log
-from .model import heater_name
 
 __all__ = ["plot_log"]
 

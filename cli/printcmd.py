@@ -24,7 +24,7 @@ from .terminal import key_presses, on_stop_signals
 
 __all__ = ["PrintSettings", "print_gcode"]
 
-CANCEL_SCRIPT = ("M104 S0", "M140 S0", "M107")
+CANCEL_SCRIPT = marlin_aio.COOL_DOWN
 
 
 @dataclass(frozen=True)
@@ -42,11 +42,11 @@ def _temperatures(printer: marlin_aio.Printer) -> Text:
     text = Text("  ")
     if reading is None:
         return text.append("temperatures: waiting for a reading", style="dim")
-    for key, name, style in (("T", "hotend", "red"), ("B", "bed", "blue"), ("C", "chamber", "green")):
+    for key, style in (("T", "red"), ("B", "blue"), ("C", "green")):
         heater = reading.temperatures.heaters.get(key)
         if heater is not None:
             target = "off" if not heater.target else f"{heater.target:.0f}"
-            text.append(f"{name} ", style=style).append(f"{heater.actual:.1f}/{target} °C   ")
+            text.append(f"{marlin_aio.heater_name(key)} ", style=style).append(f"{heater.actual:.1f}/{target} °C   ")
     return text
 
 
@@ -76,7 +76,8 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
             mode = "send-ahead" if settings.send_ahead else "ping-pong"
             errors.print(f"printing {settings.path.name} on {label} ({mode}); Ctrl-C to cancel", style="dim")
             try:
-                cancelled = await _follow(handle, printer, console, errors, interrupted)
+                script = () if settings.keep_heaters else CANCEL_SCRIPT
+                cancelled = await _follow(handle, printer, console, errors, interrupted, script)
             except marlin_aio.PrintStalledError as exc:
                 errors.print(f"[bold red]error:[/] {exc}", highlight=False)
                 errors.print("last lines sent (>>) and received (<<), seconds before the stall:", style="dim")
@@ -84,9 +85,6 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                 raise
             final = handle.progress
             if cancelled:
-                if not settings.keep_heaters:
-                    for command in CANCEL_SCRIPT:
-                        await printer.send(command)
                 heaters = "heaters left on" if settings.keep_heaters else "heaters and fan turned off"
                 errors.print(
                     f"cancelled after line {final.last_source_line} ({final.lines_acked} commands done); {heaters}"
@@ -106,8 +104,10 @@ async def _follow(
     console: Console,
     errors: Console,
     interrupted: asyncio.Event,
+    script: tuple[str, ...],
 ) -> bool:
-    """Show progress until the print ends; handle Ctrl-C. Return True if it was cancelled."""
+    """Show progress until the print ends; handle Ctrl-C, cancelling with `script`. Return True if it was
+    cancelled."""
     pressed: asyncio.Queue[str] = asyncio.Queue()
     bar = Progress(
         TextColumn("{task.description}"),
@@ -137,7 +137,7 @@ async def _follow(
                 if asking or not keys:
                     # A second Ctrl-C, or no terminal to ask on: cancel at once.
                     cancelled = True
-                    await handle.cancel()
+                    await handle.cancel(script)
                     break
                 asking = True
             if waiters[2] in finished and asking:
@@ -146,7 +146,7 @@ async def _follow(
                 if key == "y":
                     cancelled = True
                     bar.update(task, description="cancelling...")
-                    await handle.cancel()
+                    await handle.cancel(script)
                     break
             progress = handle.progress
             description = (

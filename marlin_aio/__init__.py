@@ -12,7 +12,7 @@ served on a pseudo-terminal or TCP.
 from __future__ import annotations
 
 from marlin_aio._serial import PortInfo, list_ports
-from marlin_aio.client import DEFAULT_BAUDRATE, Printer, PrintHandle, connect
+from marlin_aio.client import BAUD_RATES, DEFAULT_BAUDRATE, Printer, PrintHandle, connect
 from marlin_aio.commands import (
     DEFAULT_MAX_BED_CELSIUS,
     DEFAULT_MAX_CHAMBER_CELSIUS,
@@ -65,13 +65,16 @@ from marlin_aio.events import (
 from marlin_aio.framing import LineSplitter
 from marlin_aio.linkstate import LinkState
 from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
+from marlin_aio.printhandle import COOL_DOWN
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
 from marlin_aio.stats import LinkStats
 from marlin_aio.temperatures import (
+    HEATER_NAMES,
     HeaterReading,
     ReadingSource,
     TemperatureReading,
     Temperatures,
+    heater_name,
     parse_temperatures,
 )
 from marlin_aio.trace import Trace, TraceEntry
@@ -79,10 +82,13 @@ from marlin_aio.trace import Trace, TraceEntry
 __version__ = "0.1.0"
 
 __all__ = [
+    "BAUD_RATES",
+    "COOL_DOWN",
     "DEFAULT_BAUDRATE",
     "DEFAULT_MAX_BED_CELSIUS",
     "DEFAULT_MAX_CHAMBER_CELSIUS",
     "DEFAULT_MAX_HOTEND_CELSIUS",
+    "HEATER_NAMES",
     "BusyKeepalive",
     "Capability",
     "ChecksumRequiredError",
@@ -142,6 +148,7 @@ __all__ = [
     "classify_line",
     "connect",
     "encode_command",
+    "heater_name",
     "list_ports",
     "number_command",
     "parse_endstops",

@@ -39,12 +39,14 @@ from marlin_aio.poller import Poller
 from marlin_aio.printhandle import PrintHandle
 from marlin_aio.printjob import PrintJob, PrintProgress
 from marlin_aio.stats import LinkStats
-from marlin_aio.temperatures import ReadingSource, TemperatureReading
+from marlin_aio.temperatures import ReadingSource, TemperatureReading, heater_name
 from marlin_aio.trace import Trace
 
-__all__ = ["DEFAULT_BAUDRATE", "PrintHandle", "Printer", "connect"]
+__all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "PrintHandle", "Printer", "connect"]
 
-DEFAULT_BAUDRATE = 250_000
+#: The rates Marlin boards use, the usual first: a host that does not know tries them in this order.
+BAUD_RATES = (250_000, 115_200)
+DEFAULT_BAUDRATE = BAUD_RATES[0]
 
 _log = logging.getLogger("marlin_aio")
 
@@ -384,7 +386,7 @@ class Printer:
             except TimeoutError:
                 latest = self.latest
                 state = "no reading" if latest is None else _describe_heaters(latest)
-                waited_for = ", ".join(_HEATER_NAMES.get(key, f"hotend {key[1:]}") for key in wanted) or "all heaters"
+                waited_for = ", ".join(heater_name(key) for key in wanted) or "all heaters"
                 raise TemperatureTimeoutError(
                     f"{waited_for} did not reach the target within {timeout_s:g} s ({state})"
                 ) from None
@@ -565,10 +567,6 @@ class Printer:
 def _check_tool(tool: int | None) -> None:
     if tool is not None and (isinstance(tool, bool) or not isinstance(tool, int) or tool < 0):
         raise ValueError(f"tool must be a non-negative integer, got {tool!r}")
-
-
-#: Names for the heaters a wait can name; hotends by number are "hotend <n>".
-_HEATER_NAMES = {"T": "hotend", "B": "bed", "C": "chamber"}
 
 
 def _describe_heaters(reading: TemperatureReading) -> str:

@@ -8,7 +8,10 @@ from collections.abc import Generator
 from marlin_aio.link import Link
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
 
-__all__ = ["PrintHandle"]
+__all__ = ["COOL_DOWN", "PrintHandle"]
+
+#: A cancel script that turns the hotend, the bed and the part fan off (`PrintHandle.cancel(COOL_DOWN)`).
+COOL_DOWN = ("M104 S0", "M140 S0", "M107")
 
 
 class PrintHandle:

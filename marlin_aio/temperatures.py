@@ -11,7 +11,25 @@ import re
 from dataclasses import dataclass
 from enum import StrEnum
 
-__all__ = ["HeaterReading", "ReadingSource", "TemperatureReading", "Temperatures", "parse_temperatures"]
+__all__ = [
+    "HEATER_NAMES",
+    "HeaterReading",
+    "ReadingSource",
+    "TemperatureReading",
+    "Temperatures",
+    "heater_name",
+    "parse_temperatures",
+]
+
+#: Names for Marlin's sensor letters in reports; hotends by number are "hotend 0", "hotend 1".
+HEATER_NAMES = {"T": "hotend", "B": "bed", "C": "chamber", "L": "cooler", "P": "probe", "M": "board", "R": "redundant"}
+
+
+def heater_name(key: str) -> str:
+    """The name of a report's heater key, for people: `"T0"` gives `"hotend 0"`, `"B"` gives `"bed"`."""
+    if key[:1] == "T" and key[1:].isdigit():
+        return f"hotend {key[1:]}"
+    return HEATER_NAMES.get(key, key)
 
 
 @dataclass(frozen=True, slots=True)
