@@ -13,7 +13,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 from collections import deque
 from collections.abc import AsyncGenerator, AsyncIterator, Generator, Iterable
 from pathlib import Path
@@ -24,14 +23,13 @@ from marlin_aio.commands import (
     DEFAULT_MAX_BED_CELSIUS,
     DEFAULT_MAX_CHAMBER_CELSIUS,
     DEFAULT_MAX_HOTEND_CELSIUS,
-    check_target,
-    format_celsius,
 )
 from marlin_aio.connection import Connection, Reply
 from marlin_aio.errors import ConnectionLostError, MarlinError, TemperatureTimeoutError
 from marlin_aio.events import Capability, Event, FirmwareInfo
 from marlin_aio.feed import TemperatureFeed
 from marlin_aio.handshake import handshake, send_until_processed
+from marlin_aio.heaters import HeaterLimits, describe_heaters, target_commands, targets_reached, wanted_targets
 from marlin_aio.link import Link
 from marlin_aio.linkstate import LinkState
 from marlin_aio.parsing import parse_endstops, parse_position
@@ -296,25 +294,11 @@ class Printer:
             ValueError: a target is not a number, negative, or above the client's limit; `tool` is negative.
             MarlinError: as `send`.
         """
-        commands = self._target_commands(hotend=hotend, bed=bed, chamber=chamber, tool=tool)
-        for command in commands:
+        for command in target_commands(self._limits(), hotend=hotend, bed=bed, chamber=chamber, tool=tool):
             await self.send(command)
 
-    def _target_commands(
-        self, *, hotend: float | None, bed: float | None, chamber: float | None, tool: int | None
-    ) -> list[str]:
-        _check_tool(tool)
-        commands = []
-        if hotend is not None:
-            value = check_target("hotend", hotend, self.max_hotend_celsius)
-            commands.append(f"M104 {'' if tool is None else f'T{tool} '}S{format_celsius(value)}")
-        if bed is not None:
-            value = check_target("bed", bed, self.max_bed_celsius)
-            commands.append(f"M140 S{format_celsius(value)}")
-        if chamber is not None:
-            value = check_target("chamber", chamber, self.max_chamber_celsius)
-            commands.append(f"M141 S{format_celsius(value)}")
-        return commands
+    def _limits(self) -> HeaterLimits:
+        return HeaterLimits(self.max_hotend_celsius, self.max_bed_celsius, self.max_chamber_celsius)
 
     async def wait_for_temperatures(
         self,
@@ -340,37 +324,17 @@ class Printer:
         """
         if not tolerance_c >= 0:
             raise ValueError(f"tolerance_c must not be negative, got {tolerance_c}")
-        _check_tool(tool)
-        # `T` is whichever hotend is active; `T<n>` names one hotend (a single-hotend printer reports only `T`).
-        hotend_key = "T" if tool is None else f"T{tool}"
-        wanted: dict[str, float] = {}
-        if hotend is not None:
-            wanted[hotend_key] = check_target("hotend", hotend, self.max_hotend_celsius)
-        if bed is not None:
-            wanted["B"] = check_target("bed", bed, self.max_bed_celsius)
-        if chamber is not None:
-            wanted["C"] = check_target("chamber", chamber, self.max_chamber_celsius)
-
-        def reached(reading: TemperatureReading) -> bool:
-            heaters = dict(reading.temperatures.heaters)
-            if "T0" not in heaters and "T" in heaters:
-                heaters["T0"] = heaters["T"]
-            targets = dict(wanted)
-            if not wanted:
-                names = ("T" if tool is None else hotend_key, "B", "C")
-                targets = {k: h.target for k, h in heaters.items() if h.target and k in names}
-            return all(
-                key in heaters and abs(heaters[key].actual - target) <= tolerance_c for key, target in targets.items()
-            )
+        wanted = wanted_targets(self._limits(), hotend=hotend, bed=bed, chamber=chamber, tool=tool)
 
         async def watch() -> TemperatureReading:
             readings = self.temperature_readings()
             try:
                 # A reading from before the call may predate the targets just set: only trust it for explicit ones.
-                if wanted and self.latest is not None and reached(self.latest):
-                    return self.latest
+                latest = self.latest
+                if wanted and latest is not None and targets_reached(latest, wanted, tool, tolerance_c):
+                    return latest
                 async for reading in readings:
-                    if reached(reading):
+                    if targets_reached(reading, wanted, tool, tolerance_c):
                         return reading
             finally:
                 await readings.aclose()
@@ -385,7 +349,7 @@ class Printer:
                     return await watch()
             except TimeoutError:
                 latest = self.latest
-                state = "no reading" if latest is None else _describe_heaters(latest)
+                state = "no reading" if latest is None else describe_heaters(latest)
                 waited_for = ", ".join(heater_name(key) for key in wanted) or "all heaters"
                 raise TemperatureTimeoutError(
                     f"{waited_for} did not reach the target within {timeout_s:g} s ({state})"
@@ -562,22 +526,6 @@ class Printer:
     def _after_results(self) -> None:
         if self._print is not None:
             self._print.check()
-
-
-def _check_tool(tool: int | None) -> None:
-    if tool is not None and (isinstance(tool, bool) or not isinstance(tool, int) or tool < 0):
-        raise ValueError(f"tool must be a non-negative integer, got {tool!r}")
-
-
-def _describe_heaters(reading: TemperatureReading) -> str:
-    parts = []
-    heaters = reading.temperatures.heaters
-    for key, heater in heaters.items():
-        if key == "T" and "T0" in heaters:
-            continue  # the active hotend appears again under its number
-        if key[:1] in ("T", "B", "C") and heater.target is not None and not math.isnan(heater.actual):
-            parts.append(f"{key} {heater.actual:.1f}/{heater.target:.0f} C")
-    return ", ".join(parts) or "no heaters reported"
 
 
 #: `connect(port, ...)` makes a `Printer` with the same options (one definition of them: `Printer`'s); open it
