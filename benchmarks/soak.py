@@ -23,7 +23,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 from marlin_aio import PrintState
-from marlin_aio.simulator._campaign import Scenario, run_print
+from marlin_aio.simulator import Scenario, run_print
 
 
 @dataclass(frozen=True)
