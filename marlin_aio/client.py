@@ -5,7 +5,8 @@ protocol core and the callers' futures), `marlin_aio.handshake` (the start-up se
 (temperature readings to every subscriber), `marlin_aio.poller` (M105 on a schedule) and
 `marlin_aio.printhandle` (a print in progress). All protocol decisions live in `marlin_aio.connection`.
 Loop-bound objects are created in `open()`, never in `__init__`, so a `Printer` can be built outside a running
-loop.
+loop. (This module is longer than the others because it is the API reference: about a third of it is the
+docstrings of `Printer`'s public methods; the logic behind them lives in the collaborators.)
 """
 
 from __future__ import annotations
