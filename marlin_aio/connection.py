@@ -26,18 +26,15 @@ Nothing here imports asyncio or serial; `marlin_aio.client` is the thin layer th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from marlin_aio.commands import MAX_COMMAND_BYTES, command_code, encode_command, validate_command
 from marlin_aio.deadlines import Deadlines
 from marlin_aio.errors import (
     MarlinError,
     PrinterHaltedError,
 )
-from marlin_aio.events import (
-    Capability,
-    EchoMessage,
-    FirmwareInfo,
-    UnrecognisedLine,
-)
+from marlin_aio.events import Event
 from marlin_aio.linkstate import LinkState
 from marlin_aio.matching import answer_stays_distinct
 from marlin_aio.printjob import PrintJob
@@ -46,23 +43,37 @@ from marlin_aio.replies import MAX_REPLY_LINES, Command, Reply
 from marlin_aio.resends import CALM_LINES
 from marlin_aio.stats import LinkStats
 
-__all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Reply"]
-
-#: Commands that wait for heaters; every temperature report while they run shows the printer is alive.
-_HEATER_WAITS = frozenset({"M109", "M190", "M191"})
+__all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "Reply"]
 
 #: Commands Marlin's emergency parser acts on as soon as their bytes arrive; they skip the queue here too.
 EMERGENCY_COMMANDS = frozenset({"M108", "M112", "M410", "M876"})
 
-#: Reply-line events a command collects while it is the oldest waiting.
-_REPLY_LINES = (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability)
+
+@dataclass(frozen=True, slots=True)
+class Output:
+    """Everything one step of the core produced, in one place (`Connection.receive` and `Connection.tick`).
+
+    The I/O layer handles it in this order: hand on `events`, write `data`, resolve `finished`, and call
+    `tick()` again at `deadline` (None: nothing to wait for).
+    """
+
+    events: tuple[Event, ...]
+    """The events of the lines the bytes completed (none for a tick)."""
+    data: bytes
+    """Bytes to write to the printer now."""
+    finished: tuple[tuple[Command, Reply | MarlinError], ...]
+    """Commands that ended, each with its reply or error."""
+    deadline: float | None
+    """When to call `tick()` next, unless bytes arrive first."""
 
 
 class Connection(Receiving, Deadlines):
     """Bookkeeping for one link to a Marlin printer, with no I/O.
 
-    Typical use by an I/O layer: `submit()` commands, write `data_to_send()`, feed bytes read to
-    `receive_data()`, call `check_timeouts()` at `next_deadline()`, and deliver `take_results()`.
+    Use by an I/O layer: `submit()` commands, then `tick(now)`; feed the bytes read to `receive(data, now)`; and
+    call `tick(now)` again at the `deadline` of the last `Output`. Each call returns one `Output` with everything
+    it produced. (The steps it bundles, `receive_data`, `data_to_send`, `check_timeouts`, `take_results` and
+    `next_deadline`, stay public for tests that drive the core step by step.)
 
     Args:
         numbered: give every command a line number and checksum so the printer can ask for it again.
@@ -103,9 +114,29 @@ class Connection(Receiving, Deadlines):
         return self._feed.job
 
     @property
+    def numbered(self) -> bool:
+        """Commands get a line number and checksum unless submitted with `numbered=False`."""
+        return self._numbered
+
+    @property
+    def requires_numbers(self) -> bool:
+        """The printer refused an unnumbered command (`Missing checksum`): every command is numbered now."""
+        return self._requires_numbers
+
+    @property
+    def max_in_flight(self) -> int:
+        """How many commands may be written before their `ok` (1 is ping-pong)."""
+        return self._max_in_flight
+
+    @property
+    def rx_buffer_bytes(self) -> int:
+        """The printer's receive buffer: unanswered bytes never exceed it."""
+        return self._rx_buffer_bytes
+
+    @property
     def window(self) -> tuple[int, int]:
         """(max_in_flight, rx_buffer_bytes): how many commands and unanswered bytes may be on the wire."""
-        return self.max_in_flight, self.rx_buffer_bytes
+        return self._max_in_flight, self._rx_buffer_bytes
 
     def set_window(self, max_in_flight: int, rx_buffer_bytes: int) -> None:
         """Change how many commands and unanswered bytes may be on the wire (a print's send-ahead, a benchmark);
@@ -118,8 +149,8 @@ class Connection(Receiving, Deadlines):
             raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
         if rx_buffer_bytes < 16:
             raise ValueError(f"rx_buffer_bytes must be at least 16, got {rx_buffer_bytes}")
-        self.max_in_flight = max_in_flight
-        self.rx_buffer_bytes = rx_buffer_bytes
+        self._max_in_flight = max_in_flight
+        self._rx_buffer_bytes = rx_buffer_bytes
 
     def stats(self) -> LinkStats:
         """A frozen snapshot of the counters."""
@@ -178,7 +209,7 @@ class Connection(Receiving, Deadlines):
             ValueError: the command is not valid (line break, non-ASCII, too long, empty).
             PrinterHaltedError: the printer halted and answers nothing until it is reset.
         """
-        use_numbers = (self.numbered if numbered is None else numbered) or self.requires_numbers
+        use_numbers = (self._numbered if numbered is None else numbered) or self._requires_numbers
         if checked:
             # Validate now, so a bad command never reaches the queue: as given (the clearest message), then its
             # length with a line number comfortably larger than any it can get while queued.
@@ -269,13 +300,13 @@ class Connection(Receiving, Deadlines):
         feed = self._feed
         flight = self._in_flight
         # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.
-        limit = self.rx_buffer_bytes - (self.probe_reserve_bytes if feed.job is not None else 0)
+        limit = self._rx_buffer_bytes - (self.probe_reserve_bytes if feed.job is not None else 0)
         calm = resends.calm
         while True:
             if self._queue:
                 command = self._queue[0]
             else:
-                job_command = feed.next_command(self._new_id, self.numbered, now)
+                job_command = feed.next_command(self._new_id, self._numbered, now)
                 if job_command is None:
                     break
                 command = job_command
@@ -284,9 +315,9 @@ class Connection(Receiving, Deadlines):
             if not nudge:
                 resends.nudge_pending = False
             if flight and (
-                (len(flight) >= self.max_in_flight and not command.probe)
+                (len(flight) >= self._max_in_flight and not command.probe)
                 or (calm and not (command.probe or nudge) and resends.rejectable(flight))
-                or flight.bytes + resends.wire_size(command) > (self.rx_buffer_bytes if command.probe else limit)
+                or flight.bytes + resends.wire_size(command) > (self._rx_buffer_bytes if command.probe else limit)
                 or not answer_stays_distinct(command, flight, exact_oks=self._exact_oks)
             ):
                 break
@@ -300,7 +331,7 @@ class Connection(Receiving, Deadlines):
                     self._finish(command, MarlinError(f"{command.text!r} grew too long for Marlin once numbered"))
                     continue
                 # Keep enough history for everything that can be in flight, with a wide margin.
-                resends.assign_wire(command, max(256, 4 * self.max_in_flight))
+                resends.assign_wire(command, max(256, 4 * self._max_in_flight))
             if command.job is not None and command.sends == 0:
                 command.job.sent()
             command.sends += 1
@@ -318,3 +349,18 @@ class Connection(Receiving, Deadlines):
         """Return and forget the commands finished since the last call, with their reply or error."""
         results, self._results = self._results, []
         return results
+
+    # ----------------------------------------------------------------------------------------------- one output
+
+    def receive(self, data: bytes, now: float) -> Output:
+        """Feed bytes read from the printer; return what they brought and what to do now."""
+        return self._output(tuple(self.receive_data(data, now)), now)
+
+    def tick(self, now: float) -> Output:
+        """Act on deadlines that have passed and on commands waiting to go out; return what to do now."""
+        self.check_timeouts(now)
+        return self._output((), now)
+
+    def _output(self, events: tuple[Event, ...], now: float) -> Output:
+        data = self.data_to_send(now) if self.has_data_to_send else b""
+        return Output(events, data, tuple(self.take_results()), self.next_deadline())

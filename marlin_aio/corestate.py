@@ -39,9 +39,9 @@ class CoreState:
             raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
         if rx_buffer_bytes < 16:
             raise ValueError(f"rx_buffer_bytes must be at least 16, got {rx_buffer_bytes}")
-        self.numbered = numbered
-        self.max_in_flight = max_in_flight
-        self.rx_buffer_bytes = rx_buffer_bytes
+        self._numbered = numbered
+        self._max_in_flight = max_in_flight
+        self._rx_buffer_bytes = rx_buffer_bytes
         self.trace = Trace(trace_size)
         self._parser = EventParser()
         self._resends = Resends(
@@ -58,7 +58,7 @@ class CoreState:
         self._halt: PrinterHaltedError | None = None  # why the printer halted or stopped; raised to new commands
         self._stopped = False  # the halt is a stop() that M999 clears (ErrorKind.STOPPED), not a kill()
         self._locked = False  # the printer said "Printer locked!" and has not run a command since
-        self.requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
+        self._requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
         # Counters (read them through `stats()`). Every submitted command ends up counted once: answered + failed
         # + cancelled + still queued or in flight.
         self._submitted = self._answered = self._failed = self._cancelled = 0

@@ -9,6 +9,7 @@ caller's), and everything queued behind it fails at once; a print line that time
 
 from __future__ import annotations
 
+import logging
 import math
 
 from marlin_aio.corestate import CoreState
@@ -16,6 +17,9 @@ from marlin_aio.errors import CommandTimeoutError, PrintStalledError
 from marlin_aio.replies import Command
 
 __all__ = ["Deadlines"]
+
+#: Recoveries at INFO, oddities and failures at WARNING (lines on the wire: "marlin_aio.wire" at DEBUG).
+_log = logging.getLogger("marlin_aio")
 
 
 class Deadlines(CoreState):
@@ -38,7 +42,7 @@ class Deadlines(CoreState):
         resend_at = start + min(head.timeout_s, resends.resend_timeout_s) if resends.resending(head) else math.inf
         feed = self._feed
         # Only while a job streams: outside prints a probe M105 could answer a user's own M105 (say M105 T9).
-        may_probe = feed.active and feed.probe is None and self.numbered and not resends.draining
+        may_probe = feed.active and feed.probe is None and self._numbered and not resends.draining
         probe_at = max(start, feed.probed_s) + feed.probe_delay_s() if may_probe else math.inf
         return start + head.timeout_s, resend_at, probe_at
 
@@ -75,6 +79,7 @@ class Deadlines(CoreState):
             # No stale rejection can still be on its way after this much silence.
             resends.forget_stale()
             self._timeouts += 1
+            _log.warning("no answer to %r within %g s", head.text, head.timeout_s)
             if head.job is not None or head.probe:
                 self._stall_job(head, now)
                 continue
@@ -99,7 +104,7 @@ class Deadlines(CoreState):
             # Lines wait to be written again, one at a time, behind this one, whose ok may be lost. With plain oks
             # only an M105's `ok T:` can prove that, so the probe goes behind those lines (its number comes after
             # theirs) and they all go out now. One at a time (ping-pong) the next of them is the probe.
-            if self.max_in_flight > 1:
+            if self._max_in_flight > 1:
                 at = 0
                 while at < len(self._queue) and self._queue[at].wire:
                     at += 1

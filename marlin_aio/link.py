@@ -13,7 +13,7 @@ from collections import deque
 from collections.abc import Callable
 
 from marlin_aio import _serial
-from marlin_aio.connection import Connection, Reply
+from marlin_aio.connection import Connection, Output, Reply
 from marlin_aio.errors import ConnectionLostError, MarlinError, PrinterHaltedError
 from marlin_aio.events import Event
 from marlin_aio.linkstate import LinkState
@@ -224,7 +224,7 @@ class Link:
             reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
             raise ConnectionLostError(f"cannot send the emergency stop (M112): {reason}")
         self._transport.write(self._conn.emergency_stop(self.now()))
-        self.deliver_results()
+        self.flush()
 
     def attach(self, job: PrintJob, *, timeout_s: float) -> None:
         """Stream `job` (see `Connection.attach`)."""
@@ -240,20 +240,26 @@ class Link:
     # ------------------------------------------------------------------------------------------- plumbing
 
     def data_received(self, data: bytes) -> None:
-        """Feed bytes read from the port to the core, and hand on what they brought."""
-        now = self.now()
-        events = self._conn.receive_data(data, now)
-        if events:
-            if self.line_seen is not None:
-                self.line_seen.set()
-            for event in events:
-                self._on_event(event, now)
-        self.deliver_results()
-        self.flush()
+        """Feed bytes read from the port to the core, and act on what they brought."""
+        output = self._conn.receive(data, self.now())
+        if output.events and self.line_seen is not None:
+            self.line_seen.set()
+        self._act(output)
 
-    def deliver_results(self) -> None:
-        """Resolve the futures (and callbacks) of every command the core finished; tell of a new halt."""
-        for command, outcome in self._conn.take_results():
+    def flush(self) -> None:
+        """Let the core act now (a command was submitted, a print resumed) and carry out what it says."""
+        if self._loop is not None:
+            self._act(self._conn.tick(self._loop.time()))
+
+    def _act(self, output: Output) -> None:
+        """One `Output` of the core, handled in its order: events, bytes, finished commands, the next deadline."""
+        if output.events:
+            now = self.now()
+            for event in output.events:
+                self._on_event(event, now)
+        if output.data and self._transport is not None and self._lost is None:
+            self._transport.write(output.data)
+        for command, outcome in output.finished:
             callback = self._callbacks.pop(command.id, None)
             if callback is not None:
                 callback(outcome)
@@ -272,19 +278,9 @@ class Link:
             # Readers of temperatures learn of a halt even when no command was waiting for an answer.
             self._halt_notified = halted
             self._on_failure(halted)
-        self._arm_timer()
+        self._arm_timer(output.deadline)
 
-    def flush(self) -> None:
-        """Write whatever the core has to send now."""
-        if self._transport is None or self._lost is not None or not self._conn.has_data_to_send:
-            return
-        data = self._conn.data_to_send(self.now())
-        if data:
-            self._transport.write(data)
-            self._arm_timer()
-
-    def _arm_timer(self) -> None:
-        deadline = self._conn.next_deadline()
+    def _arm_timer(self, deadline: float | None) -> None:
         if deadline is None:
             self._cancel_timer()
             return
@@ -302,8 +298,6 @@ class Link:
 
     def _on_timer(self) -> None:
         self._timer = None
-        self._conn.check_timeouts(self.now())
-        self.deliver_results()
         self.flush()
 
     def connection_lost(self, exc: Exception | None) -> None:
@@ -319,5 +313,5 @@ class Link:
     def _fail(self, error: MarlinError) -> None:
         self._lost = error
         self._conn.fail_all(error)
-        self.deliver_results()
+        self.flush()
         self._on_failure(error)

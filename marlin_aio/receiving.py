@@ -7,6 +7,8 @@ the oldest command's deadline out; `Error:` lines halt, stop or refuse; `start` 
 
 from __future__ import annotations
 
+import logging
+
 from marlin_aio.corestate import CoreState
 from marlin_aio.errors import (
     ChecksumRequiredError,
@@ -40,6 +42,9 @@ from marlin_aio.matching import attribute, match_ok
 from marlin_aio.replies import Command, Reply, is_noise
 
 __all__ = ["Receiving"]
+
+#: Recoveries at INFO, oddities and failures at WARNING (lines on the wire: "marlin_aio.wire" at DEBUG).
+_log = logging.getLogger("marlin_aio")
 
 #: Commands that wait for heaters; every temperature report while they run shows the printer is alive.
 _HEATER_WAITS = frozenset({"M109", "M190", "M191"})
@@ -116,6 +121,7 @@ class Receiving(CoreState):
                         # The ok that follows answers a command that was refused, not run.
                         head.refusal = text
                         self._locked = True
+                        _log.warning("the printer is locked: %s", text)
                     elif head.job is not None:
                         head.refusal = text  # a print line the firmware did not understand was not printed
             case _ if head is not None and isinstance(event, _REPLY_LINES):
@@ -129,6 +135,7 @@ class Receiving(CoreState):
         index = match_ok(self._in_flight, ok, exact_oks=self._exact_oks) if self._in_flight else None
         if index is None:
             self._stray_oks += 1
+            _log.warning("an ok that answers no command waiting: %r", ok)
             if self._resends.draining and ok.temperatures is None:
                 self._fragment_ran(now)
             return
@@ -139,6 +146,7 @@ class Receiving(CoreState):
         lines = attribute(skipped, command)
         for lost in skipped:
             self._lost_oks += 1
+            _log.info("the ok of %r was lost; %r was answered after it", lost.text, command.text)
             self._settle(lost, None, None, now)
         self._settle(command, ok, lines, now)
 
@@ -200,6 +208,7 @@ class Receiving(CoreState):
     def _fragment_ran(self, now: float) -> None:
         """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own."""
         self._resends.fragments_run += 1
+        _log.warning("after a line error the tail of a cut line ran as a command of its own")
         job = self._feed.job
         if job is None or not job.active:
             return
@@ -235,7 +244,7 @@ class Receiving(CoreState):
     def _on_checksum_required(self, message: str, now: float) -> None:
         # The firmware ran nothing and will send no ok for the oldest unnumbered command: fail it now, and number
         # every command from here on.
-        self.requires_numbers = True
+        self._requires_numbers = True
         command = next((c for c in self._in_flight if c.line_number is None), None)
         if command is None:
             return
@@ -249,6 +258,7 @@ class Receiving(CoreState):
 
     def _halt_with(self, error: PrinterHaltedError, *, stopped: bool) -> None:
         """The printer halted (`stopped`: a stop() that M999 clears; otherwise it needs a reset)."""
+        _log.warning("%s", error)
         if self._halt is None or isinstance(error, ThermalRunawayError):
             self._halt = error
         # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill().
@@ -257,6 +267,7 @@ class Receiving(CoreState):
 
     def _on_start(self) -> None:
         self._resets += 1
+        _log.warning("the printer reset (it printed 'start')")
         # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
         self._fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
         self._halt = None

@@ -18,6 +18,7 @@ tail that ran shows as an ok that no command earned while draining, and the conn
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 
 from marlin_aio.commands import number_command
@@ -26,6 +27,9 @@ from marlin_aio.matching import InFlight
 from marlin_aio.replies import Command
 
 __all__ = ["CALM_LINES", "Resends"]
+
+#: Recoveries at INFO, oddities and failures at WARNING (lines on the wire: "marlin_aio.wire" at DEBUG).
+_log = logging.getLogger("marlin_aio")
 
 #: After a line error, how many print lines must be answered without another before send-ahead writes more than
 #: one line at a time again. One line at a time never leaves a line on the wire behind one the firmware may reject.
@@ -145,6 +149,7 @@ class Resends:
         `rejected`: the request follows a line error (not M999's own request for the next line).
         """
         self.requests += 1
+        _log.info("the printer asked for line %d again", line_number)
         # The printer took every line before the one it asks for.
         self.accepted_through = max(self.accepted_through, line_number - 1)
         # The ok right after a resend request answers nothing. (M999 prints `Resend:` and `ok` too, then its own ok.)
@@ -286,6 +291,7 @@ class Resends:
 
     def fragment_refused(self) -> None:
         """The firmware refused a fragment (`Unknown command`); the ok after it answers nothing."""
+        _log.info("the printer refused the tail of a line cut in two by its flush")
         self.fragments += 1
         self._fragment_oks += 1
 

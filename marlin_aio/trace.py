@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from dataclasses import dataclass
 from typing import Literal
 
 __all__ = ["Trace", "TraceEntry"]
+
+#: Every line on the wire, at DEBUG (`logging.getLogger("marlin_aio.wire").setLevel(logging.DEBUG)` to see them).
+_wire_log = logging.getLogger("marlin_aio.wire")
 
 
 @dataclass(frozen=True, slots=True)
@@ -33,12 +37,16 @@ class Trace:
         entry = TraceEntry(time_s, "sent", text)
         self._entries.append(entry)
         self.last_sent = entry
+        if _wire_log.isEnabledFor(logging.DEBUG):
+            _wire_log.debug(">> %s", text)
 
     def received(self, time_s: float, text: str) -> None:
         """Record a line read from the printer."""
         entry = TraceEntry(time_s, "received", text)
         self._entries.append(entry)
         self.last_received = entry
+        if _wire_log.isEnabledFor(logging.DEBUG):
+            _wire_log.debug("<< %s", text)
 
     def entries(self) -> list[TraceEntry]:
         """The recorded lines, oldest first."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import logging
 import os
 
 import pytest
@@ -230,6 +231,22 @@ async def test_stats_is_a_frozen_snapshot_that_accounts_for_every_command(
     assert before.answered == after.answered - 2  # the earlier snapshot did not move
     with pytest.raises(dataclasses.FrozenInstanceError):
         after.timeouts = 5  # type: ignore[misc]
+
+
+async def test_the_library_logs_lines_at_debug_and_recoveries_at_info(
+    pty_sim: SimulatorServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.DEBUG, logger="marlin_aio")
+    async with marlin_aio.connect(pty_sim.url) as printer:
+        pty_sim.printer.faults.corrupt_rx_ratio = 0.3
+        for _ in range(20):
+            await printer.send("M114")
+    wire = [r for r in caplog.records if r.name == "marlin_aio.wire"]
+    assert any(r.getMessage().startswith(">> N") for r in wire)
+    assert any(r.getMessage().startswith("<< ok") for r in wire)
+    recoveries = [r for r in caplog.records if r.name == "marlin_aio" and r.levelno == logging.INFO]
+    assert any("asked for line" in r.getMessage() for r in recoveries)
+    assert any("connected to" in r.getMessage() for r in recoveries)
 
 
 async def test_a_closed_printer_opens_again_and_an_open_one_refuses_to(pty_sim: SimulatorServer) -> None:

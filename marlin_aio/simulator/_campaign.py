@@ -23,7 +23,7 @@ import heapq
 from collections import Counter
 from dataclasses import dataclass, field
 
-from marlin_aio.connection import Command, Connection, Reply
+from marlin_aio.connection import Command, Connection, Output, Reply
 from marlin_aio.errors import MarlinError
 from marlin_aio.printjob import PrintJob, PrintState
 from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
@@ -126,9 +126,13 @@ def run_print(scenario: Scenario) -> CampaignResult:
         pending[command.id] = (command, now + scenario.timeout_s * (ahead + 3) + 5.0, kind)
         return command
 
-    def collect() -> None:
+    def act(output: Output) -> None:
+        """Carry out one step of the core, as the client's link does: bytes on the wire, results to their
+        waiters."""
         nonlocal poll
-        for command, outcome in conn.take_results():
+        if output.data:
+            transmit(output.data, "out", to_printer)
+        for command, outcome in output.finished:
             entry = pending.pop(command.id, None)
             if entry is None:
                 result.problems.append(f"a result for {command.text!r}, which nobody waits for")
@@ -146,9 +150,7 @@ def run_print(scenario: Scenario) -> CampaignResult:
             _check_reply(command, outcome, kind, result)
 
     def flush() -> None:
-        data = conn.data_to_send(now)
-        if data:
-            transmit(data, "out", to_printer)
+        act(conn.tick(now))
 
     def pump_printer() -> None:
         out = printer.take_output()
@@ -183,9 +185,7 @@ def run_print(scenario: Scenario) -> CampaignResult:
             continue
         if to_host and to_host[0][0] <= now:
             _, _, data = heapq.heappop(to_host)
-            conn.receive_data(data, now)
-            collect()
-            flush()
+            act(conn.receive(data, now))
             continue
         printer.advance(now)
         pump_printer()
@@ -198,9 +198,7 @@ def run_print(scenario: Scenario) -> CampaignResult:
             faults.silent = True
         deadline = conn.next_deadline()
         if deadline is not None and now >= deadline:
-            conn.check_timeouts(now)
-            collect()
-            flush()
+            flush()  # the core acts on the deadline that passed
         if next_poll is not None and now >= next_poll and scenario.poll_interval_s is not None:
             if poll is None and not job.finished and conn.halted is None:
                 poll = submit("M105", "poll")
