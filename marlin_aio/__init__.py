@@ -11,6 +11,8 @@ served on a pseudo-terminal or TCP.
 
 from __future__ import annotations
 
+import logging
+
 from marlin_aio._serial import PortInfo, list_ports
 from marlin_aio.client import BAUD_RATES, DEFAULT_BAUDRATE, Printer, PrintHandle, connect
 from marlin_aio.commands import (
@@ -156,3 +158,7 @@ __all__ = [
     "parse_temperatures",
     "strip_comment",
 ]
+
+# A library logs and lets the application decide where it goes: without a handler of the application's, nothing
+# is printed (not even warnings through logging's last-resort handler).
+logging.getLogger("marlin_aio").addHandler(logging.NullHandler())
