@@ -102,7 +102,7 @@ async def set_printer_targets(options: ConnectOptions, request: SetRequest, cons
         keys = [k for k, v in (("T", request.hotend), ("B", request.bed), ("C", request.chamber)) if v is not None]
         if request.tool is not None and request.hotend is not None:
             keys[0] = f"T{request.tool}"
-        reading = await printer.temperatures()
+        reading = await printer.read_temperatures()
         console.print(f"{label}: {_confirmed(reading, keys)}")
         wanted = {
             k: v
