@@ -78,6 +78,7 @@ class ConnectOptions:
     max_hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS
     max_bed_celsius: float = DEFAULT_MAX_BED_CELSIUS
     max_chamber_celsius: float = DEFAULT_MAX_CHAMBER_CELSIUS
+    password: str | None = None
 
     def printer(self, port: str, baud: int) -> marlin_aio.Printer:
         """A client for `port` with these options."""
@@ -88,6 +89,7 @@ class ConnectOptions:
             max_hotend_celsius=self.max_hotend_celsius,
             max_bed_celsius=self.max_bed_celsius,
             max_chamber_celsius=self.max_chamber_celsius,
+            password=self.password,
         )
 
 

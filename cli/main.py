@@ -85,6 +85,14 @@ SimSpeedOption = Annotated[
 TimeoutOption = Annotated[
     float, typer.Option("--timeout", help="Seconds to wait for each answer from the printer.", min=0.1)
 ]
+PasswordOption = Annotated[
+    str | None,
+    typer.Option(
+        "--password",
+        help="Unlock a printer with Marlin's PASSWORD_FEATURE (M511) when it connects.",
+        show_default=False,
+    ),
+]
 # In `set`, --timeout bounds the wait for the targets (as users expect there); the answer timeout moves aside.
 AnswerTimeoutOption = Annotated[
     float, typer.Option("--answer-timeout", help="Seconds to wait for each answer from the printer.", min=0.1)
@@ -120,6 +128,7 @@ def watch(
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
+    password: PasswordOption = None,
     interval: Annotated[float, typer.Option("--interval", help="Seconds between M105 polls.", min=0.001)] = 0.01,
     refresh: Annotated[float, typer.Option("--refresh", help="Seconds between screen redraws.", min=0.05)] = 1.0,
     window: Annotated[float, typer.Option("--window", help="Seconds of history in the chart.", min=5)] = 60.0,
@@ -143,7 +152,7 @@ def watch(
     """
     from .watch import WatchSettings, watch_printer
 
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
     settings = WatchSettings(
         interval_s=interval,
         refresh_s=refresh,
@@ -190,6 +199,7 @@ def set_targets(
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
     answer_timeout: AnswerTimeoutOption = 10.0,
+    password: PasswordOption = None,
     max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
     max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
     max_chamber: MaxChamberOption = DEFAULT_MAX_CHAMBER_CELSIUS,
@@ -224,6 +234,7 @@ def set_targets(
         max_hotend_celsius=max_hotend,
         max_bed_celsius=max_bed,
         max_chamber_celsius=max_chamber,
+        password=password,
     )
     code = run(set_printer_targets(options, request, Console(highlight=False), _stderr()))
     raise typer.Exit(int(code))
@@ -243,6 +254,7 @@ def log(
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
+    password: PasswordOption = None,
 ) -> None:
     """Record temperatures to a file, headless, for long runs. Ctrl-C (or --duration) ends it with a summary.
 
@@ -254,7 +266,7 @@ def log(
 
     if fmt not in ("csv", "jsonl"):
         fail(f"unknown --format {fmt!r}: use csv or jsonl", Exit.USAGE)
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
     code = run(log_temperatures(options, output, fmt, interval, duration, _stderr()))
     raise typer.Exit(int(code))
 
@@ -291,6 +303,7 @@ def print_file(
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
+    password: PasswordOption = None,
 ) -> None:
     """Stream a G-code file with line numbers, checksums and resends, with a progress bar and live temperatures.
 
@@ -304,7 +317,7 @@ def print_file(
     if send_ahead is False and window is not None:
         fail("--ping-pong sends one line at a time; do not combine it with --window", Exit.USAGE)
     ahead = window is not None if send_ahead is None else send_ahead
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
     settings = PrintSettings(path=path, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters)
     code = run(print_gcode(options, settings, Console(highlight=False), _stderr()))
     raise typer.Exit(int(code))
@@ -357,11 +370,12 @@ def bench(
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
+    password: PasswordOption = None,
 ) -> None:
     """Measure latency, order and throughput of the link to the printer (the help text is `_BENCH_HELP`)."""
     from .benchcmd import BenchSettings, bench_printer, show_result
 
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
     settings = BenchSettings(round_trips=count, lines=lines, duration_s=duration)
     result = run(bench_printer(options, settings, _stderr()))
     show_result(result, Console(highlight=False), as_json=json_output)
