@@ -16,7 +16,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import TemperatureReading, parse_temperatures
+from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_temp.main import app
 from marlin_temp.model import WatchModel
 from marlin_temp.render import chart, heater_table, plain_line, watch_view
@@ -25,7 +25,7 @@ runner = CliRunner()
 FAST = ["--sim", "--sim-speed", "50"]
 
 
-def reading(text: str, time_s: float, source: str = "poll") -> TemperatureReading:
+def reading(text: str, time_s: float, source: ReadingSource = ReadingSource.POLL) -> TemperatureReading:
     temperatures = parse_temperatures(text)
     assert temperatures is not None
     return TemperatureReading(temperatures, time_s, 1_700_000_000 + time_s, source)

@@ -13,7 +13,7 @@ import re
 from rich.console import Console
 from typer.testing import CliRunner
 
-from marlin_aio import TemperatureReading, parse_temperatures
+from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, serve_pty
 from marlin_temp.connect import Exit
 from marlin_temp.main import app
@@ -29,7 +29,7 @@ def model_of(report: str, seconds: float = 10.0) -> WatchModel:
     temperatures = parse_temperatures(report)
     assert temperatures is not None
     for step in range(int(seconds * 10)):
-        model.add(TemperatureReading(temperatures, step / 10, 1_700_000_000 + step / 10, "poll"))
+        model.add(TemperatureReading(temperatures, step / 10, 1_700_000_000 + step / 10, ReadingSource.POLL))
     return model
 
 

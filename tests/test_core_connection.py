@@ -41,6 +41,11 @@ AUTO_REPORT = " T:195.91 /200.00 B:35.56 /60.00 @:25 B@:127"
 WAIT_LINE = " T:196.82 /200.00 B:36.33 /60.00 @:26 B@:127 W:?"
 
 
+def state_of(conn: Connection) -> LinkState:
+    """The connection's state, read afresh (an assert on `conn.state` would narrow its type for the next one)."""
+    return conn.state
+
+
 def receive(conn: Connection, *lines: str, now: float = 0.0) -> list[Event]:
     return conn.receive_data("".join(line + "\n" for line in lines).encode(), now)
 
@@ -740,7 +745,7 @@ def test_a_locked_printer_refuses_commands_with_its_own_error() -> None:
     [(_, error)] = outcomes(conn)
     assert isinstance(error, PrinterLockedError)
     assert "M511" in str(error)
-    assert conn.locked and conn.state is LinkState.LOCKED
+    assert conn.locked and state_of(conn) is LinkState.LOCKED
     submit_all(conn, "M511 P1234", "M115")
     conn.data_to_send(0.1)
     receive(conn, "ok", now=0.1)
@@ -749,7 +754,7 @@ def test_a_locked_printer_refuses_commands_with_its_own_error() -> None:
     conn.data_to_send(0.2)
     receive(conn, "ok", now=0.2)
     assert [text for text, _ in replies(conn)] == ["M115"]
-    assert not conn.locked and conn.state is LinkState.READY
+    assert not conn.locked and state_of(conn) is LinkState.READY
 
 
 def test_a_print_line_the_printer_did_not_run_stops_the_print_with_its_message() -> None:
@@ -919,16 +924,16 @@ def test_plain_halt_fails_everything_with_printer_halted_error() -> None:
         assert type(error) is PrinterHaltedError
         assert "kill() called" in str(error)
     assert type(conn.halted) is PrinterHaltedError
-    assert conn.state is LinkState.HALTED  # kill(): only a reset helps
+    assert state_of(conn) is LinkState.HALTED  # kill(): only a reset helps
     with pytest.raises(PrinterHaltedError):
         conn.submit("M105", timeout_s=5.0, now=1.0)
     conn.submit("M999", timeout_s=5.0, now=1.0)  # the one command a halted printer may still take
     assert conn.queued == 1
     conn.data_to_send(1.0)
     receive(conn, "ok", now=1.1)
-    assert conn.state is LinkState.HALTED  # M999 does not undo a kill()
+    assert state_of(conn) is LinkState.HALTED  # M999 does not undo a kill()
     receive(conn, "start", now=2.0)
-    assert conn.state is LinkState.READY
+    assert state_of(conn) is LinkState.READY
 
 
 def test_m999_after_stop_lets_commands_through_again() -> None:
@@ -938,13 +943,13 @@ def test_m999_after_stop_lets_commands_through_again() -> None:
     receive(conn, "Error:Printer stopped due to errors. Fix the error and use M999 to restart.")
     [(_, error)] = outcomes(conn)
     assert type(error) is PrinterHaltedError
-    assert conn.state is LinkState.STOPPED
+    assert state_of(conn) is LinkState.STOPPED
     submit_all(conn, "M999", now=1.0)
     assert conn.data_to_send(1.0) == (wire("M999", 2) + "\n").encode()
     # Marlin's M999 clears the stop, then flush_and_request_resend() asks for the next line, then M999's own ok.
     receive(conn, "Resend: 3", "ok", "ok", now=1.1)
     assert [text for text, _ in replies(conn)] == ["M999"]
-    assert conn.halted is None and conn.state is LinkState.READY
+    assert conn.halted is None and state_of(conn) is LinkState.READY
     submit_all(conn, "M105", now=2.0)
     assert conn.data_to_send(2.0) == (wire("M105", 3) + "\n").encode()
 
