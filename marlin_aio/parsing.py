@@ -124,8 +124,14 @@ def _classify_firmware(text: str) -> FirmwareInfo:
     return FirmwareInfo(name=fields.get("FIRMWARE_NAME", ""), fields=fields)
 
 
+#: The plain `ok`, by far the most common line: one shared (frozen) event instead of a parse and an object each.
+_PLAIN_OK = Ok()
+
+
 def classify_line(text: str) -> Event:
     """Return the event one line (without its line ending) stands for."""
+    if text == "ok":
+        return _PLAIN_OK
     stripped = text.strip()
     head = stripped[:2]
     if head == "ok" and (len(stripped) == 2 or stripped[2] == " "):

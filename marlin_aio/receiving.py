@@ -79,7 +79,7 @@ class Receiving(CoreState):
         # An ok leaves the "last line was a line error" mark alone: only other lines are between an error and
         # its `Resend:`.
         is_line_error = None if type(event) is Ok else isinstance(event, ErrorMessage) and event.kind is ErrorKind.LINE
-        after_line_error = self._resends.note_line(is_line_error, now, self._feed.quiet_s())
+        after_line_error = self._resends.note_line(is_line_error, now, self._feed.quiet_s)
         head = self._in_flight.head
         match event:
             case Ok():

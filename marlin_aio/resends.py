@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
+from collections.abc import Callable
 
 from marlin_aio.commands import number_command
 from marlin_aio.errors import MarlinError, RemoteProtocolError, ResendLimitError
@@ -116,7 +117,7 @@ class Resends:
 
     # ------------------------------------------------------------------------------------------- requests
 
-    def note_line(self, is_line_error: bool | None, now: float, quiet_s: float) -> bool:
+    def note_line(self, is_line_error: bool | None, now: float, quiet_s: Callable[[], float]) -> bool:
         """Every line received passes here first (`is_line_error` None for an `ok`, which does not count as the
         line before a `Resend:`); return whether the line before it was a line error.
 
@@ -125,7 +126,7 @@ class Resends:
         """
         if self.drain_until is not None:
             # The printer is still answering what was on the wire when it threw its buffer away.
-            self.drain_until = max(self.drain_until, now + quiet_s)
+            self.drain_until = max(self.drain_until, now + quiet_s())
         after_line_error = self._after_line_error
         if is_line_error is not None:
             self._after_line_error = is_line_error

@@ -32,7 +32,7 @@ _PLAIN_ERRORS = (PrinterHaltedError, ThermalRunawayError, PrinterResetError, Res
 class JobFeed:
     """The print job being streamed, if any, with what the connection needs to pace and probe it."""
 
-    __slots__ = ("job", "next", "probe", "probed_s", "probes", "rtts", "timeout_s")
+    __slots__ = ("_median_rtt", "job", "next", "probe", "probed_s", "probes", "rtts", "timeout_s")
 
     def __init__(self) -> None:
         self.job: PrintJob | None = None
@@ -42,6 +42,7 @@ class JobFeed:
         self.rtts: deque[float] = deque(maxlen=32)  # round trips of recent lines answered at the first try
         self.probes = 0
         self.probed_s = 0.0  # when the last probe (an M105, or a resend let out early) was written
+        self._median_rtt: float | None = None  # of `rtts`, kept until the next one arrives (deadlines ask often)
 
     @property
     def active(self) -> bool:
@@ -59,6 +60,7 @@ class JobFeed:
         self.job = job
         self.timeout_s = timeout_s
         self.rtts.clear()
+        self._median_rtt = None
 
     def detach(self) -> None:
         """The job ended (done, failed or stalled): feed nothing more."""
@@ -105,6 +107,7 @@ class JobFeed:
         so a link that starts noisy learns its pace before its first clean line)."""
         if command.written_s is not None:
             self.rtts.append(now - command.written_s)
+            self._median_rtt = None
 
     def probe_delay_s(self) -> float:
         """How long a streamed line may wait before a probe asks whether its `ok` was lost.
@@ -112,18 +115,20 @@ class JobFeed:
         Eight times the median round trip of recent lines, within 50 ms to 1 s: quick on a fast link, patient
         with a slow one. A probe is a numbered M105, harmless if nothing was lost.
         """
-        if not self.rtts:
-            return 1.0
-        ordered = sorted(self.rtts)
-        return min(max(8 * ordered[len(ordered) // 2], 0.05), 1.0)
+        median = self._median()
+        return 1.0 if median is None else min(max(8 * median, 0.05), 1.0)
 
     def quiet_s(self) -> float:
         """How long the printer must say nothing before what was on the wire at a flush is taken as all answered:
         four median round trips, within 20 ms to 0.5 s."""
-        if not self.rtts:
-            return 0.1
-        ordered = sorted(self.rtts)
-        return min(max(4 * ordered[len(ordered) // 2], 0.02), 0.5)
+        median = self._median()
+        return 0.1 if median is None else min(max(4 * median, 0.02), 0.5)
+
+    def _median(self) -> float | None:
+        if self._median_rtt is None and self.rtts:
+            ordered = sorted(self.rtts)
+            self._median_rtt = ordered[len(ordered) // 2]
+        return self._median_rtt
 
     def job_error(self, error: MarlinError) -> MarlinError:
         """`error` with the print's position added, for the job it ends."""
