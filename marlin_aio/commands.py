@@ -6,6 +6,8 @@ before a byte reaches the port, so a caller's mistake never turns into a half-wr
 
 from __future__ import annotations
 
+import functools
+
 __all__ = [
     "DEFAULT_MAX_BED_CELSIUS",
     "DEFAULT_MAX_CHAMBER_CELSIUS",
@@ -66,10 +68,11 @@ def validate_command(text: str) -> str:
     return command
 
 
+@functools.lru_cache(maxsize=256)
 def command_code(text: str) -> str:
     """Return the command word of a G-code line in upper case (`"m105 t0"` gives `"M105"`), or `""`.
 
-    A leading `N<number>` is skipped.
+    A leading `N<number>` is skipped. (Cached: the same few commands come back a hundred times a second.)
     """
     words = text.split()
     if words and words[0][:1] in ("N", "n") and words[0][1:].isdigit():
@@ -85,8 +88,14 @@ def number_command(command: str, line_number: int) -> str:
     """
     if line_number < 0:
         raise ValueError(f"line number must not be negative, got {line_number}")
-    body = f"N{line_number} {command}"
-    return f"{body}*{checksum(body.encode('ascii'))}"
+    prefix = f"N{line_number} "
+    # XOR is associative: the command's part is computed once per distinct command (the poller's M105 repeats).
+    return f"{prefix}{command}*{checksum(prefix.encode('ascii')) ^ _command_checksum(command)}"
+
+
+@functools.lru_cache(maxsize=256)
+def _command_checksum(command: str) -> int:
+    return checksum(command.encode("ascii"))
 
 
 def encode_command(text: str, line_number: int | None = None) -> bytes:

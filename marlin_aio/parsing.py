@@ -45,6 +45,9 @@ _STOP_WORDS = ("printer stopped due to errors",)
 
 def _classify_ok(text: str) -> Ok:
     rest = text[2:].strip()
+    if rest[:2] == "T:":
+        # M105's answer (the poller's, a hundred times a second): no ADVANCED_OK fields come before it.
+        return Ok(payload=rest, temperatures=Temperatures.from_text(rest))
     numbers: dict[str, int] = {}
     # ADVANCED_OK fields come first as bare tokens (`N12 P15 B3`); the M105 payload starts with `T:`.
     while rest:
