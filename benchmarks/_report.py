@@ -128,8 +128,10 @@ def _polling(entry: Json) -> list[str]:
     ]
     lines += [
         "",
-        f"marlin_aio uses {_x(entry['ratios'].get('floor_cpu'), 1)} the client CPU of the floor polling on the same "
-        "10 ms schedule (a timer, a write, one line read, nothing parsed).",
+        f"marlin_aio uses {_x(entry['ratios'].get('lean_floor_cpu'), 1)} the client CPU of the lean floor (one timer "
+        "callback, a write, one line read and its hotend temperature taken) and "
+        f"{_x(entry['ratios'].get('floor_cpu'), 1)} that of the floor (a task sleeping between polls, nothing parsed), "
+        "on the same 10 ms schedule; marlin_aio reads the temperature of every reading it polls.",
     ]
     if "printcore" in summary:
         lines[-1] += (
@@ -254,10 +256,19 @@ def render(results: Json) -> str:
     lines += ["### Targets", "", *_table(["target", "goal", "measured", "met"], rows), ""]
     machine = results["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in machine["versions"].items() if v)
+    loads = [
+        run["load_average"]
+        for entry in results["scenarios"].values()
+        for runs in entry.get("runs", {}).values()
+        for run in runs
+        if isinstance(run.get("load_average"), float) and run["load_average"] == run["load_average"]
+    ]
+    load = f" Load average as the runs started: {min(loads):.2f} to {max(loads):.2f}." if loads else ""
     lines.append(
         f"Measured {machine['date']} on {machine['cpu']}, {machine['cores']} cores, {machine['python']}, "
         f"{machine['os']}; commit {machine['commit']}; {versions}."
         + (" Quick smoke run: short runs, not for comparison." if results.get("quick") else "")
+        + load
     )
     older = [
         f"{name} on {entry['machine']['date']} (commit {entry['machine']['commit']})"
