@@ -122,9 +122,12 @@ async def _session(
     live_view = console.is_terminal and not settings.json_lines
     firmware = printer.firmware.name if printer.firmware else "unknown firmware"
 
+    first = asyncio.Event()  # the first reading is shown as soon as it is read, not a refresh period later
+
     async def consume() -> None:
         async for reading in printer.temperature_readings():
             model.add(reading)
+            first.set()
             if log is not None:
                 log.add(reading)
 
@@ -139,6 +142,7 @@ async def _session(
     async with printer.poll_temperatures(settings.interval_s):
         consumer = asyncio.create_task(consume(), name="marlin-temp readings")
         stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
+        first_reading: asyncio.Task[bool] | None = asyncio.create_task(first.wait(), name="marlin-temp first reading")
         live = Live(console=console, screen=True, auto_refresh=False, transient=True) if live_view else None
         try:
             with (
@@ -149,7 +153,10 @@ async def _session(
                     timeout = settings.refresh_s
                     if deadline is not None:
                         timeout = min(timeout, max(deadline - loop.time(), 0.0))
-                    done, _ = await asyncio.wait({consumer, stopper}, timeout=timeout, return_when="FIRST_COMPLETED")
+                    waiting = {consumer, stopper} if first_reading is None else {consumer, stopper, first_reading}
+                    done, _ = await asyncio.wait(waiting, timeout=timeout, return_when="FIRST_COMPLETED")
+                    if first_reading is not None and first_reading in done:
+                        first_reading = None
                     if consumer in done:
                         consumer.result()  # raises what ended the readings (link lost, printer halted)
                     since = _update_link_stats(model, printer, since, baseline)
@@ -160,9 +167,10 @@ async def _session(
                     if stopper in done or (deadline is not None and loop.time() >= deadline):
                         return
         finally:
-            for task in (consumer, stopper):
+            tasks = [consumer, stopper] if first_reading is None else [consumer, stopper, first_reading]
+            for task in tasks:
                 task.cancel()
-            await asyncio.gather(consumer, stopper, return_exceptions=True)
+            await asyncio.gather(*tasks, return_exceptions=True)
 
 
 async def watch_printer(options: ConnectOptions, settings: WatchSettings, console: Console, errors: Console) -> Exit:

@@ -162,6 +162,14 @@ def test_watch_without_a_terminal_prints_plain_lines() -> None:
     assert all("hotend" in line and "bed" in line for line in lines)
 
 
+def test_watch_piped_shows_the_first_reading_at_once_not_a_refresh_later() -> None:
+    # A refresh period longer than the run: before, the only line came when the run ended.
+    result = runner.invoke(app, ["watch", *FAST, "--duration", "2", "--refresh", "30"])
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.output.splitlines() if "polls/s" in line]
+    assert len(lines) == 2  # the first reading, then the end of the run
+
+
 def test_watch_json_lines_parse() -> None:
     result = runner.invoke(app, ["watch", *FAST, "--duration", "1.5", "--refresh", "0.5", "--json"])
     assert result.exit_code == 0, result.output
