@@ -40,23 +40,42 @@ class TemperatureFeed:
     """The latest reading, the subscribers of all readings, and the targets learnt from target lines."""
 
     def __init__(self) -> None:
-        self.latest: TemperatureReading | None = None
+        self._latest: TemperatureReading | None = None
+        # A report nobody subscribed to is kept as its parts; the reading is built when `latest` is read.
+        self._unbuilt: tuple[Temperatures, float, float, ReadingSource] | None = None
         self.dropped = 0  # readings dropped because a subscriber fell more than QUEUE_READINGS behind
         self._targets: dict[str, float] = {}  # from Repetier-style target lines, for reports that lack targets
         self._subscribers: list[_Subscriber] = []
+
+    @property
+    def latest(self) -> TemperatureReading | None:
+        """The most recent reading, whatever produced it."""
+        if self._unbuilt is not None:
+            temperatures, now, wall_time_s, source = self._unbuilt
+            self._latest = self.reading(temperatures, now, source, wall_time_s)
+            self._unbuilt = None
+        return self._latest
 
     def on_event(self, event: Event, now: float) -> None:
         """Turn a received event into a reading (or a target) if it is one."""
         match event:
             case Ok(temperatures=Temperatures() as temperatures):
-                self.publish(self.reading(temperatures, now, ReadingSource.POLL))
+                self._arrived(temperatures, now, ReadingSource.POLL)
             case TemperatureReport(temperatures=temperatures):
-                source = ReadingSource.WAIT if temperatures.waiting else ReadingSource.AUTO
-                self.publish(self.reading(temperatures, now, source))
+                self._arrived(temperatures, now, ReadingSource.WAIT if temperatures.waiting else ReadingSource.AUTO)
             case TargetTemperature(heater=heater, celsius=celsius):
                 self._targets[heater] = celsius
 
-    def reading(self, temperatures: Temperatures, now: float, source: ReadingSource) -> TemperatureReading:
+    def _arrived(self, temperatures: Temperatures, now: float, source: ReadingSource) -> None:
+        if self._subscribers:
+            self.publish(self.reading(temperatures, now, source))
+        else:
+            # No reader: a poller at 100 Hz builds nothing until someone looks at `latest`.
+            self._unbuilt = (temperatures, now, time.time(), source)
+
+    def reading(
+        self, temperatures: Temperatures, now: float, source: ReadingSource, wall_time_s: float | None = None
+    ) -> TemperatureReading:
         """A reading of `temperatures`, with the targets of Repetier-style `TargetExtr0:` lines filled in where the
         report itself carries none."""
         if self._targets:
@@ -70,11 +89,12 @@ class TemperatureFeed:
                         heater = dataclasses.replace(heater, target=target)
                     filled[key] = heater
                 temperatures = Temperatures(filled, temperatures.waiting, temperatures.wait_remaining_s)
-        return TemperatureReading(temperatures, now, time.time(), source)
+        return TemperatureReading(temperatures, now, time.time() if wall_time_s is None else wall_time_s, source)
 
     def publish(self, reading: TemperatureReading) -> None:
         """Make `reading` the latest and hand it to every subscriber."""
-        self.latest = reading
+        self._latest = reading
+        self._unbuilt = None
         for subscriber in self._subscribers:
             if len(subscriber.readings) == QUEUE_READINGS:
                 subscriber.dropped += 1
