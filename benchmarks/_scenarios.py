@@ -226,7 +226,9 @@ def run_polling(settings: Settings) -> Json:
     contenders = _available(
         settings,
         [
-            Contender("marlin_aio", "marlin_aio poll_temperatures(0.01)", "marlin_aio", {"interval_s": 0.01}),
+            Contender(
+                "marlin_aio", "marlin_aio poll_temperatures(0.01), on_reading()", "marlin_aio", {"interval_s": 0.01}
+            ),
             Contender(
                 "lean_floor", "lean floor: one timer callback every 10 ms, reads T:", "lean_floor", {"interval_s": 0.01}
             ),

@@ -150,19 +150,18 @@ async def marlin_polling(spec: Result) -> Result:
         poll_times: list[float] = []
         other_readings = 0
 
-        async def collect() -> None:
+        def collect(reading: marlin_aio.TemperatureReading) -> None:
+            # Read what was polled, as an application would (the parse is lazy: unread, it is never paid), through
+            # the callback API: no queue and no task wake-up per reading.
             nonlocal other_readings
-            async for reading in printer.temperature_readings():
-                if reading.source == "poll":
-                    # Read what was polled, as an application would (the parse is lazy: unread, it is never paid).
-                    hotend = reading.hotend
-                    assert hotend is not None and hotend.actual == hotend.actual
-                    poll_times.append(reading.monotonic_s)
-                else:
-                    other_readings += 1
+            if reading.source == "poll":
+                hotend = reading.hotend
+                assert hotend is not None and hotend.actual == hotend.actual
+                poll_times.append(reading.monotonic_s)
+            else:
+                other_readings += 1
 
-        collector = asyncio.create_task(collect(), name="benchmark collector")
-        await asyncio.sleep(0)  # subscribed before the first poll goes out
+        stop = printer.on_reading(collect)
         try:
             with profiled(spec.get("profile")):
                 meter = Meter()
@@ -170,9 +169,7 @@ async def marlin_polling(spec: Result) -> Result:
                     await asyncio.sleep(spec["seconds"])
                 wall, cpu = meter.stop()
         finally:
-            collector.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await collector
+            stop()
         timeouts = printer.stats.timeouts
     return {
         "readings": len(poll_times),

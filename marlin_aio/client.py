@@ -15,7 +15,7 @@ import asyncio
 import contextlib
 import logging
 from collections import deque
-from collections.abc import AsyncGenerator, AsyncIterator, Generator, Iterable
+from collections.abc import AsyncGenerator, AsyncIterator, Callable, Generator, Iterable
 from pathlib import Path
 from types import TracebackType
 from typing import Self
@@ -244,6 +244,14 @@ class Printer:
             ConnectionLostError, PrinterHaltedError, PrinterResetError: when the link or printer goes away.
         """
         return self._feed.readings(self._link.lost)
+
+    def on_reading(self, callback: Callable[[TemperatureReading], None]) -> Callable[[], None]:
+        """Call `callback` with every temperature reading from now on, as it is read (no queue, no task wake-up per
+        reading: the cheapest way to follow 100 Hz polling); return the function that stops the calls.
+
+        The callback runs inside the link's read handler: keep it short, and do not await there.
+        """
+        return self._feed.add_callback(callback)
 
     @property
     def readings_dropped(self) -> int:

@@ -9,10 +9,11 @@ behind loses its oldest readings (counted in `dropped`), never a failure, which 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import time
 from collections import deque
-from collections.abc import AsyncGenerator
+from collections.abc import AsyncGenerator, Callable
 
 from marlin_aio.errors import MarlinError
 from marlin_aio.events import Event, Ok, TargetTemperature, TemperatureReport
@@ -46,6 +47,7 @@ class TemperatureFeed:
         self.dropped = 0  # readings dropped because a subscriber fell more than QUEUE_READINGS behind
         self._targets: dict[str, float] = {}  # from Repetier-style target lines, for reports that lack targets
         self._subscribers: list[_Subscriber] = []
+        self._callbacks: list[Callable[[TemperatureReading], None]] = []
 
     @property
     def latest(self) -> TemperatureReading | None:
@@ -66,8 +68,18 @@ class TemperatureFeed:
             case TargetTemperature(heater=heater, celsius=celsius):
                 self._targets[heater] = celsius
 
+    def add_callback(self, callback: Callable[[TemperatureReading], None]) -> Callable[[], None]:
+        """Call `callback` with every reading from now on, as it is read; return the function that stops it."""
+        self._callbacks.append(callback)
+
+        def remove() -> None:
+            with contextlib.suppress(ValueError):
+                self._callbacks.remove(callback)
+
+        return remove
+
     def _arrived(self, temperatures: Temperatures, now: float, source: ReadingSource) -> None:
-        if self._subscribers:
+        if self._subscribers or self._callbacks:
             self.publish(self.reading(temperatures, now, source))
         else:
             # No reader: a poller at 100 Hz builds nothing until someone looks at `latest`.
@@ -95,6 +107,8 @@ class TemperatureFeed:
         """Make `reading` the latest and hand it to every subscriber."""
         self._latest = reading
         self._unbuilt = None
+        for callback in self._callbacks:
+            callback(reading)
         for subscriber in self._subscribers:
             if len(subscriber.readings) == QUEUE_READINGS:
                 subscriber.dropped += 1

@@ -254,6 +254,28 @@ async def test_the_library_logs_lines_at_debug_and_recoveries_at_info(
     assert any("connected to" in r.getMessage() for r in recoveries)
 
 
+async def test_on_reading_calls_back_with_every_reading_until_stopped(
+    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+) -> None:
+    seen: list[marlin_aio.TemperatureReading] = []
+    enough = asyncio.Event()
+
+    def callback(reading: marlin_aio.TemperatureReading) -> None:
+        seen.append(reading)
+        if len(seen) >= 20:
+            enough.set()
+
+    stop = printer.on_reading(callback)
+    async with printer.poll_temperatures(0.005):
+        await enough.wait()
+        stop()
+        count = len(seen)
+        await printer.read_temperatures()  # one more reading, after the stop
+    assert len(seen) == count >= 20
+    assert all(r.hotend is not None for r in seen)
+    assert any(r.source is marlin_aio.ReadingSource.POLL for r in seen)  # (auto-reports come too, with M155)
+
+
 async def test_a_closed_printer_opens_again_and_an_open_one_refuses_to(pty_sim: SimulatorServer) -> None:
     printer = marlin_aio.Printer(pty_sim.url)
     async with printer:
