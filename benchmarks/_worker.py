@@ -125,22 +125,28 @@ def profiled(path: str | None) -> Iterator[None]:
 # ------------------------------------------------------------------------------------------------ marlin_aio
 
 
+async def _time_round_trips(round_trip: Callable[[], Awaitable[object]], seconds: float) -> Result:
+    """Warm up, then count `round_trip()`s back to back for `seconds`, with the CPU they took: every contender of
+    the round-trip scenario is measured by this one loop."""
+    deadline = time.perf_counter() + WARMUP_S
+    while time.perf_counter() < deadline:
+        await round_trip()
+    count = 0
+    meter = Meter()
+    end = meter.start + seconds
+    while time.perf_counter() < end:
+        await round_trip()
+        count += 1
+    wall, cpu = meter.stop()
+    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
+
+
 async def marlin_round_trips(spec: Result) -> Result:
     import marlin_aio
 
     async with marlin_aio.connect(spec["url"]) as printer:
-        deadline = time.perf_counter() + WARMUP_S
-        while time.perf_counter() < deadline:
-            await printer.send("M105")
-        count = 0
         with profiled(spec.get("profile")):
-            meter = Meter()
-            end = meter.start + spec["seconds"]
-            while time.perf_counter() < end:
-                await printer.send("M105")
-                count += 1
-            wall, cpu = meter.stop()
-    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
+            return await _time_round_trips(lambda: printer.send("M105"), spec["seconds"])
 
 
 async def marlin_polling(spec: Result) -> Result:
@@ -325,20 +331,10 @@ async def lean_floor_round_trips(spec: Result) -> Result:
             deadline.cancel()
 
     try:
-        deadline_s = time.perf_counter() + WARMUP_S
-        while time.perf_counter() < deadline_s:
-            await round_trip()
-        count = 0
-        meter = Meter()
-        end = meter.start + spec["seconds"]
-        while time.perf_counter() < end:
-            await round_trip()
-            count += 1
-        wall, cpu = meter.stop()
+        return await _time_round_trips(round_trip, spec["seconds"])
     finally:
         transport.close()
         await asyncio.sleep(0.05)  # the port closes in an executor
-    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
 
 
 async def lean_floor_polling(spec: Result) -> Result:
@@ -348,7 +344,7 @@ async def lean_floor_polling(spec: Result) -> Result:
     transport, protocol = await _lean_link(spec["url"])
     times: list[float] = []
     interval = spec["interval_s"]
-    state = {"pending": False, "next": 0.0}
+    state = {"pending": False, "next": 0.0, "sent": 0.0}
 
     def on_line(line: bytes) -> None:
         if line.startswith(b"ok T:"):
@@ -358,9 +354,11 @@ async def lean_floor_polling(spec: Result) -> Result:
 
     def tick() -> None:
         now = loop.time()
-        if not state["pending"]:
+        # An answer still out is waited for up to the timeout a correct client needs, then given up.
+        if not state["pending"] or now - state["sent"] > ANSWER_TIMEOUT_S:
             transport.write(b"M105\n")  # type: ignore[attr-defined]
             state["pending"] = True
+            state["sent"] = now
         state["next"] += interval
         if state["next"] <= now:
             state["next"] = now + interval
@@ -390,17 +388,7 @@ async def lean_floor_polling(spec: Result) -> Result:
 
 async def floor_round_trips(spec: Result) -> Result:
     async with floor_link(spec["url"]) as round_trip:
-        deadline = time.perf_counter() + WARMUP_S
-        while time.perf_counter() < deadline:
-            await round_trip()
-        count = 0
-        meter = Meter()
-        end = meter.start + spec["seconds"]
-        while time.perf_counter() < end:
-            await round_trip()
-            count += 1
-        wall, cpu = meter.stop()
-    return {"round_trips": count, "wall_s": wall, "cpu_s": cpu, **meter.split()}
+        return await _time_round_trips(round_trip, spec["seconds"])
 
 
 async def floor_polling(spec: Result) -> Result:

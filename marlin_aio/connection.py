@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from marlin_aio.commands import MAX_COMMAND_BYTES, command_code, encode_command, validate_command
+from marlin_aio.corestate import check_window
 from marlin_aio.deadlines import Deadlines
 from marlin_aio.errors import (
     MarlinError,
@@ -145,10 +146,7 @@ class Connection(Receiving, Deadlines):
         Raises:
             ValueError: `max_in_flight` below 1 or `rx_buffer_bytes` below 16.
         """
-        if max_in_flight < 1:
-            raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
-        if rx_buffer_bytes < 16:
-            raise ValueError(f"rx_buffer_bytes must be at least 16, got {rx_buffer_bytes}")
+        check_window(max_in_flight, rx_buffer_bytes)
         self._max_in_flight = max_in_flight
         self._rx_buffer_bytes = rx_buffer_bytes
 

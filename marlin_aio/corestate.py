@@ -17,7 +17,15 @@ from marlin_aio.resends import Resends
 from marlin_aio.streaming import JobFeed
 from marlin_aio.trace import Trace
 
-__all__ = ["CoreState"]
+__all__ = ["CoreState", "check_window"]
+
+
+def check_window(max_in_flight: int, rx_buffer_bytes: int) -> None:
+    """Raises ValueError unless at least one command and 16 bytes may be on the wire."""
+    if max_in_flight < 1:
+        raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
+    if rx_buffer_bytes < 16:
+        raise ValueError(f"rx_buffer_bytes must be at least 16, got {rx_buffer_bytes}")
 
 
 class CoreState:
@@ -35,10 +43,7 @@ class CoreState:
         ok_after_resend: bool = True,
         advanced_ok: bool = False,
     ) -> None:
-        if max_in_flight < 1:
-            raise ValueError(f"max_in_flight must be at least 1, got {max_in_flight}")
-        if rx_buffer_bytes < 16:
-            raise ValueError(f"rx_buffer_bytes must be at least 16, got {rx_buffer_bytes}")
+        check_window(max_in_flight, rx_buffer_bytes)
         self._numbered = numbered
         self._max_in_flight = max_in_flight
         self._rx_buffer_bytes = rx_buffer_bytes

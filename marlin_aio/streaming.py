@@ -98,7 +98,6 @@ class JobFeed:
     def new_probe(self, command_id: int, now: float) -> Command:
         """A numbered M105 asking whether the oldest line's `ok` was lost."""
         self.probes += 1
-        self.probed_s = now
         self.probe = Command(command_id, "M105", "M105", True, self.timeout_s, now, probe=True)
         return self.probe
 

@@ -266,7 +266,7 @@ async def test_on_reading_calls_back_with_every_reading_until_stopped(
             enough.set()
 
     stop = printer.on_reading(callback)
-    async with printer.poll_temperatures(0.005):
+    async with printer.poll_temperatures(0.005), asyncio.timeout(30):  # a bound, not a sync: the event syncs
         await enough.wait()
         stop()
         count = len(seen)
@@ -298,8 +298,9 @@ async def test_a_reader_that_falls_behind_loses_its_oldest_readings_never_the_er
     readings = printer.temperature_readings()
     async with printer.poll_temperatures(0.001):
         await anext(readings)  # subscribed; from here on this reader does not keep up
-        while printer.readings_dropped < 5:
+        for _ in range(1_100):  # over the 1,000-reading bound on its own; polls add more
             await printer.read_temperatures()
+    assert printer.readings_dropped > 0
     printer.emergency_stop()
     kept: list[marlin_aio.TemperatureReading] = []
 
