@@ -36,21 +36,27 @@ class BenchmarkRunError(RuntimeError):
 
 @dataclass
 class Simulator:
-    """A running `marlin-sim`: `url` to open; after it stopped, `summary` holds its own counters."""
+    """A running `marlin-sim`: `url` to open (`urls` with `--printers N`); after it stopped, `summary` holds its own
+    counters, summed over its printers."""
 
     url: str
     arguments: list[str]
     summary: dict[str, int] = field(default_factory=dict)
+    urls: list[str] = field(default_factory=list)
 
 
 @contextlib.contextmanager
-def simulator(arguments: Sequence[str]) -> Iterator[Simulator]:
+def simulator(arguments: Sequence[str], printers: int = 1) -> Iterator[Simulator]:
     """Start `python -m marlin_aio.simulator ARGUMENTS` in its own process and yield its URL; always stop it.
+
+    With `printers` > 1 it serves that many (`--printers N`) and `urls` lists them all.
 
     Raises:
         BenchmarkRunError: it did not print its URL within 15 s.
     """
     with tempfile.TemporaryFile(mode="w+") as stderr:
+        if printers > 1:
+            arguments = [*arguments, "--printers", str(printers)]
         process = subprocess.Popen(
             [sys.executable, "-m", "marlin_aio.simulator", *arguments],
             stdin=subprocess.DEVNULL,
@@ -65,10 +71,11 @@ def simulator(arguments: Sequence[str]) -> Iterator[Simulator]:
                 selector.register(process.stdout, selectors.EVENT_READ)
                 if not selector.select(_START_TIMEOUT_S):
                     raise BenchmarkRunError(f"marlin-sim {' '.join(arguments)} printed no URL within 15 s")
-            url = process.stdout.readline().strip()
-            if not url:
-                raise BenchmarkRunError(f"marlin-sim {' '.join(arguments)} exited without a URL")
-            sim = Simulator(url, list(arguments))
+            # One URL per printer, each on its own line, printed as each printer starts.
+            urls = [process.stdout.readline().strip() for _ in range(printers)]
+            if not all(urls):
+                raise BenchmarkRunError(f"marlin-sim {' '.join(arguments)} exited without {printers} URL(s)")
+            sim = Simulator(urls[0], list(arguments), urls=urls)
             yield sim
         finally:
             process.terminate()

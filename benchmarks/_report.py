@@ -230,7 +230,60 @@ def _memory(entry: Json) -> list[str]:
     ]
 
 
-_RENDERERS = {"roundtrips": _roundtrips, "polling": _polling, "streaming": _streaming, "memory": _memory}
+def _many(entry: Json) -> list[str]:
+    labels = entry["labels"]
+    rows = []
+    for name, case in entry["cases"].items():
+        for key, v in case["summary"].items():
+            rows.append(
+                [
+                    name,
+                    labels[key].split(":")[0],
+                    f"{v['cpu_share'] * 100:.1f}%",
+                    f"{v['cpu_share_per_printer'] * 100:.2f}%",
+                    "-" if key == "marlin_aio" else _x(case["cpu_ratio"]),
+                    f"{_n(v['readings_per_s_median'], 1)} (slowest {_n(v['readings_per_s_min'], 1)})",
+                    _n(v["interval_p99_ms"], 2),
+                    f"{_n(v['lag_p99_ms'], 2)} (max {_n(v['lag_max_ms'], 1)})",
+                    str(v["timeouts"]),
+                ]
+            )
+    seconds = entry["settings"]["seconds_per_run"]
+    return [
+        f"### Many printers in one process ({seconds:g} s per run; the printers served by one marlin-sim process)",
+        "",
+        *_table(
+            [
+                "case",
+                "client",
+                "client CPU (share of a core)",
+                "CPU per printer",
+                "marlin_aio CPU vs floor",
+                "readings/s a printer (median)",
+                "interval p99 ms (all printers)",
+                "loop lag p99 ms",
+                "timeouts",
+            ],
+            rows,
+        ),
+        "",
+        f"marlin_aio: {labels['marlin_aio'].split(': ', 1)[-1]}; lean floor: {labels['lean_floor'].split(': ', 1)[-1]}. "
+        "Loop lag is how late a 10 ms timer runs on the same loop.",
+    ]
+
+
+_RENDERERS = {
+    "roundtrips": _roundtrips,
+    "polling": _polling,
+    "streaming": _streaming,
+    "memory": _memory,
+    "many": _many,
+}
+
+
+def _all_runs(entry: Json) -> list[Json]:
+    groups = [entry.get("runs", {})] + [case["runs"] for case in entry.get("cases", {}).values()]
+    return [run for runs in groups for results in runs.values() for run in results]
 
 
 def _measured(target: Json) -> str:
@@ -259,8 +312,7 @@ def render(results: Json) -> str:
     loads = [
         run["load_average"]
         for entry in results["scenarios"].values()
-        for runs in entry.get("runs", {}).values()
-        for run in runs
+        for run in _all_runs(entry)
         if isinstance(run.get("load_average"), float) and run["load_average"] == run["load_average"]
     ]
     load = f" Load average as the runs started: {min(loads):.2f} to {max(loads):.2f}." if loads else ""

@@ -77,6 +77,10 @@ class Settings:
         return 20 * MB if self.quick else 200 * MB
 
     @property
+    def many_s(self) -> float:
+        return 3.0 if self.quick else 10.0
+
+    @property
     def memory_cap_s(self) -> float:
         return 3.0 if self.quick else 25.0
 
@@ -100,27 +104,32 @@ def _alternate(
     spec_for: Callable[[Contender], Json],
     timeout_for: Callable[[Contender], float],
     describe: Callable[[Json], str],
+    printers: int = 1,
+    task: str | None = None,
 ) -> dict[str, list[Json]]:
-    """Run every contender `settings.runs` times, alternating, each against a fresh simulator process."""
+    """Run every contender `settings.runs` times, alternating, each against a fresh simulator process (serving
+    `printers` printers; the worker gets their URLs as `urls`). `task` names the worker's task when it is not
+    `scenario` (one task measured in several cases)."""
     runs: dict[str, list[Json]] = {c.key: [] for c in contenders}
     for index in range(settings.runs):
         shift = index % len(contenders)
         for contender in contenders[shift:] + contenders[:shift]:
-            spec = {"scenario": scenario, "label": contender.key, "client": contender.client}
+            spec = {"scenario": task or scenario, "label": contender.key, "client": contender.client}
             spec |= contender.options | spec_for(contender)
             prefix: list[str] = []
             profile = None
             if settings.profile_dir is not None and contender.client == "marlin_aio":
                 settings.profile_dir.mkdir(parents=True, exist_ok=True)
-                profile = settings.profile_dir / f"{scenario}-{contender.key}-{index + 1}"
+                profile = settings.profile_dir / f"{scenario.replace(' ', '-')}-{contender.key}-{index + 1}"
                 if py_spy() is not None:
                     prefix = wrapper(profile.with_suffix(".raw"))
                 else:
                     spec["profile"] = str(profile.with_suffix(".pstats"))
             # The machine's load as the run starts: a figure measured on a busy machine says so.
             load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
-            with simulator(sim_arguments) as sim:
+            with simulator(sim_arguments, printers) as sim:
                 spec["url"] = sim.url
+                spec["urls"] = sim.urls
                 result = run_worker(spec, timeout_for(contender), prefix)
             result["simulator"] = sim.summary
             result["load_average"] = load
@@ -510,6 +519,80 @@ def _rss_trend(result: Json) -> Json:
     }
 
 
+# ------------------------------------------------------------------------------------------------ 5. many printers
+
+#: (printers, poll interval): the cases of the many-printers scenario.
+MANY_CASES = ((10, 0.01), (50, 0.1), (50, 0.01))
+
+
+def run_many(settings: Settings) -> Json:
+    """N printers in one client process, served by one `marlin-sim --printers N` in another: CPU per printer, the
+    event loop's lag, readings per second of each printer, and timeouts, against N lean links on one loop."""
+    contenders = [
+        Contender("marlin_aio", "marlin_aio: N Printers, poll_temperatures(), on_reading()", "marlin_aio"),
+        Contender("lean_floor", "lean floor: N bare protocols, one timer callback each", "lean_floor"),
+    ]
+    seconds = settings.many_s
+    cases: Json = {}
+    targets: list[Json] = []
+    for printers, interval in MANY_CASES:
+        name = f"{printers}x{1 / interval:.0f}Hz"
+        runs = _alternate(
+            settings,
+            f"many {name}",
+            contenders,
+            [],
+            lambda c, interval=interval: {"seconds": seconds, "interval_s": interval},  # type: ignore[misc]
+            lambda c: seconds + 90,
+            lambda r: (
+                f"{r['readings_per_s_median']:.1f} readings/s a printer (slowest {r['readings_per_s_min']:.1f}), "
+                f"interval p99 {r['interval_p99_ms']:.2f} ms, loop lag p99 {r['lag_p99_ms']:.2f} ms, "
+                f"CPU {r['cpu_s'] / r['wall_s'] * 100:.1f}% of a core, {r['timeouts']} timeouts"
+            ),
+            printers=printers,
+            task="many",
+        )
+        for results in runs.values():
+            for result in results:
+                result["cpu_share"] = result["cpu_s"] / result["wall_s"]
+                result["cpu_share_per_printer"] = result["cpu_share"] / printers
+        names = (
+            "cpu_share",
+            "cpu_share_per_printer",
+            "readings_per_s_min",
+            "readings_per_s_median",
+            "interval_p99_ms",
+            "lag_p99_ms",
+            "lag_max_ms",
+        )
+        summary: Json = {key: {n: _median(results, n) for n in names} for key, results in runs.items()}
+        for key, results in runs.items():
+            summary[key]["timeouts"] = sum(r["timeouts"] for r in results)
+        ours = summary["marlin_aio"]
+        ratio = _ratio(ours["cpu_share"], summary["lean_floor"]["cpu_share"])
+        cases[name] = {"printers": printers, "interval_s": interval, "runs": runs, "summary": summary, "cpu_ratio": ratio}
+        targets.append(
+            _target(f"{name}: timeouts", "0", ours["timeouts"], ours["timeouts"] == 0),
+        )
+        if (printers, interval) == (50, 0.1):
+            targets.append(
+                _target(
+                    f"{name}: client CPU", "< 5% of a core", ours["cpu_share"] * 100, ours["cpu_share"] < 0.05, "%"
+                )
+            )
+        if (printers, interval) == (50, 0.01):
+            p99 = ours["interval_p99_ms"]
+            targets.append(
+                _target(f"{name}: poll interval p99", "< 12 ms", p99, None if math.isnan(p99) else p99 < 12, "ms")
+            )
+    return {
+        "settings": {"seconds_per_run": seconds, "simulator": "marlin-sim --printers N (unpaced ptys, one process)"},
+        "labels": {c.key: c.label for c in contenders},
+        "cases": cases,
+        "targets": targets,
+    }
+
+
 SCENARIOS = {
     scenario.name: scenario
     for scenario in (
@@ -517,6 +600,7 @@ SCENARIOS = {
         Scenario("polling", "100 Hz temperature polling", run_polling),
         Scenario("streaming", "Streaming the 17,000-line file at 250000 baud", run_streaming),
         Scenario("memory", "Memory while streaming a 1 MB and a 200 MB file", run_memory),
+        Scenario("many", "Many printers in one process: 10 x 100 Hz, 50 x 10 Hz, 50 x 100 Hz", run_many),
     )
 }
 

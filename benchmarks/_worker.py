@@ -569,6 +569,154 @@ def printcore_streaming(spec: Result) -> Result:
     }
 
 
+# ------------------------------------------------------------------------------------------------ many printers
+
+
+class LagProbe:
+    """How late the event loop runs a timer: one callback every `interval_s`, each recording how long after its
+    due time it ran. A loop that keeps up with its printers runs it within about a millisecond (epoll's grain)."""
+
+    def __init__(self, interval_s: float = 0.01) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._interval = interval_s
+        self.lags_s: list[float] = []
+        self._due = self._loop.time() + interval_s
+        self._timer = self._loop.call_at(self._due, self._tick)
+
+    def _tick(self) -> None:
+        now = self._loop.time()
+        self.lags_s.append(now - self._due)
+        self._due = max(self._due + self._interval, now)
+        self._timer = self._loop.call_at(self._due, self._tick)
+
+    def stop(self) -> dict[str, float]:
+        """Stop probing; the lag's median, p99 and worst in milliseconds."""
+        self._timer.cancel()
+        lags = sorted(self.lags_s)
+        if not lags:
+            return {"lag_median_ms": math.nan, "lag_p99_ms": math.nan, "lag_max_ms": math.nan}
+        return {
+            "lag_median_ms": statistics.median(lags) * 1000,
+            "lag_p99_ms": lags[max(0, math.ceil(0.99 * len(lags)) - 1)] * 1000,
+            "lag_max_ms": lags[-1] * 1000,
+        }
+
+
+def many_summary(per_printer: list[list[float]], wall: float) -> Result:
+    """Readings per second of each printer (the slowest and the median) and the poll intervals of all printers
+    pooled: a printer that falls behind shows in the p99 whichever it is."""
+    rates = sorted(len(times) / wall for times in per_printer)
+    gaps = sorted(b - a for times in per_printer for a, b in itertools.pairwise(times))
+    p99 = gaps[max(0, math.ceil(0.99 * len(gaps)) - 1)] * 1000 if gaps else math.nan
+    return {
+        "readings": sum(len(times) for times in per_printer),
+        "readings_per_s_min": rates[0] if rates else math.nan,
+        "readings_per_s_median": statistics.median(rates) if rates else math.nan,
+        "interval_median_ms": statistics.median(gaps) * 1000 if gaps else math.nan,
+        "interval_p99_ms": p99,
+        "interval_max_ms": gaps[-1] * 1000 if gaps else math.nan,
+    }
+
+
+async def marlin_many(spec: Result) -> Result:
+    """N printers on one event loop, each polled by its own `poll_temperatures()`, each reading read through
+    `on_reading()`."""
+    import marlin_aio
+
+    printers = [marlin_aio.Printer(url) for url in spec["urls"]]
+    per_printer: list[list[float]] = [[] for _ in printers]
+    try:
+        await asyncio.gather(*(printer.open() for printer in printers))
+        for printer, times in zip(printers, per_printer, strict=True):
+
+            def collect(reading: marlin_aio.TemperatureReading, times: list[float] = times) -> None:
+                if reading.source == "poll":
+                    hotend = reading.hotend
+                    assert hotend is not None and hotend.actual == hotend.actual
+                    times.append(reading.monotonic_s)
+
+            printer.on_reading(collect)
+        with profiled(spec.get("profile")):
+            async with contextlib.AsyncExitStack() as polls:
+                meter = Meter()
+                probe = LagProbe()
+                for printer in printers:
+                    await polls.enter_async_context(printer.poll_temperatures(interval_s=spec["interval_s"]))
+                await asyncio.sleep(spec["seconds"])
+                lag = probe.stop()
+                wall, cpu = meter.stop()
+        timeouts = sum(printer.stats.timeouts for printer in printers)
+    finally:
+        await asyncio.gather(*(printer.close() for printer in printers), return_exceptions=True)
+    return {
+        "printers": len(printers),
+        "timeouts": timeouts,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        **meter.split(),
+        **lag,
+        **many_summary(per_printer, wall),
+    }
+
+
+async def lean_floor_many(spec: Result) -> Result:
+    """N lean links on one event loop, each driven by its own timer callback as in `lean_floor_polling`, reading
+    the hotend's temperature from each answer and skipping a slot whose answer is still out."""
+    loop = asyncio.get_running_loop()
+    links = await asyncio.gather(*(_lean_link(url) for url in spec["urls"]))
+    interval = spec["interval_s"]
+    per_printer: list[list[float]] = []
+    timers: list[asyncio.TimerHandle | asyncio.Handle] = []
+
+    def drive(transport: Any, protocol: _LeanProtocol, times: list[float], index: int) -> None:
+        state = {"pending": False, "next": loop.time(), "sent": 0.0}
+
+        def on_line(line: bytes) -> None:
+            if line.startswith(b"ok T:"):
+                float(line[5:].split(b" ", 1)[0])  # the hotend's temperature, read
+                times.append(loop.time())
+                state["pending"] = False
+
+        def tick() -> None:
+            now = loop.time()
+            if not state["pending"] or now - state["sent"] > ANSWER_TIMEOUT_S:
+                transport.write(b"M105\n")
+                state["pending"] = True
+                state["sent"] = now
+            state["next"] += interval
+            if state["next"] <= now:
+                state["next"] = now + interval
+            timers[index] = loop.call_at(state["next"], tick)
+
+        protocol.on_line = on_line
+        timers.append(loop.call_soon(tick))
+
+    try:
+        meter = Meter()
+        probe = LagProbe()
+        for index, (transport, protocol) in enumerate(links):
+            per_printer.append([])
+            drive(transport, protocol, per_printer[-1], index)
+        await asyncio.sleep(spec["seconds"])
+        for timer in timers:
+            timer.cancel()
+        lag = probe.stop()
+        wall, cpu = meter.stop()
+    finally:
+        for transport, _ in links:
+            transport.close()
+        await asyncio.sleep(0.05)  # the ports close in an executor
+    return {
+        "printers": len(links),
+        "timeouts": 0,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        **meter.split(),
+        **lag,
+        **many_summary(per_printer, wall),
+    }
+
+
 # ------------------------------------------------------------------------------------------------ entry point
 
 ASYNC_TASKS = {
@@ -580,6 +728,8 @@ ASYNC_TASKS = {
     ("polling", "marlin_aio"): marlin_polling,
     ("streaming", "marlin_aio"): marlin_streaming,
     ("memory", "marlin_aio"): marlin_memory,
+    ("many", "marlin_aio"): marlin_many,
+    ("many", "lean_floor"): lean_floor_many,
 }
 THREAD_TASKS = {
     ("roundtrips", "pyserial"): pyserial_round_trips,

@@ -5,15 +5,19 @@ flushed at once so a script can read it; everything meant for people goes to std
 SIGTERM and then exits 0. The options are defined once, in `_options`, for this command and any other that
 serves the simulator (`main(argv, prog=...)` runs it under another name).
 
+With `--printers N` it serves N independent printers from one process, one URL per line.
+
 The event loop runs on `select()` rather than the default epoll: epoll sleeps in whole milliseconds, which would
 hold each short reply of a `--baud` wire back by up to a millisecond, while `select()` wakes to the microsecond.
-With a pty or one TCP client there are only a couple of file descriptors, where select costs no more.
+With a pty or one TCP client there are only a couple of file descriptors, where select costs no more (50 printers
+are 50 descriptors, still well inside select's limit of 1024).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import selectors
 import signal
 import sys
@@ -46,23 +50,28 @@ async def run_simulator(settings: SimulatorSettings, *, prog: str = "marlin-sim"
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
-    server = settings.server()
-    async with server:
-        print(server.url, flush=True)
+    servers = settings.servers()
+    async with contextlib.AsyncExitStack() as stack:
+        for server in servers:
+            await stack.enter_async_context(server)
+            print(server.url, flush=True)
         baud = f", {settings.baud_rate} baud" if settings.baud_rate is not None else ""
         dialects = "".join(f", {field}" for field, _ in DIALECT_SWITCHES if getattr(config, field))
         locked = ", locked (M511)" if config.password is not None else ""
+        where = servers[0].url if len(servers) == 1 else f"{len(servers)} printers ({servers[0].url} ...)"
         print(
-            f"{prog}: {config.firmware_name} on {server.url}, time scale {settings.time_scale:g}{baud}"
+            f"{prog}: {config.firmware_name} on {where}, time scale {settings.time_scale:g}{baud}"
             f"{', ADVANCED_OK' if config.advanced_ok else ''}{dialects}{locked}; Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
         )
         await stop.wait()
-    printer = server.printer
+    printers = [server.printer for server in servers]
     print(
-        f"{prog}: stopped; {printer.executed_count} commands run, {printer.executed_line_count} of them"
-        f" numbered; {printer.rx_dropped_bytes} received bytes dropped in {printer.rx_overflows} overflows",
+        f"{prog}: stopped; {sum(p.executed_count for p in printers)} commands run, "
+        f"{sum(p.executed_line_count for p in printers)} of them numbered; "
+        f"{sum(p.rx_dropped_bytes for p in printers)} received bytes dropped in "
+        f"{sum(p.rx_overflows for p in printers)} overflows",
         file=sys.stderr,
         flush=True,
     )

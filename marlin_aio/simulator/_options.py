@@ -13,6 +13,7 @@ argparse keeps this dependency-free and quick to start (the Typer CLI can forwar
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, NoReturn
@@ -154,6 +155,15 @@ SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
         metavar="FACTOR",
     ),
     SimulatorOption(
+        "--printers",
+        "serve",
+        "printers",
+        "serve N independent printers, one URL per line on stdout (TCP: PORT, PORT+1, ... or N free ports)",
+        parse=_positive_int,
+        metavar="N",
+        default=1,
+    ),
+    SimulatorOption(
         "--reset-on-open",
         "serve",
         "reset_on_open",
@@ -252,24 +262,34 @@ class SimulatorSettings:
     time_scale: float = 1.0
     baud_rate: int | None = None
     reset_on_open: bool = False
+    printers: int = 1
+    """How many independent printers to serve (each its own pty or port); see `servers()`."""
 
-    def server(self) -> SimulatorServer:
-        """A server for these settings, not started yet (`async with settings.server() as server:`).
+    def servers(self) -> list[SimulatorServer]:
+        """One server per printer, none started yet. Printer `i` gets the seed `seed + i`, so their faults differ, and TCP port `tcp_port + i` unless the port is 0 (each then picks a free one)."""
+        return [self.server(index) for index in range(self.printers)]
+
+    def server(self, index: int = 0) -> SimulatorServer:
+        """A server for these settings, not started yet (`async with settings.server() as server:`); `index`
+        picks which printer of `printers` it is.
 
         Raises:
             ValueError: if `reset_on_open` is asked of TCP or off Linux.
         """
+        config = self.config
+        if index:
+            config = dataclasses.replace(config, seed=config.seed + index)
         if self.tcp_port is not None:
             return serve_tcp(
-                self.config,
+                config,
                 self.faults,
                 host=self.host,
-                port=self.tcp_port,
+                port=self.tcp_port + index if self.tcp_port else 0,
                 time_scale=self.time_scale,
                 baud_rate=self.baud_rate,
             )
         return serve_pty(
-            self.config,
+            config,
             self.faults,
             time_scale=self.time_scale,
             baud_rate=self.baud_rate,
