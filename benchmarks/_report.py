@@ -267,7 +267,8 @@ def _many(entry: Json) -> list[str]:
             rows,
         ),
         "",
-        f"marlin_aio: {labels['marlin_aio'].split(': ', 1)[-1]}; lean floor: {labels['lean_floor'].split(': ', 1)[-1]}. "
+        f"marlin_aio: {labels['marlin_aio'].split(': ', 1)[-1]}; "
+        f"lean floor: {labels['lean_floor'].split(': ', 1)[-1]}. "
         "Loop lag is how late a 10 ms timer runs on the same loop.",
     ]
 

@@ -266,7 +266,8 @@ class SimulatorSettings:
     """How many independent printers to serve (each its own pty or port); see `servers()`."""
 
     def servers(self) -> list[SimulatorServer]:
-        """One server per printer, none started yet. Printer `i` gets the seed `seed + i`, so their faults differ, and TCP port `tcp_port + i` unless the port is 0 (each then picks a free one)."""
+        """One server per printer, none started yet. Printer `i` gets the seed `seed + i`, so their faults
+        differ, and TCP port `tcp_port + i` unless the port is 0 (each then picks a free one)."""
         return [self.server(index) for index in range(self.printers)]
 
     def server(self, index: int = 0) -> SimulatorServer:
