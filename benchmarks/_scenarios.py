@@ -114,7 +114,7 @@ def _alternate(
     for index in range(settings.runs):
         shift = index % len(contenders)
         for contender in contenders[shift:] + contenders[:shift]:
-            spec = {"scenario": task or scenario, "label": contender.key, "client": contender.client}
+            spec: Json = {"scenario": task or scenario, "label": contender.key, "client": contender.client}
             spec |= contender.options | spec_for(contender)
             prefix: list[str] = []
             profile = None
