@@ -281,12 +281,10 @@ class Link:
         self._arm_timer(output.deadline)
 
     def _arm_timer(self, deadline: float | None) -> None:
-        if deadline is None:
-            self._cancel_timer()
-            return
-        # Keep an earlier timer: when it fires it re-arms for the real deadline. That makes the common case (the
-        # deadline moving later with every answer) free of timer churn.
-        if self._timer is not None and self._timer.when() <= deadline:
+        # Keep a timer already armed, whether it is earlier than the deadline or nothing waits at all: when it
+        # fires it only ticks the core, which re-arms for the real deadline. So a poll answered before the next one
+        # is sent (no deadline between them) costs no timer cancelled and no timer armed: one every timeout.
+        if deadline is None or (self._timer is not None and self._timer.when() <= deadline):
             return
         self._cancel_timer()
         self._timer = self.loop.call_at(deadline, self._on_timer)

@@ -18,6 +18,7 @@ __all__ = [
     "TemperatureReading",
     "Temperatures",
     "heater_name",
+    "parse_fields",
     "parse_temperatures",
 ]
 
@@ -144,6 +145,12 @@ _FIELD = re.compile(
     rf"(?:[ \t]*/[ \t]*({_NUMBER}))?(?:[ \t]*\(({_NUMBER})\))?"
 )
 _LEADING = re.compile(r"[ \t]*[TBC]\d*:")
+# The report of a one-hotend printer, as Marlin prints it a hundred times a second when polled: `T:21.50 /0.00
+# B:21.30 /0.00 @:0 B@:0` (the bed's part optional). Matched whole, it is read without the general loop below.
+_PLAIN = r"-?\d+\.\d+"
+_COMMON = re.compile(
+    rf"[ \t]*T:({_PLAIN}) /({_PLAIN})(?: B:({_PLAIN}) /({_PLAIN}))? @:(\d{{1,9}})(?: B@:(\d{{1,9}}))?[ \t]*"
+)
 
 
 def looks_like_temperatures(text: str) -> bool:
@@ -156,7 +163,20 @@ def parse_temperatures(text: str) -> Temperatures | None:
 
     Fields the parser does not know are skipped, so a firmware that adds one does not break the rest.
     """
-    # findall with plain tuples is markedly cheaper than match objects, and this runs for every reading (100 Hz).
+    common = _COMMON.fullmatch(text)
+    if common is not None:
+        actual, target, bed_actual, bed_target, power, bed_power = common.groups()
+        heaters = {"T": HeaterReading(float(actual), float(target), int(power))}
+        if bed_actual is not None:
+            bed_power_127 = None if bed_power is None else int(bed_power)
+            heaters["B"] = HeaterReading(float(bed_actual), float(bed_target), bed_power_127)
+        return Temperatures(heaters)
+    return parse_fields(text)
+
+
+def parse_fields(text: str) -> Temperatures | None:
+    """`parse_temperatures` without its fast path for the common report: every field, whatever the shape."""
+    # findall with plain tuples is markedly cheaper than match objects.
     fields = _FIELD.findall(text)
     actual: dict[str, tuple[float, float | None, float | None]] = {}
     powers: dict[str, int] = {}

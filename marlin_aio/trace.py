@@ -22,39 +22,56 @@ class TraceEntry:
     text: str
 
 
-class Trace:
-    """The last `size` lines sent and received, oldest first, plus when each direction last saw traffic."""
+_Line = tuple[float, Literal["sent", "received"], str]
 
-    __slots__ = ("_entries", "last_received", "last_sent")
+
+class Trace:
+    """The last `size` lines sent and received, oldest first, plus when each direction last saw traffic.
+
+    Lines are kept as plain tuples and turned into `TraceEntry` values only when read: two lines are recorded for
+    every poll, a hundred times a second, and read only when something went wrong.
+    """
+
+    __slots__ = ("_entries", "_last_received", "_last_sent")
 
     def __init__(self, size: int = 64) -> None:
-        self._entries: deque[TraceEntry] = deque(maxlen=size)
-        self.last_sent: TraceEntry | None = None
-        self.last_received: TraceEntry | None = None
+        self._entries: deque[_Line] = deque(maxlen=size)
+        self._last_sent: _Line | None = None
+        self._last_received: _Line | None = None
 
     def sent(self, time_s: float, text: str) -> None:
         """Record a line written to the printer."""
-        entry = TraceEntry(time_s, "sent", text)
+        entry: _Line = (time_s, "sent", text)
         self._entries.append(entry)
-        self.last_sent = entry
+        self._last_sent = entry
         if _wire_log.isEnabledFor(logging.DEBUG):
             _wire_log.debug(">> %s", text)
 
     def received(self, time_s: float, text: str) -> None:
         """Record a line read from the printer."""
-        entry = TraceEntry(time_s, "received", text)
+        entry: _Line = (time_s, "received", text)
         self._entries.append(entry)
-        self.last_received = entry
+        self._last_received = entry
         if _wire_log.isEnabledFor(logging.DEBUG):
             _wire_log.debug("<< %s", text)
 
+    @property
+    def last_sent(self) -> TraceEntry | None:
+        """The last line written, or None."""
+        return None if self._last_sent is None else TraceEntry(*self._last_sent)
+
+    @property
+    def last_received(self) -> TraceEntry | None:
+        """The last line read, or None."""
+        return None if self._last_received is None else TraceEntry(*self._last_received)
+
     def entries(self) -> list[TraceEntry]:
         """The recorded lines, oldest first."""
-        return list(self._entries)
+        return [TraceEntry(*entry) for entry in self._entries]
 
     def format(self, now: float) -> str:
         """The recorded lines as text, one per line, each with its age: `  -0.512 s >> N12 G1 X10*93`."""
         return "\n".join(
-            f"{entry.time_s - now:+9.3f} s {'>>' if entry.direction == 'sent' else '<<'} {entry.text}"
-            for entry in self._entries
+            f"{time_s - now:+9.3f} s {'>>' if direction == 'sent' else '<<'} {text}"
+            for time_s, direction, text in self._entries
         )

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from marlin_aio.temperatures import HeaterReading, Temperatures, parse_temperatures
+from marlin_aio.temperatures import HeaterReading, Temperatures, parse_fields, parse_temperatures
 
 
 def parse(text: str) -> Temperatures:
@@ -228,3 +228,34 @@ def test_a_report_from_text_parses_on_first_read_and_equals_the_eager_one() -> N
     assert lazy == parse_temperatures(text)
     assert lazy.hotend == HeaterReading(actual=21.5, target=200.0, power=127)
     assert Temperatures.from_text("T:abc").heaters == {}
+
+
+_CELSIUS = st.sampled_from(["0.00", "21.50", "-3.25", "199.87", "1000.12", "5.0", "5", "nan", "1" * 30 + ".5"])
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.tuples(_CELSIUS, _CELSIUS),
+    st.none() | st.tuples(_CELSIUS, _CELSIUS),
+    st.sampled_from(["0", "64", "127", "1" * 12]),
+    st.none() | st.integers(0, 127),
+    st.sampled_from(["", " ", "\t"]),
+    st.sampled_from(["", " ", " \t"]),
+)
+def test_the_fast_path_for_the_common_report_reads_what_the_general_parser_reads(
+    hotend: tuple[str, str],
+    bed: tuple[str, str] | None,
+    power: str,
+    bed_power: int | None,
+    before: str,
+    after: str,
+) -> None:
+    # The one-hotend report (`T:.. /.. B:.. /.. @:.. B@:..`) skips the general loop; it must not read differently.
+    text = f"{before}T:{hotend[0]} /{hotend[1]}"
+    if bed is not None:
+        text += f" B:{bed[0]} /{bed[1]}"
+    text += f" @:{power}"
+    if bed_power is not None:
+        text += f" B@:{bed_power}"
+    text += after
+    assert repr(parse_temperatures(text)) == repr(parse_fields(text))  # repr: nan == nan
