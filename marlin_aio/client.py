@@ -27,7 +27,7 @@ from marlin_aio.commands import (
 )
 from marlin_aio.connection import Connection, Reply
 from marlin_aio.errors import ConnectionLostError, MarlinError, TemperatureTimeoutError
-from marlin_aio.events import Capability, Event, FirmwareInfo
+from marlin_aio.events import Capability, Event, FirmwareInfo, Ok
 from marlin_aio.feed import TemperatureFeed
 from marlin_aio.handshake import handshake, send_until_processed
 from marlin_aio.heaters import HeaterLimits, describe_heaters, target_commands, targets_reached, wanted_targets
@@ -524,6 +524,9 @@ class Printer:
     # ------------------------------------------------------------------------------------------- events
 
     def _on_event(self, event: Event, now: float) -> None:
+        if type(event) is Ok:  # most events are oks (a hundred polls a second): no pattern to try first
+            self._feed.on_event(event, now)
+            return
         match event:
             case Capability(name=name, enabled=enabled):
                 self.capabilities[name] = enabled

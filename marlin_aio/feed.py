@@ -60,9 +60,11 @@ class TemperatureFeed:
 
     def on_event(self, event: Event, now: float) -> None:
         """Turn a received event into a reading (or a target) if it is one."""
+        if type(event) is Ok:
+            if event.temperatures is not None:
+                self._arrived(event.temperatures, now, ReadingSource.POLL)
+            return
         match event:
-            case Ok(temperatures=Temperatures() as temperatures):
-                self._arrived(temperatures, now, ReadingSource.POLL)
             case TemperatureReport(temperatures=temperatures):
                 self._arrived(temperatures, now, ReadingSource.WAIT if temperatures.waiting else ReadingSource.AUTO)
             case TargetTemperature(heater=heater, celsius=celsius):
