@@ -2,11 +2,21 @@
 
 Opening the printer and recording are apart: `record_temperatures` takes an open printer and an open log, so a
 test can watch the same log object while the printer misbehaves.
+
+The order of a run is what keeps it honest. The log file is checked first (an older or foreign file is refused
+before the port is even opened); then one M105 names the printer's heaters, so a file with other heaters is
+refused while nothing has been sent that changes anything; only then are `--hotend`/`--bed` set, and the
+readings are followed from before the first poll goes out, so a heat-up is recorded from its first reading
+with its target already in the row. With `--reconnect` each connection is a new session of the same file, and
+targets are not sent again: a board that reset has turned its heaters off, and re-heating a printer nobody is
+watching is not this command's call.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
@@ -14,10 +24,35 @@ from rich.console import Console
 import marlin_aio
 
 from .connect import ConnectOptions, Exit, open_printer
-from .logfile import TemperatureLog
+from .logfile import LogFormat, TemperatureLog
 from .terminal import on_stop_signals
 
-__all__ = ["log_temperatures", "record_temperatures"]
+__all__ = ["RECONNECT_DELAYS_S", "LogSettings", "log_temperatures", "record_temperatures"]
+
+#: Seconds between reconnect attempts: doubling from 1 s, then every 30 s; back to 1 s once a session has rows.
+RECONNECT_DELAYS_S = (1.0, 2.0, 4.0, 8.0, 16.0, 30.0)
+
+# What ends a session but not a --reconnect run: the link went away, the board restarted, or it does not answer
+# (yet). A halted printer (M112, thermal runaway) is not among them: it needs a person.
+_RECONNECTABLE = (
+    marlin_aio.ConnectionLostError,
+    marlin_aio.ConnectError,
+    marlin_aio.HandshakeError,
+    marlin_aio.PrinterResetError,
+)
+
+
+@dataclass(frozen=True)
+class LogSettings:
+    """What `log` was asked to do (targets already checked against the limits)."""
+
+    output: Path
+    fmt: LogFormat = "csv"
+    interval_s: float = 1.0
+    duration_s: float | None = None
+    hotend: float | None = None
+    bed: float | None = None
+    reconnect: bool = False
 
 
 async def record_temperatures(
@@ -27,11 +62,14 @@ async def record_temperatures(
     duration_s: float | None,
     stop: asyncio.Event,
 ) -> None:
-    """Poll every `interval_s` and add each reading to `log` until `stop` is set or `duration_s` has passed.
+    """Poll every `interval_s` and add readings to `log` until `stop` is set or `duration_s` has passed.
+
+    The log's sampler (if it has one) keeps one reading per interval; the readings are followed from before the
+    first poll is sent, so the first row is the first reading.
 
     Raises:
         MarlinError: the printer halted or went away (the log keeps what was recorded).
-        ValueError: the log file holds other columns than this printer reports.
+        ValueError: the log file holds other heaters than this printer reports.
         OSError: the file cannot be written.
     """
 
@@ -39,36 +77,112 @@ async def record_temperatures(
         async for reading in printer.temperature_readings():
             log.add(reading)
 
-    async with printer.poll_temperatures(interval_s):
-        recorder = asyncio.create_task(record(), name="marlin-temp log")
-        stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
-        try:
+    # Created before the polls start: the task subscribes on its first step, before any answer can arrive.
+    recorder = asyncio.create_task(record(), name="marlin-temp log")
+    stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
+    try:
+        async with printer.poll_temperatures(interval_s):
             done, _ = await asyncio.wait({recorder, stopper}, timeout=duration_s, return_when="FIRST_COMPLETED")
             if recorder in done:
                 recorder.result()
-        finally:
-            for task in (recorder, stopper):
-                task.cancel()
-            await asyncio.gather(recorder, stopper, return_exceptions=True)
-            log.flush()
+    finally:
+        for task in (recorder, stopper):
+            task.cancel()
+        await asyncio.gather(recorder, stopper, return_exceptions=True)
+        log.flush()
 
 
-async def log_temperatures(
-    options: ConnectOptions, output: Path, fmt: str, interval_s: float, duration_s: float | None, errors: Console
-) -> Exit:
-    """Poll every `interval_s` and append each reading to `output` until Ctrl-C, SIGTERM or `duration_s`.
+def _targets_line(settings: LogSettings) -> str:
+    wanted = (("hotend", settings.hotend), ("bed", settings.bed))
+    return ", ".join(f"{name} target {value:g} C" for name, value in wanted if value is not None)
+
+
+@dataclass
+class _Run:
+    """What carries over from one connection to the next."""
+
+    targets_pending: bool
+    attempt: int = 0  # reconnect attempts since the last session that wrote rows
+
+
+async def _session(
+    options: ConnectOptions,
+    settings: LogSettings,
+    log: TemperatureLog,
+    stop: asyncio.Event,
+    remaining_s: float | None,
+    run: _Run,
+    errors: Console,
+) -> None:
+    async with open_printer(options, errors) as (printer, label):
+        first = await printer.read_temperatures()
+        log.check_heaters(first.temperatures.heaters)  # refuse a file with other heaters before setting anything
+        if run.targets_pending:
+            await printer.set_temperatures(hotend=settings.hotend, bed=settings.bed)
+            run.targets_pending = False
+            errors.print(f"set {_targets_line(settings)}; logging from the first reading", style="dim")
+        errors.print(
+            f"logging {label} to {settings.output} every {settings.interval_s:g} s, session {log.session}; "
+            "Ctrl-C stops",
+            style="dim",
+        )
+        await record_temperatures(printer, log, settings.interval_s, remaining_s, stop)
+
+
+async def log_temperatures(options: ConnectOptions, settings: LogSettings, errors: Console) -> Exit:
+    """Log until Ctrl-C, SIGTERM or the duration: set the targets, then one row per interval; return the exit code.
 
     Raises:
-        MarlinError: the printer could not be opened, halted, or went away (the file keeps what was logged).
-        ValueError: `output` holds other columns than this printer reports.
+        MarlinError: the printer could not be opened, halted, or went away without --reconnect (the file keeps
+            what was logged).
+        ValueError: the output file is not a log of this format, or holds other heaters than this printer has.
         OSError: the file cannot be written.
     """
+    loop = asyncio.get_running_loop()
+    deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
     stop = asyncio.Event()
+    run = _Run(targets_pending=settings.hotend is not None or settings.bed is not None)
     with on_stop_signals(stop.set):
-        async with TemperatureLog(output, fmt) as log, open_printer(options, errors) as (printer, label):
-            errors.print(f"logging {label} to {output} every {interval_s:g} s; Ctrl-C stops", style="dim")
+        async with TemperatureLog(settings.output, settings.fmt, interval_s=settings.interval_s) as log:
             try:
-                await record_temperatures(printer, log, interval_s, duration_s, stop)
+                while not stop.is_set():
+                    remaining = None if deadline is None else deadline - loop.time()
+                    if remaining is not None and remaining <= 0:
+                        break
+                    rows_before = log.summary.rows
+                    try:
+                        await _session(options, settings, log, stop, remaining, run, errors)
+                        break
+                    except _RECONNECTABLE as exc:
+                        if not settings.reconnect:
+                            if isinstance(exc, marlin_aio.ConnectionLostError):
+                                raise marlin_aio.ConnectionLostError(
+                                    f"{exc} (unplugged? use --reconnect to keep logging)"
+                                ) from exc
+                            raise
+                        await _back_off(exc, run, log, rows_before, stop, deadline, errors)
             finally:
                 errors.print(log.summary.line())
     return Exit.OK
+
+
+async def _back_off(
+    exc: marlin_aio.MarlinError,
+    run: _Run,
+    log: TemperatureLog,
+    rows_before: int,
+    stop: asyncio.Event,
+    deadline: float | None,
+    errors: Console,
+) -> None:
+    """Wait before the next attempt (doubling, from 1 s again after a session with rows); start a new session."""
+    if log.summary.rows > rows_before:
+        run.attempt = 0
+        log.new_session()  # the next connection's rows are a session of their own, whatever the printer did meanwhile
+    delay = RECONNECT_DELAYS_S[min(run.attempt, len(RECONNECT_DELAYS_S) - 1)]
+    run.attempt += 1
+    errors.print(f"{exc}; reconnecting in {delay:g} s (Ctrl-C stops)", style="yellow")
+    if deadline is not None:
+        delay = min(delay, max(deadline - asyncio.get_running_loop().time(), 0.0))
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(stop.wait(), delay)

@@ -1,13 +1,24 @@
 """Temperature log files: one row per reading, in CSV or JSON lines, safe to kill at any moment.
 
-Rows are buffered and written as whole lines at least once a second, so a crash or SIGKILL loses at most the
-last second and never leaves half a row behind (the file still parses). Appending to an existing CSV keeps its
-columns, and refuses (with a clear message) a file whose columns differ.
+What a row says. Every row carries its own absolute time twice (`time`, ISO 8601 with the local offset, for
+people; `epoch_s`, for programs), the `session` it belongs to (one run of `log` or `watch --log`, or one
+connection of `log --reconnect`), the seconds since that session's first row (`session_elapsed_s`: it restarts
+with each session, which is why nothing plots against it), and the `source` of the reading (`poll`, `auto`,
+`wait`: the library's `ReadingSource`). Heaters are named as on the screen (`hotend`, `bed`, `hotend 0`; in CSV
+column names the space becomes `_`), temperatures are in `_c`, power in `_power_percent`; Marlin's raw 0-127
+power is kept only in `_power_raw`. So appended runs plot on one true time axis, and a file says what it means.
 
-The flush is driven by time, not by the next row: the first row to wait in the buffer arms a timer for one
-flush interval later. A printer that falls silent (or a link that drops) brings no next row, and the rows
-before it must still reach the disk. That timer is why the log is an async context manager: it belongs to the
-running event loop, taken in `__aenter__`.
+Why rows reach the disk: rows are buffered and written as whole lines at least once a second, so a crash or
+SIGKILL loses at most the last second and never leaves half a row behind (the file still parses). The flush is
+driven by time, not by the next row: the first row to wait in the buffer arms a timer for one flush interval
+later. A printer that falls silent (or a link that drops) brings no next row, and the rows before it must still
+reach the disk. That timer is why the log is an async context manager: it belongs to the running event loop,
+taken in `__aenter__`.
+
+Appending: a file is appended to only when it is a log in this format with the same heaters (and, for CSV, the
+same header); a file from an older marlin-temp (`time_utc,elapsed_s,T_actual,...`), of the other format, or not a
+log at all is refused with one line before anything is written, so two vocabularies never mix in one file.
+`read_log` still reads the older format, for `plot`.
 """
 
 from __future__ import annotations
@@ -16,32 +27,105 @@ import asyncio
 import csv
 import io
 import json
+import math
 import os
+import secrets
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
+from datetime import datetime
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
-from marlin_aio import TemperatureReading, heater_name
+from marlin_aio import HeaterReading, TemperatureReading, heater_name
 
-__all__ = ["LogFormat", "LogSummary", "TemperatureLog", "read_log"]
+__all__ = [
+    "FIXED_COLUMNS",
+    "HEATER_FIELDS",
+    "HeaterSample",
+    "LogContents",
+    "LogFormat",
+    "LogRow",
+    "LogSession",
+    "LogSummary",
+    "RowSampler",
+    "TemperatureLog",
+    "column_prefix",
+    "read_log",
+]
 
 LogFormat = str  # "csv" or "jsonl"
 
+#: The columns every CSV row starts with, in this order; the heaters' columns follow.
+FIXED_COLUMNS = ("time", "epoch_s", "session", "session_elapsed_s", "source")
+#: Each heater's columns (CSV: `hotend_actual_c`, ...) and fields (JSON lines: `{"hotend": {"actual_c": ...}}`).
+HEATER_FIELDS = ("actual_c", "target_c", "power_percent", "power_raw")
+# The header of logs written before sessions and names: still read by `read_log`, never appended to.
+_OLD_FIXED_COLUMNS = ("time_utc", "elapsed_s")
 
-def _columns_for(keys: list[str]) -> list[str]:
-    columns = ["time_utc", "elapsed_s"]
-    for key in keys:
-        columns += [f"{key}_actual", f"{key}_target", f"{key}_power"]
-    return columns
+
+def column_prefix(key: str) -> str:
+    """The CSV column prefix for a report's heater key: `"T"` gives `"hotend"`, `"T0"` gives `"hotend_0"`."""
+    return heater_name(key).replace(" ", "_")
+
+
+def _heater_columns(keys: Iterable[str]) -> list[str]:
+    return [f"{column_prefix(key)}_{part}" for key in keys for part in HEATER_FIELDS]
 
 
 def _iso(wall_time_s: float) -> str:
-    return datetime.fromtimestamp(wall_time_s, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+    # Local time with its offset: what the user's clock said, and still one instant for any reader.
+    return datetime.fromtimestamp(wall_time_s).astimezone().isoformat(timespec="milliseconds")
 
 
-def _number(value: float | int | None) -> str:
-    return "" if value is None else f"{value:g}" if isinstance(value, int) else f"{value:.2f}"
+def _number(value: float | None, decimals: int = 2) -> str:
+    return "" if value is None else f"{value:.{decimals}f}"
+
+
+def _percent(heater: HeaterReading) -> float | None:
+    fraction = heater.power_fraction
+    return None if fraction is None else round(fraction * 100, 1)
+
+
+def _new_session_id() -> str:
+    # Sortable and readable (when it started), and unique among runs started in the same second.
+    return f"{datetime.now().astimezone():%Y%m%dT%H%M%S}-{secrets.token_hex(2)}"
+
+
+class RowSampler:
+    """Decides which readings become rows: one per `interval_s`, whatever produced them.
+
+    Marlin reports temperatures three ways (the M105 poll's answer, the M155 auto-report, M109/M190 wait lines),
+    and the client turns auto-reporting on beside the polls, so at a 1 s interval two reports of one moment
+    arrive a few ms apart. The poll is the reading taken at the requested interval: it is accepted from half an
+    interval before it is due. Any other reading stands in only when no poll came by a quarter interval after
+    the due time (the queue blocked by G28 or a wait, a firmware that answers M105 late), so a heat-up under
+    M109 is still recorded. Rows are never closer than half an interval, and the schedule keeps to the first
+    row's phase (no drift) unless a stand-in shifts it.
+    """
+
+    def __init__(self, interval_s: float) -> None:
+        if not interval_s > 0:
+            raise ValueError(f"interval_s must be positive, got {interval_s}")
+        self.interval_s = interval_s
+        self._due: float | None = None
+        self._last: float = -math.inf
+
+    def restart(self) -> None:
+        """Forget the schedule: the next reading is taken (a new session)."""
+        self._due = None
+        self._last = -math.inf
+
+    def take(self, reading: TemperatureReading) -> bool:
+        """Whether `reading` becomes a row (and, if so, schedule the next one)."""
+        now = reading.monotonic_s
+        interval = self.interval_s
+        if self._due is not None:
+            early = interval / 2 if reading.source == "poll" else -interval / 4
+            if now < self._due - early or now - self._last < interval / 2:
+                return False
+        self._due = now + interval if self._due is None else max(self._due + interval, now + interval / 2)
+        self._last = now
+        return True
 
 
 @dataclass
@@ -50,18 +134,26 @@ class LogSummary:
 
     path: Path
     rows: int = 0
+    sessions: list[str] = field(default_factory=list)
     first: dict[str, float] = field(default_factory=dict)
     last: dict[str, float] = field(default_factory=dict)
-    elapsed_s: float = 0.0
+    first_epoch_s: float | None = None
+    last_epoch_s: float | None = None
+
+    @property
+    def elapsed_s(self) -> float:
+        """Wall-clock seconds from the first row written to the last (across sessions)."""
+        if self.first_epoch_s is None or self.last_epoch_s is None:
+            return 0.0
+        return self.last_epoch_s - self.first_epoch_s
 
     def line(self) -> str:
-        """`wrote 6000 rows to temps.csv over 60.0 s: hotend 25.0 -> 200.1 C, bed 25.0 -> 60.0 C`."""
+        """`wrote 60 rows to temps.csv over 59.0 s: hotend 25.0 -> 200.1 C, bed 25.0 -> 60.0 C`."""
         changes = ", ".join(
-            f"{heater_name(key)} {self.first[key]:.1f} -> {self.last[key]:.1f} C"
-            for key in self.last
-            if key in self.first
+            f"{name} {self.first[name]:.1f} -> {self.last[name]:.1f} C" for name in self.last if name in self.first
         )
-        return f"wrote {self.rows} rows to {self.path} over {self.elapsed_s:.1f} s" + (
+        sessions = f" in {len(self.sessions)} sessions" if len(self.sessions) > 1 else ""
+        return f"wrote {self.rows} rows to {self.path} over {self.elapsed_s:.1f} s{sessions}" + (
             f": {changes}" if changes else ""
         )
 
@@ -69,15 +161,21 @@ class LogSummary:
 class TemperatureLog:
     """Writes readings to `path` as CSV or JSON lines; use as an async context manager (`async with`).
 
-    No row waits in memory longer than `flush_interval_s`, whether more rows follow or not.
+    No row waits in memory longer than `flush_interval_s`, whether more rows follow or not. With `interval_s`
+    a `RowSampler` keeps one reading per interval (`add` says whether it wrote one); without it every reading
+    is a row. Each `TemperatureLog` starts a session of its own; `new_session()` starts another (after a
+    reconnect).
 
     Raises:
-        ValueError: `fmt` is unknown, `flush_interval_s` is not positive, or an existing CSV has other columns
-            than this printer reports.
+        ValueError: `fmt` is unknown, `flush_interval_s` or `interval_s` is not positive; on entering, `path`
+            exists and is not a log of this format (an older marlin-temp's, the other format, not a log);
+            later, an existing CSV has other heaters than this printer reports.
         OSError: the file cannot be opened or written.
     """
 
-    def __init__(self, path: Path, fmt: LogFormat = "csv", flush_interval_s: float = 1.0) -> None:
+    def __init__(
+        self, path: Path, fmt: LogFormat = "csv", flush_interval_s: float = 1.0, interval_s: float | None = None
+    ) -> None:
         if fmt not in ("csv", "jsonl"):
             raise ValueError(f"unknown log format {fmt!r}: use csv or jsonl")
         if not flush_interval_s > 0:
@@ -85,32 +183,120 @@ class TemperatureLog:
         self.path = path
         self.format = fmt
         self.flush_interval_s = flush_interval_s
+        self.sampler = RowSampler(interval_s) if interval_s is not None else None
         self.summary = LogSummary(path)
+        self.session = _new_session_id()
+        self._session_start: float | None = None
         self._file: IO[str] | None = None
-        self._columns: list[str] | None = None
+        self._keys: list[str] | None = None  # the heater keys the CSV columns were made from
         self._existing_columns: list[str] | None = None
         self._pending: list[str] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._flush_timer: asyncio.TimerHandle | None = None
         self._error: OSError | None = None  # met by a timed flush, raised by the next add() or flush()
-        self._start: float | None = None
 
     async def __aenter__(self) -> TemperatureLog:
-        if self.format == "csv" and self.path.exists() and self.path.stat().st_size > 0:
-            with self.path.open(newline="") as existing:
-                self._existing_columns = next(csv.reader(existing), None)
+        needs_newline = self._check_existing()
         self._file = self.path.open("a", newline="", encoding="utf-8")
+        if needs_newline:
+            self._pending.append("\n")  # a last line cut short by someone else's crash stays a line of its own
         self._loop = asyncio.get_running_loop()
         return self
 
     async def __aexit__(self, *exc: object) -> None:
         self.close()
 
-    def add(self, reading: TemperatureReading) -> None:
-        """Queue one row; it reaches the file within `flush_interval_s`, even if no other row follows.
+    def _check_existing(self) -> bool:
+        """Refuse a file this log must not append to; return whether its last line lacks its line end."""
+        if not self.path.exists() or self.path.stat().st_size == 0:
+            return False
+        try:
+            with self.path.open(encoding="utf-8", newline="") as existing:
+                first = existing.readline()
+        except UnicodeDecodeError:
+            raise ValueError(f"{self.path} is not a marlin-temp log (not text): choose another --output file") from None
+        with self.path.open("rb") as raw:
+            raw.seek(-1, os.SEEK_END)
+            needs_newline = raw.read(1) != b"\n"
+        shown = first.strip()[:60]
+        other = "choose another --output file"
+        if first.lstrip().startswith("{"):
+            if self.format != "jsonl":
+                raise ValueError(f"{self.path} holds JSON lines: log to it with --format jsonl, or {other}")
+            try:
+                record = json.loads(first)
+            except ValueError:
+                record = None
+            if isinstance(record, dict) and "session" in record and "epoch_s" in record:
+                return needs_newline
+            if isinstance(record, dict) and "time_utc" in record:
+                raise ValueError(
+                    f"{self.path} has other columns than this version of marlin-temp writes (an older log: "
+                    f"time_utc, elapsed_s, T/B heaters, raw power); appending would mix them: {other} "
+                    "(plot still reads it)"
+                )
+            raise ValueError(f"{self.path} is not a marlin-temp log (its first line is {shown!r}): {other}")
+        header = next(csv.reader([first]), [])
+        if self.format != "csv":
+            raise ValueError(f"{self.path} is a CSV file: log to it with --format csv, or {other}")
+        if tuple(header[: len(FIXED_COLUMNS)]) == FIXED_COLUMNS:
+            self._existing_columns = header
+            return needs_newline
+        if tuple(header[: len(_OLD_FIXED_COLUMNS)]) == _OLD_FIXED_COLUMNS:
+            raise ValueError(
+                f"{self.path} has other columns than this version of marlin-temp writes (an older log: "
+                f"{', '.join(header[:5])}, ...); appending would mix them: {other} (plot still reads it)"
+            )
+        raise ValueError(f"{self.path} is not a marlin-temp log (its first line is {shown!r}): {other}")
+
+    def check_heaters(self, keys: Iterable[str]) -> None:
+        """Fix the CSV columns for these heater keys now (before the first row), or refuse them.
+
+        Call it with a first reading's keys before changing anything on the printer: an existing file with other
+        heaters is refused while nothing has happened yet. (Without it, the first row fixes the columns.)
 
         Raises:
-            ValueError: an existing CSV has other columns than this reading's heaters.
+            ValueError: an existing CSV, or this log's earlier rows, have other heaters.
+        """
+        if self.format != "csv":
+            return
+        keys = list(keys)
+        if self._keys is not None:
+            if _heater_columns(self._keys) != _heater_columns(keys):
+                raise ValueError(
+                    f"the printer now reports other heaters ({', '.join(map(heater_name, keys))}) than when "
+                    f"logging to {self.path} began ({', '.join(map(heater_name, self._keys))}); choose another "
+                    "--output file"
+                )
+            return
+        columns = [*FIXED_COLUMNS, *_heater_columns(keys)]
+        if self._existing_columns is not None:
+            if self._existing_columns != columns:
+                theirs = ", ".join(self._existing_columns[len(FIXED_COLUMNS) :]) or "none"
+                raise ValueError(
+                    f"{self.path} has other columns ({theirs}) than this printer reports "
+                    f"({', '.join(columns[len(FIXED_COLUMNS) :])}); choose another --output file"
+                )
+        else:
+            self._pending.append(",".join(columns) + "\n")
+            self._existing_columns = columns
+        self._keys = keys
+
+    def new_session(self) -> str:
+        """Start a new session (a new id; `session_elapsed_s` and the sampler start again); return its id."""
+        self.session = _new_session_id()
+        self._session_start = None
+        if self.sampler is not None:
+            self.sampler.restart()
+        return self.session
+
+    def add(self, reading: TemperatureReading) -> bool:
+        """Queue one row, unless the sampler skips this reading; return whether a row was queued.
+
+        A row reaches the file within `flush_interval_s`, even if no other row follows.
+
+        Raises:
+            ValueError: an existing CSV has other heaters than this reading's.
             RuntimeError: the log is not open (`async with`).
             OSError: a timed flush since the last row could not write the file.
         """
@@ -119,53 +305,66 @@ class TemperatureLog:
         if self._error is not None:
             error, self._error = self._error, None
             raise error
-        if self._start is None:
-            self._start = reading.monotonic_s
-        elapsed = reading.monotonic_s - self._start
         heaters = reading.temperatures.heaters
+        if not heaters:
+            return False
+        if self._keys is None and self.format == "csv":
+            self.check_heaters(heaters)
+        if self.sampler is not None and not self.sampler.take(reading):
+            return False
+        if self._session_start is None:
+            self._session_start = reading.monotonic_s
+        elapsed = reading.monotonic_s - self._session_start
+        fixed = [_iso(reading.wall_time_s), f"{reading.wall_time_s:.3f}", self.session, f"{elapsed:.3f}"]
         if self.format == "csv":
-            if self._columns is None:
-                self._start_csv(list(heaters))
-            assert self._columns is not None
-            row = [_iso(reading.wall_time_s), f"{elapsed:.3f}"]
-            for column in self._columns[2:]:
-                key, _, part = column.rpartition("_")
+            assert self._keys is not None
+            row = [*fixed, str(reading.source)]
+            for key in self._keys:
                 heater = heaters.get(key)
-                value = None if heater is None else getattr(heater, part)
-                row.append(_number(value))
+                if heater is None:
+                    row += ["", "", "", ""]
+                else:
+                    power = None if heater.power is None else float(heater.power)
+                    row += [_number(heater.actual), _number(heater.target), _number(_percent(heater), 1)]
+                    row.append(_number(power, 0))
             buffer = io.StringIO()
             csv.writer(buffer, lineterminator="\n").writerow(row)
             self._pending.append(buffer.getvalue())
         else:
             record = {
-                "time_utc": _iso(reading.wall_time_s),
-                "elapsed_s": round(elapsed, 3),
-                "source": reading.source,
+                "time": fixed[0],
+                "epoch_s": round(reading.wall_time_s, 3),
+                "session": self.session,
+                "session_elapsed_s": round(elapsed, 3),
+                "source": str(reading.source),
                 "heaters": {
-                    key: {"actual": h.actual, "target": h.target, "power": h.power} for key, h in heaters.items()
+                    heater_name(key): {
+                        "actual_c": heater.actual,
+                        "target_c": heater.target,
+                        "power_percent": _percent(heater),
+                        "power_raw": heater.power,
+                    }
+                    for key, heater in heaters.items()
                 },
             }
             self._pending.append(json.dumps(record) + "\n")
-        self.summary.rows += 1
-        self.summary.elapsed_s = elapsed
-        for key, heater in heaters.items():
-            self.summary.first.setdefault(key, heater.actual)
-            self.summary.last[key] = heater.actual
+        self._count(reading)
         if self._flush_timer is None:
             # The oldest row in the buffer sets the deadline; rows after it go out with it, sooner than theirs.
             self._flush_timer = self._loop.call_later(self.flush_interval_s, self._flush_due)
+        return True
 
-    def _start_csv(self, keys: list[str]) -> None:
-        columns = _columns_for(keys)
-        if self._existing_columns is not None:
-            if self._existing_columns != columns:
-                raise ValueError(
-                    f"{self.path} has other columns ({', '.join(self._existing_columns[2:]) or 'none'}) than this "
-                    f"printer reports ({', '.join(columns[2:])}); choose another --output file"
-                )
-        else:
-            self._pending.append(",".join(columns) + "\n")
-        self._columns = columns
+    def _count(self, reading: TemperatureReading) -> None:
+        summary = self.summary
+        summary.rows += 1
+        if not summary.sessions or summary.sessions[-1] != self.session:
+            summary.sessions.append(self.session)
+        if summary.first_epoch_s is None:
+            summary.first_epoch_s = reading.wall_time_s
+        summary.last_epoch_s = reading.wall_time_s
+        for key, heater in reading.temperatures.heaters.items():
+            summary.first.setdefault(heater_name(key), heater.actual)
+            summary.last[heater_name(key)] = heater.actual
 
     def _flush_due(self) -> None:
         self._flush_timer = None
@@ -210,42 +409,187 @@ class TemperatureLog:
             self._file = None
 
 
-def read_log(path: Path) -> tuple[list[float], dict[str, list[tuple[float | None, float | None]]]]:
-    """Read a CSV or JSONL log back: elapsed seconds, and per heater key a list of (actual, target).
+# ------------------------------------------------------------------------------------------- reading back
+
+
+@dataclass(frozen=True, slots=True)
+class HeaterSample:
+    """One heater in one row read back: temperatures in C, power in percent (None where the row has none)."""
+
+    actual_c: float | None
+    target_c: float | None
+    power_percent: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class LogRow:
+    """One row read back: its absolute time, what produced it, and each heater by name (`hotend`, `bed`)."""
+
+    epoch_s: float
+    source: str
+    heaters: dict[str, HeaterSample]
+
+
+@dataclass(frozen=True)
+class LogSession:
+    """The rows of one session, in time order."""
+
+    id: str
+    rows: list[LogRow]
+
+    @property
+    def start_epoch_s(self) -> float:
+        """When its first row was read."""
+        return self.rows[0].epoch_s
+
+    @property
+    def end_epoch_s(self) -> float:
+        """When its last row was read."""
+        return self.rows[-1].epoch_s
+
+
+@dataclass(frozen=True)
+class LogContents:
+    """A log read back: its sessions in time order, and whether it is in the older format."""
+
+    sessions: list[LogSession]
+    old_format: bool = False
+
+    @property
+    def rows(self) -> int:
+        """How many rows all sessions hold."""
+        return sum(len(session.rows) for session in self.sessions)
+
+
+def _float(text: str | float | int | None) -> float | None:
+    if text is None or text == "":
+        return None
+    value = float(text)
+    return value if math.isfinite(value) else None
+
+
+def _old_percent(raw: str | float | int | None) -> float | None:
+    power = _float(raw)
+    return None if power is None else min(max(power / 127 * 100, 0.0), 100.0)
+
+
+def _epoch_of(iso: str) -> float:
+    return datetime.fromisoformat(iso).timestamp()  # `Z` and offsets alike (Python 3.11+)
+
+
+class _Sessions:
+    """Rows grouped by session id, in order of first appearance; an old log's runs are found by elapsed_s."""
+
+    def __init__(self) -> None:
+        self.rows: dict[str, list[LogRow]] = {}
+        self._old_elapsed: float | None = None
+        self._old_count = 0
+
+    def add(self, session: str, row: LogRow) -> None:
+        self.rows.setdefault(session, []).append(row)
+
+    def add_old(self, elapsed_s: float, row: LogRow) -> None:
+        # Before sessions existed, an appended run showed only as elapsed_s starting again from 0.
+        if self._old_elapsed is None or elapsed_s < self._old_elapsed:
+            self._old_count += 1
+        self._old_elapsed = elapsed_s
+        self.add(f"run {self._old_count}", row)
+
+    def contents(self, old_format: bool) -> LogContents:
+        sessions = [LogSession(key, sorted(rows, key=lambda r: r.epoch_s)) for key, rows in self.rows.items() if rows]
+        sessions.sort(key=lambda s: s.start_epoch_s)
+        return LogContents(sessions, old_format)
+
+
+def read_log(path: Path) -> LogContents:
+    """Read a CSV or JSON-lines log back (this format or the older one without sessions), sessions in time order.
+
+    Rows cut short (by a crash in an older writer) are skipped; anything else that does not parse is an error.
 
     Raises:
-        ValueError: the file is empty or not a temperature log.
+        ValueError: the file is empty or not a temperature log (saying which line is wrong).
         OSError: it cannot be read.
     """
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path} is not a marlin-temp log (not text)") from None
     if not text.strip():
         raise ValueError(f"{path} is empty")
-    elapsed: list[float] = []
-    series: dict[str, list[tuple[float | None, float | None]]] = {}
     if text.lstrip().startswith("{"):
-        for number, line in enumerate(text.splitlines(), 1):
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-                elapsed.append(float(record["elapsed_s"]))
-                for key, heater in record["heaters"].items():
-                    series.setdefault(key, []).append((heater.get("actual"), heater.get("target")))
-            except (ValueError, KeyError, TypeError) as exc:
-                raise ValueError(f"{path}:{number} is not a temperature log line: {exc}") from None
-        return elapsed, series
+        return _read_jsonl(path, text)
+    return _read_csv(path, text)
+
+
+def _read_jsonl(path: Path, text: str) -> LogContents:
+    sessions = _Sessions()
+    old = False
+    for number, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            record: dict[str, Any] = json.loads(line)
+            if "session" in record:
+                heaters = {
+                    name: HeaterSample(
+                        _float(h.get("actual_c")), _float(h.get("target_c")), _float(h.get("power_percent"))
+                    )
+                    for name, h in record["heaters"].items()
+                }
+                sessions.add(str(record["session"]), LogRow(float(record["epoch_s"]), record["source"], heaters))
+            else:
+                old = True
+                heaters = {
+                    heater_name(key): HeaterSample(
+                        _float(h.get("actual")), _float(h.get("target")), _old_percent(h.get("power"))
+                    )
+                    for key, h in record["heaters"].items()
+                }
+                row = LogRow(_epoch_of(record["time_utc"]), str(record.get("source", "")), heaters)
+                sessions.add_old(float(record["elapsed_s"]), row)
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"{path}:{number} is not a temperature log line ({exc})") from None
+    return sessions.contents(old)
+
+
+def _read_csv(path: Path, text: str) -> LogContents:
     rows = list(csv.reader(io.StringIO(text)))
     header = rows[0]
-    if header[:2] != ["time_utc", "elapsed_s"]:
+    if tuple(header[: len(FIXED_COLUMNS)]) == FIXED_COLUMNS:
+        old = False
+        suffix = "_" + HEATER_FIELDS[0]
+    elif tuple(header[: len(_OLD_FIXED_COLUMNS)]) == _OLD_FIXED_COLUMNS:
+        old = True
+        suffix = "_actual"
+    else:
         raise ValueError(f"{path} is not a marlin-temp log (its first line is {','.join(header)[:60]!r})")
-    keys = [column[: -len("_actual")] for column in header[2:] if column.endswith("_actual")]
+    prefixes = [column[: -len(suffix)] for column in header if column.endswith(suffix)]
     index = {column: i for i, column in enumerate(header)}
-    for row in rows[1:]:
+
+    def cell(row: list[str], column: str) -> float | None:
+        position = index.get(column)
+        return None if position is None else _float(row[position])
+
+    sessions = _Sessions()
+    for number, row in enumerate(rows[1:], 2):
         if len(row) != len(header):
             continue  # a row cut short by a crash in an older writer; skip it rather than fail
-        elapsed.append(float(row[1]))
-        for key in keys:
-            actual = row[index[f"{key}_actual"]]
-            target = row[index[f"{key}_target"]]
-            series.setdefault(key, []).append((float(actual) if actual else None, float(target) if target else None))
-    return elapsed, series
+        try:
+            heaters: dict[str, HeaterSample] = {}
+            if old:
+                for key in prefixes:
+                    actual = cell(row, f"{key}_actual")
+                    if actual is not None:
+                        power = _old_percent(cell(row, f"{key}_power"))
+                        heaters[heater_name(key)] = HeaterSample(actual, cell(row, f"{key}_target"), power)
+                sessions.add_old(float(row[1]), LogRow(_epoch_of(row[0]), "", heaters))
+            else:
+                for prefix in prefixes:
+                    actual = cell(row, f"{prefix}_actual_c")
+                    if actual is not None:
+                        target, percent = cell(row, f"{prefix}_target_c"), cell(row, f"{prefix}_power_percent")
+                        heaters[prefix.replace("_", " ")] = HeaterSample(actual, target, percent)
+                sessions.add(row[2], LogRow(float(row[1]), row[4], heaters))
+        except ValueError as exc:
+            raise ValueError(f"{path}:{number} is not a temperature log row ({exc})") from None
+    return sessions.contents(old)

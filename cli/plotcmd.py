@@ -1,83 +1,282 @@
-"""`marlin-temp plot`: the tracking-curve figure from a log, as a PNG (matplotlib) or in the terminal."""
+"""`marlin-temp plot`: the tracking-curve figure from a log, as a PNG (matplotlib) or in the terminal.
+
+Time is the rows' absolute time (`epoch_s`), never the elapsed column, which starts again with each session:
+appended runs lie side by side on one clock, each session drawn as its own line, so no line runs back across
+the chart and the span stated is the real one. `--session` draws one session alone. Files of the older format
+(no sessions, `time_utc`) are read too: their runs are found where elapsed_s starts again.
+
+The terminal chart is drawn here rather than by watch's `render.chart`: watch shows the last minute up to
+"now", a log is a stretch of the past, labelled with the clock times it covers and where each session began.
+"""
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 
 from rich.console import Console
-
-from marlin_aio import heater_name
+from rich.text import Text
 
 from .connect import UsageProblem
-from .logfile import read_log
+from .logfile import LogContents, LogSession, read_log
 
-__all__ = ["plot_log"]
+__all__ = ["PlotData", "Segment", "describe_span", "plot_data", "plot_log", "session_table", "terminal_plot"]
 
-_COLOURS = {"T": "tab:red", "B": "tab:blue", "C": "tab:green"}
+_TERMINAL_COLOURS = {"hotend": "red", "bed": "blue", "chamber": "green"}
+_TERMINAL_HOTENDS = ("red", "yellow", "bright_red", "orange3", "bright_yellow", "deep_pink3")
+_FIGURE_COLOURS = {"hotend": "tab:red", "bed": "tab:blue", "chamber": "tab:green"}
+_FIGURE_HOTENDS = ("tab:red", "tab:orange", "tab:brown", "tab:pink", "tab:olive", "tab:purple")
 
 
-def plot_log(path: Path, output: Path | None, show: bool, console: Console) -> str:
-    """Plot `path`; return a one-line message saying what was written.
+@dataclass(frozen=True)
+class Segment:
+    """One heater through one session: absolute times (epoch seconds) with actual and target in C."""
+
+    session: str
+    times_s: list[float]
+    actual_c: list[float | None]
+    target_c: list[float | None]
+
+
+@dataclass(frozen=True)
+class PlotData:
+    """What a plot draws: the sessions chosen, and per heater (by name) one segment for each session."""
+
+    sessions: list[LogSession]
+    heaters: list[str]
+    segments: dict[str, list[Segment]]
+
+    @property
+    def start_epoch_s(self) -> float:
+        """The first row's time."""
+        return self.sessions[0].start_epoch_s
+
+    @property
+    def end_epoch_s(self) -> float:
+        """The last row's time."""
+        return max(session.end_epoch_s for session in self.sessions)
+
+    @property
+    def rows(self) -> int:
+        """Readings drawn."""
+        return sum(len(session.rows) for session in self.sessions)
+
+    def describe(self) -> str:
+        """`120 readings in 2 sessions, 2026-11-23 17:30:01 to 17:40:01 (10 min 0 s)`."""
+        sessions = "1 session" if len(self.sessions) == 1 else f"{len(self.sessions)} sessions"
+        readings = "1 reading" if self.rows == 1 else f"{self.rows} readings"
+        return f"{readings} in {sessions}, {describe_span(self.start_epoch_s, self.end_epoch_s)}"
+
+
+def describe_span(start_epoch_s: float, end_epoch_s: float) -> str:
+    """`2026-11-23 17:30:01 to 17:40:01 (10 min 0 s)`, in local time; the date again when the day changes."""
+    start, end = datetime.fromtimestamp(start_epoch_s), datetime.fromtimestamp(end_epoch_s)
+    end_text = f"{end:%H:%M:%S}" if end.date() == start.date() else f"{end:%Y-%m-%d %H:%M:%S}"
+    return f"{start:%Y-%m-%d %H:%M:%S} to {end_text} ({_duration(end_epoch_s - start_epoch_s)})"
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(round(seconds), 60)
+    if minutes < 60:
+        return f"{minutes} min {secs} s"
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes} min"
+
+
+def _plotted_heaters(contents: LogContents) -> list[str]:
+    """Hotends (each by number when the file has numbered ones, the active-tool copy then left out), bed, chamber."""
+    names: list[str] = []
+    for session in contents.sessions:
+        for row in session.rows:
+            names.extend(name for name in row.heaters if name not in names)
+    numbered = sorted((n for n in names if n.startswith("hotend ")), key=lambda n: int(n.split()[1]))
+    hotends = numbered or [n for n in names if n == "hotend"]
+    return hotends + [n for n in ("bed", "chamber") if n in names]
+
+
+def _choose(contents: LogContents, session: str | None, path: Path) -> list[LogSession]:
+    if session is None:
+        return contents.sessions
+    for number, candidate in enumerate(contents.sessions, 1):
+        if session in (candidate.id, str(number)):
+            return [candidate]
+    known = ", ".join(f"{number} ({s.id})" for number, s in enumerate(contents.sessions, 1))
+    raise UsageProblem(f"{path} has no session {session!r}; its sessions: {known}")
+
+
+def plot_data(contents: LogContents, path: Path, session: str | None = None) -> PlotData:
+    """The segments to draw from a log read back; `session` (an id, or its number from 1) draws that one alone.
 
     Raises:
-        UsageProblem: matplotlib is missing and a PNG was asked for.
-        ValueError: the file is not a temperature log.
+        UsageProblem: no such session.
+        ValueError: the log has no readings of a hotend, bed or chamber.
+    """
+    if not contents.sessions:
+        raise ValueError(f"{path} has no readings")
+    chosen = _choose(contents, session, path)
+    heaters = _plotted_heaters(LogContents(chosen))
+    if not heaters:
+        raise ValueError(f"{path} has no hotend, bed or chamber readings to plot")
+    segments: dict[str, list[Segment]] = {}
+    for name in heaters:
+        for part in chosen:
+            rows = [row for row in part.rows if name in row.heaters]
+            if rows:
+                segment = Segment(
+                    part.id,
+                    [row.epoch_s for row in rows],
+                    [row.heaters[name].actual_c for row in rows],
+                    [row.heaters[name].target_c for row in rows],
+                )
+                segments.setdefault(name, []).append(segment)
+    return PlotData(chosen, heaters, segments)
+
+
+def _terminal_colour(name: str, index: int) -> str:
+    return _TERMINAL_COLOURS.get(name, _TERMINAL_HOTENDS[index % len(_TERMINAL_HOTENDS)])
+
+
+def _clock(epoch_s: float, with_date: bool) -> str:
+    return (
+        f"{datetime.fromtimestamp(epoch_s):%m-%d %H:%M}" if with_date else f"{datetime.fromtimestamp(epoch_s):%H:%M:%S}"
+    )
+
+
+def terminal_plot(data: PlotData, width: int = 80, height: int = 16) -> Text:
+    """The curves on a time axis labelled with clock times, a row marking where each session starts, a legend.
+
+    Actual temperatures are dots, targets lines; each column shows the last reading that falls in it, so a gap
+    between sessions stays empty.
+    """
+    plot_width = max(width - 7, 10)
+    start, end = data.start_epoch_s, data.end_epoch_s
+    span = max(end - start, 1e-9)
+
+    def column_of(time_s: float) -> int:
+        return min(max(int((time_s - start) / span * (plot_width - 1)), 0), plot_width - 1)
+
+    top = 50.0
+    for segments in data.segments.values():
+        for segment in segments:
+            top = max(top, *(v for v in segment.actual_c if v is not None), *(v or 0.0 for v in segment.target_c))
+    # A round top (50s below 100 C, 100s above) so the quarter-height labels are round numbers too.
+    step = 50.0 if top * 1.05 <= 100 else 100.0
+    top = math.ceil(top * 1.05 / step) * step
+
+    def row_of(value: float) -> int:
+        return height - 1 - min(max(round(value / top * (height - 1)), 0), height - 1)
+
+    grid: list[list[tuple[str, str]]] = [[(" ", "")] * plot_width for _ in range(height)]
+    for index, name in enumerate(data.heaters):
+        colour = _terminal_colour(name, index)
+        targets: dict[int, float] = {}
+        actuals: dict[int, float] = {}
+        for segment in data.segments.get(name, []):
+            for time_s, actual, target in zip(segment.times_s, segment.actual_c, segment.target_c, strict=True):
+                column = column_of(time_s)
+                if actual is not None:
+                    actuals[column] = actual
+                if target:
+                    targets[column] = target
+        for column, target in targets.items():
+            grid[row_of(target)][column] = ("─", f"dim {colour}")
+        for column, actual in actuals.items():
+            grid[row_of(actual)][column] = ("•", f"bold {colour}")
+
+    labels = {row_of(top * quarter / 4): top * quarter / 4 for quarter in range(5)}
+    text = Text()
+    for index, row in enumerate(grid):
+        value = labels.get(index)
+        text.append(f"{value:>4.0f} ┤" if value is not None else "     │", style="dim")
+        for char, style in row:
+            text.append(char, style=style)
+        text.append("\n")
+    with_date = datetime.fromtimestamp(start).date() != datetime.fromtimestamp(end).date()
+    left, right = _clock(start, with_date), _clock(end, with_date)
+    text.append("      " + left + right.rjust(max(plot_width - len(left), len(right) + 1)) + "\n", style="dim")
+    if len(data.sessions) > 1:
+        # Each session's number where it starts: the reader sees which stretch came from which run.
+        marks = [" "] * plot_width
+        for number, session in enumerate(data.sessions, 1):
+            label = str(number)
+            column = min(column_of(session.start_epoch_s), plot_width - len(label))
+            if all(mark == " " for mark in marks[max(column - 1, 0) : column + len(label)]):
+                marks[column : column + len(label)] = list(label)
+        text.append("      " + "".join(marks).rstrip() + "\n", style="dim")
+    legend = Text("      ")
+    for index, name in enumerate(data.heaters):
+        legend.append(f"• {name}  ", style=_terminal_colour(name, index))
+    legend.append("─ target", style="dim")
+    text.append_text(legend)
+    return text
+
+
+def session_table(data: PlotData) -> Text:
+    """One line per session: its number, id, the clock times it covers and its rows."""
+    lines = Text("sessions (the numbers under the time axis mark where each starts):\n")
+    for number, session in enumerate(data.sessions, 1):
+        span = describe_span(session.start_epoch_s, session.end_epoch_s)
+        lines.append(f"  {number:>2}  {session.id}  {span}  {len(session.rows)} readings\n")
+    return lines
+
+
+def plot_log(path: Path, output: Path | None, show: bool, console: Console, session: str | None = None) -> str:
+    """Plot `path` (all sessions, or `session` alone); return a one-line message saying what was written.
+
+    Raises:
+        UsageProblem: matplotlib is missing and a PNG was asked for, or there is no such session.
+        ValueError: the file is not a temperature log, or has nothing to plot.
         OSError: a file cannot be read or written.
     """
-    elapsed, series = read_log(path)
-    if not elapsed:
-        raise ValueError(f"{path} has no readings")
-    keys = [
-        k for k in series if k[0] in "TBC" and (k != "T" or not any(x[1:].isdigit() for x in series if x[0] == "T"))
-    ]
-    message = ""
+    data = plot_data(read_log(path), path, session)
     if show:
-        console.print(_terminal_plot(elapsed, {k: series[k] for k in keys}, console.width))
-    if output is not None:
-        try:
-            import matplotlib
-
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
-            raise UsageProblem(
-                "matplotlib is not installed: pip install 'marlin-aio[plot]' (or use --show for a terminal plot)"
-            ) from None
-        figure, axes = plt.subplots(figsize=(10, 5.5), dpi=100)
-        for key in keys:
-            colour = _COLOURS.get(key[0], "tab:purple")
-            actual = [a if a is not None else float("nan") for a, _ in series[key]]
-            target = [t if t is not None else float("nan") for _, t in series[key]]
-            axes.plot(elapsed, actual, color=colour, label=f"{heater_name(key)} actual")
-            axes.plot(elapsed, target, color=colour, linestyle="--", alpha=0.6, label=f"{heater_name(key)} target")
-        axes.set_xlabel("time (s)")
-        axes.set_ylabel("temperature (°C)")
-        axes.set_title(f"Temperature tracking: {path.name}")
-        axes.grid(True, alpha=0.3)
-        axes.legend(loc="lower right")
-        figure.tight_layout()
-        figure.savefig(output)
-        plt.close(figure)
-        message = f"wrote {output} ({len(elapsed)} readings over {elapsed[-1] - elapsed[0]:.1f} s)"
-    return message
+        console.print(f"{path.name}: {data.describe()}")
+        if len(data.sessions) > 1:
+            console.print(session_table(data), end="")
+        console.print(terminal_plot(data, console.width))
+    if output is None:
+        return ""
+    _write_png(data, path, output)
+    return f"wrote {output} ({data.describe()})"
 
 
-def _terminal_plot(
-    elapsed: list[float], series: dict[str, list[tuple[float | None, float | None]]], width: int
-) -> object:
-    from marlin_aio import HeaterReading, ReadingSource, TemperatureReading, Temperatures
+def _write_png(data: PlotData, path: Path, output: Path) -> None:
+    try:
+        import matplotlib
 
-    from .model import WatchModel
-    from .render import chart
-
-    span = max(elapsed[-1] - elapsed[0], 1.0)
-    model = WatchModel(window_s=span)
-    for index, time_s in enumerate(elapsed):
-        heaters = {}
-        for key, values in series.items():
-            actual, target = values[index]
-            if actual is not None:
-                heaters[key] = HeaterReading(actual=actual, target=target)
-        if heaters:
-            model.add(TemperatureReading(Temperatures(heaters), time_s, time_s, ReadingSource.LOG))
-    return chart(model, width=width, height=16, now=elapsed[-1])
+        matplotlib.use("Agg")
+        import matplotlib.dates as mdates
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise UsageProblem(
+            "matplotlib is not installed: pip install 'marlin-aio[plot]' (or use --show for a terminal plot)"
+        ) from None
+    figure, axes = plt.subplots(figsize=(10, 5.5), dpi=100)
+    for index, name in enumerate(data.heaters):
+        colour = _FIGURE_COLOURS.get(name, _FIGURE_HOTENDS[index % len(_FIGURE_HOTENDS)])
+        for number, segment in enumerate(data.segments.get(name, [])):
+            times = [datetime.fromtimestamp(t) for t in segment.times_s]
+            actual = [math.nan if a is None else a for a in segment.actual_c]
+            target = [math.nan if t is None else t for t in segment.target_c]
+            # One line per session, labelled once: no line joins the end of one run to the start of the next.
+            axes.plot(times, actual, color=colour, label=f"{name} actual" if number == 0 else None)
+            axes.plot(
+                times, target, color=colour, linestyle="--", alpha=0.6, label=f"{name} target" if number == 0 else None
+            )
+    for session in data.sessions[1:]:
+        axes.axvline(datetime.fromtimestamp(session.start_epoch_s), color="grey", linestyle=":", linewidth=1)
+    axes.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M:%S"))
+    axes.set_xlabel(f"local time, {describe_span(data.start_epoch_s, data.end_epoch_s)}")
+    axes.set_ylabel("temperature (°C)")
+    sessions = "" if len(data.sessions) == 1 else f", {len(data.sessions)} sessions (dotted: where each starts)"
+    axes.set_title(f"Temperature tracking: {path.name}{sessions}")
+    axes.grid(True, alpha=0.3)
+    axes.legend(loc="lower right")
+    figure.autofmt_xdate()
+    figure.tight_layout()
+    figure.savefig(output)
+    plt.close(figure)
