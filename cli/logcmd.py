@@ -110,7 +110,7 @@ async def _session(
     settings: LogSettings,
     log: TemperatureLog,
     stop: asyncio.Event,
-    remaining_s: float | None,
+    deadline: float | None,
     run: _Run,
     errors: Console,
 ) -> None:
@@ -126,6 +126,8 @@ async def _session(
             "Ctrl-C stops",
             style="dim",
         )
+        # Counted from here: opening the port and the handshake may have taken a while.
+        remaining_s = None if deadline is None else max(deadline - asyncio.get_running_loop().time(), 0.0)
         await record_temperatures(printer, log, settings.interval_s, remaining_s, stop)
 
 
@@ -146,12 +148,11 @@ async def log_temperatures(options: ConnectOptions, settings: LogSettings, error
         async with TemperatureLog(settings.output, settings.fmt, interval_s=settings.interval_s) as log:
             try:
                 while not stop.is_set():
-                    remaining = None if deadline is None else deadline - loop.time()
-                    if remaining is not None and remaining <= 0:
+                    if deadline is not None and loop.time() >= deadline:
                         break
                     rows_before = log.summary.rows
                     try:
-                        await _session(options, settings, log, stop, remaining, run, errors)
+                        await _session(options, settings, log, stop, deadline, run, errors)
                         break
                     except _RECONNECTABLE as exc:
                         if not settings.reconnect:
@@ -161,8 +162,11 @@ async def log_temperatures(options: ConnectOptions, settings: LogSettings, error
                                 ) from exc
                             raise
                         await _back_off(exc, run, log, rows_before, stop, deadline, errors)
-            finally:
-                errors.print(log.summary.line())
+            except BaseException:
+                if log.summary.rows:  # what the file holds; a run refused before its first row has one line only
+                    errors.print(log.summary.line())
+                raise
+            errors.print(log.summary.line())
     return Exit.OK
 
 

@@ -193,7 +193,8 @@ class TemperatureLog:
         self._pending: list[str] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._flush_timer: asyncio.TimerHandle | None = None
-        self._error: OSError | None = None  # met by a timed flush, raised by the next add() or flush()
+        self._error: OSError | ValueError | None = None  # met by a timed flush, raised by the next add() or flush()
+        self._header: str | None = None  # the CSV header, until it is written (or found already there)
 
     async def __aenter__(self) -> TemperatureLog:
         needs_newline = self._check_existing()
@@ -278,7 +279,7 @@ class TemperatureLog:
                     f"({', '.join(columns[len(FIXED_COLUMNS) :])}); choose another --output file"
                 )
         else:
-            self._pending.append(",".join(columns) + "\n")
+            self._header = ",".join(columns) + "\n"
             self._existing_columns = columns
         self._keys = keys
 
@@ -370,7 +371,7 @@ class TemperatureLog:
         self._flush_timer = None
         try:
             self.flush()
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
             # Raised in a timer callback, it would only reach the loop's log: keep it for the recorder to meet.
             self._error = exc
 
@@ -379,6 +380,7 @@ class TemperatureLog:
 
         Raises:
             OSError: the file cannot be written (also one that a timed flush met since the last call).
+            ValueError: another program began the same new file with other columns meanwhile.
         """
         if self._error is not None:
             error, self._error = self._error, None
@@ -388,11 +390,32 @@ class TemperatureLog:
             self._flush_timer = None
         if not self._pending or self._file is None:
             return
+        if self._header is not None:
+            self._write_header(self._file)
         # One write of whole lines: a kill between writes can cut the file only at a line end.
         self._file.write("".join(self._pending))
         self._pending.clear()
         self._file.flush()
         os.fsync(self._file.fileno())
+
+    def _write_header(self, file: IO[str]) -> None:
+        # `log` and `watch --log` started at once on a new file both found it empty: the first to write gives the
+        # header, the other finds it there (the same columns, or it must not write at all).
+        header, self._header = self._header, None
+        assert header is not None
+        if os.fstat(file.fileno()).st_size == 0:
+            self._pending.insert(0, header)
+            return
+        with self.path.open(encoding="utf-8", newline="") as existing:
+            theirs = existing.readline()
+        if theirs != header:
+            self._pending.clear()
+            file.close()  # nothing more of ours goes into a file with their columns
+            self._file = None
+            raise ValueError(
+                f"another program began {self.path} with other columns ({theirs.strip()[:60]!r}) while this log was "
+                "starting; choose another --output file"
+            )
 
     def close(self) -> None:
         """Flush and close (idempotent).
@@ -572,8 +595,8 @@ def _read_csv(path: Path, text: str) -> LogContents:
 
     sessions = _Sessions()
     for number, row in enumerate(rows[1:], 2):
-        if len(row) != len(header):
-            continue  # a row cut short by a crash in an older writer; skip it rather than fail
+        if len(row) != len(header) or row == header:
+            continue  # a row cut short by a crash in an older writer, or a header again; skip it rather than fail
         try:
             heaters: dict[str, HeaterSample] = {}
             if old:

@@ -234,9 +234,10 @@ def plot_log(path: Path, output: Path | None, show: bool, console: Console, sess
     """
     data = plot_data(read_log(path), path, session)
     if show:
-        console.print(f"{path.name}: {data.describe()}")
+        # Lines of text are the terminal's to wrap; only the chart is sized to the width.
+        console.print(f"{path.name}: {data.describe()}", soft_wrap=True)
         if len(data.sessions) > 1:
-            console.print(session_table(data), end="")
+            console.print(session_table(data), end="", soft_wrap=True)
         console.print(terminal_plot(data, console.width))
     if output is None:
         return ""

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from datetime import datetime
 from pathlib import Path
 
 import pytest
@@ -188,11 +189,11 @@ def test_log_writes_rows_and_appends_with_the_same_columns(tmp_path: Path) -> No
     with output.open() as handle:
         rows = list(csv.reader(handle))
     header = rows[0]
-    assert header[:2] == ["time_utc", "elapsed_s"]
-    assert "T_actual" in header and "B_target" in header and "T_power" in header
+    assert header[:5] == ["time", "epoch_s", "session", "session_elapsed_s", "source"]
+    assert "hotend_actual_c" in header and "bed_target_c" in header and "hotend_power_percent" in header
     assert rows.count(header) == 1  # the second run appended without a second header
     assert len(rows) > 20
-    assert rows[1][0].endswith("Z")
+    assert datetime.fromisoformat(rows[1][0]).utcoffset() is not None  # ISO 8601 with its offset
 
 
 def test_log_refuses_a_file_with_other_columns(tmp_path: Path) -> None:
