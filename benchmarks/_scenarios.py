@@ -370,13 +370,16 @@ def run_streaming(settings: Settings) -> Json:
     }
     if "printcore" in summary:
         ratios["printcore_over_send_ahead"] = _ratio(summary["printcore"]["seconds"], ahead)
+    # Issue 10's target counts what crosses the wire: every line numbered and checksummed (the 1.15x-of-file-bytes
+    # target before it could not be met with numbering on, see BENCHMARKS.md).
+    share = summary["send_ahead"]["numbered_share_of_wire"]
     targets = [
         _target(
-            "streaming: send-ahead within 15% of the wire limit",
-            f"<= {1.15 * wire_limit_s:.2f} s (1.15x {wire_limit_s:.2f} s)",
-            ratios["send_ahead_over_wire_limit"],
-            _at_most(ratios["send_ahead_over_wire_limit"], 1.15),
-            "x limit",
+            "streaming: send-ahead's share of the numbered wire limit",
+            ">= 98%",
+            share * 100,
+            _at_least(share, 0.98),
+            "%",
         ),
         _target(
             "streaming: send-ahead faster than ping-pong",

@@ -14,9 +14,14 @@ from dataclasses import dataclass
 import serial
 import serial_asyncio_fast
 
+try:
+    import termios
+except ImportError:  # Windows: no termios, and no HUPCL to clear
+    termios = None  # type: ignore[assignment]
+
 from marlin_aio.errors import ConnectError, PortBusyError, PortNotFoundError, PortPermissionError
 
-__all__ = ["PRINTER_BRIDGES", "PortInfo", "flush_input", "list_ports", "open_link"]
+__all__ = ["PRINTER_BRIDGES", "PortInfo", "flush_input", "keep_dtr_on_close", "list_ports", "open_link"]
 
 
 def _is_url(port: str) -> bool:
@@ -43,7 +48,29 @@ async def open_link(
         transport, protocol = await serial_asyncio_fast.create_serial_connection(loop, protocol_factory, port, **kwargs)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise _explain(port, baudrate, exc) from exc
+    keep_dtr_on_close(transport)
     return transport, protocol
+
+
+def keep_dtr_on_close(transport: asyncio.Transport) -> bool:
+    """Clear HUPCL on the port, so closing it leaves DTR raised; return True if it was a terminal that allowed it.
+
+    Most Arduino-style boards reset when DTR rises, and the kernel raises it whenever the port is opened after a
+    close that dropped it (HUPCL, the default). With HUPCL cleared, the next open finds DTR already up and the board
+    keeps running, targets and all (what `stty -hupcl` does). The first open after plugging in still resets it: the
+    line was down until then, and no setting made before open can change that on Linux.
+    """
+    fd = getattr(transport.get_extra_info("serial"), "fd", None)
+    if not isinstance(fd, int) or termios is None:
+        return False  # a socket:// link, or a platform without termios
+    try:
+        attributes = termios.tcgetattr(fd)
+        if attributes[2] & termios.HUPCL:
+            attributes[2] &= ~termios.HUPCL
+            termios.tcsetattr(fd, termios.TCSANOW, attributes)
+    except (termios.error, OSError):
+        return False
+    return True
 
 
 def flush_input(transport: asyncio.Transport) -> None:

@@ -47,8 +47,12 @@ def strip_comment(text: str) -> str:
     return text.strip()
 
 
+@functools.lru_cache(maxsize=256)
 def validate_command(text: str) -> str:
     """Return the command as it will be sent (comment and surrounding space removed), or raise.
+
+    (Cached, as `command_code` is: the same few commands come back many times a second. A command that raises is
+    not cached, so it raises every time.)
 
     Raises:
         ValueError: a line break, NUL, non-ASCII or `*` in it, or nothing left once the comment is removed.

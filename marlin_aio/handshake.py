@@ -21,11 +21,16 @@ from marlin_aio.errors import (
 )
 from marlin_aio.link import Link
 
-__all__ = ["handshake", "send_until_processed"]
+__all__ = ["BAUD_RATES", "handshake", "send_until_processed"]
+
+#: The rates Marlin boards use, the usual first: a host that does not know tries them in this order (and a
+#: handshake that met garbage names the others).
+BAUD_RATES = (250_000, 115_200)
 
 
-async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, password: str | None) -> None:
-    """Run the start-up sequence on a freshly opened `link`.
+async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, password: str | None) -> bool:
+    """Run the start-up sequence on a freshly opened `link`; return True if the board reset as the port opened
+    (it printed `start`, its boot banner): whatever was set on it before (targets, fan) is gone.
 
     Raises:
         HandshakeError: the printer did not answer a step (`HandshakeTimeoutError`), or it is halted.
@@ -44,6 +49,7 @@ async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, passwo
         except TimeoutError:
             break
     link.line_seen = None
+    reset_on_open = link.stats().resets > 0
     # Whatever is left of the banner (half a line, noise from the reset) must not prefix the first reply.
     link.flush_input()
     # 2. Synchronise: M105 until one is answered (commands written during a reset are lost, so retry), then set
@@ -80,6 +86,7 @@ async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, passwo
         await send_until_processed(link, "M115", timeout_s=timeout_s)
     except CommandTimeoutError as exc:
         raise HandshakeTimeoutError(f"the printer did not answer M115: {exc}", step="identify") from exc
+    return reset_on_open
 
 
 async def send_until_processed(link: Link, command: str, *, timeout_s: float) -> None:
@@ -140,10 +147,10 @@ def _silence_explanation(link: Link, timeout_s: float) -> str:
             "(is this the printer's port, and is it powered?)"
         )
     if stats.garbage_lines:
-        other = 115_200 if link.baudrate != 115_200 else 250_000
+        others = " or ".join(str(rate) for rate in BAUD_RATES if rate != link.baudrate)
         return (
             f"no answer from {port} within {timeout_s:g} s: {stats.bytes_received} bytes of garbage "
-            f"received; wrong baud rate? {link.baudrate} is set, try {other}"
+            f"received; wrong baud rate? {link.baudrate} is set (Marlin boards use {others})"
         )
     said = [entry.text for entry in link.trace.entries() if entry.direction == "received"][-3:]
     quoted = "; it said: " + " | ".join(repr(line) for line in said) if said else ""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 from collections import deque
 from collections.abc import Callable
 
@@ -301,8 +302,7 @@ class Link:
     def connection_lost(self, exc: Exception | None) -> None:
         """The transport went away (or finished closing)."""
         if self._lost is None:
-            reason = f": {exc}" if exc is not None else ""
-            self._fail(ConnectionLostError(f"the connection to {self.port} was lost{reason}"))
+            self._fail(ConnectionLostError(f"the connection to {self.port} was lost{_why_lost(exc)}"))
         self._cancel_timer()
         self._transport = None
         if self._closed is not None and not self._closed.done():
@@ -313,3 +313,14 @@ class Link:
         self._conn.fail_all(error)
         self.flush()
         self._on_failure(error)
+
+
+def _why_lost(exc: Exception | None) -> str:
+    """What a transport's error says about a lost link, in words a user can act on (pyserial's own text for a
+    vanished device is "device reports readiness to read but returned no data (device disconnected or multiple
+    access on port?)")."""
+    if exc is None:
+        return ""
+    if "returned no data" in str(exc) or getattr(exc, "errno", None) in (errno.EIO, errno.ENXIO, errno.ENODEV):
+        return ": the port went away (the printer was unplugged or switched off, or its USB bridge reset)"
+    return f": {exc}"

@@ -66,7 +66,32 @@ def test_garbage_suggests_the_other_baud_rate(dead_pty: tuple[int, str]) -> None
         stop.set()
         noise.join()
     assert result.exit_code == Exit.NO_ANSWER
-    assert "wrong baud rate? 250000 is set, try 115200" in one_line(result.output)
+    assert "wrong baud rate? 250000 is set (Marlin boards use 115200)" in one_line(result.output)
+
+
+def test_after_trying_both_rates_the_hint_names_both_and_suggests_neither_again(dead_pty: tuple[int, str]) -> None:
+    master, path = dead_pty
+    stop = threading.Event()
+
+    def babble() -> None:
+        while not stop.wait(0.02):
+            os.write(master, b"\xf0\x80\x13\xfe\xff garbage \xc3\x00\n")
+
+    noise = threading.Thread(target=babble, daemon=True)
+    noise.start()
+    try:
+        # No --baud: 250000 is tried, then 115200.
+        result = runner.invoke(app, ["set", "--port", path, "--answer-timeout", "0.5", "--bed", "50"])
+    finally:
+        stop.set()
+        noise.join()
+    assert result.exit_code == Exit.NO_ANSWER
+    # The progress note ("no answer at 250000 baud, trying 115200"), then the one error line.
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 2 and "Traceback" not in result.output, result.output
+    said = lines[-1]
+    assert said.startswith("error:") and "at 250000 and 115200 baud" in said
+    assert "try 250000" not in said and "try 115200" not in said
 
 
 @pytest.mark.skipif(shutil.which("setpriv") is None, reason="setpriv is needed to drop root's file permissions")
@@ -180,3 +205,56 @@ async def test_a_locked_printer_is_one_line_naming_the_password_option_and_the_p
     assert "locked" in line and "--password" in line
     assert unlocked.exit_code == 0, unlocked.output
     assert executed.count("M104 S200") == 1  # only the unlocked run set the target
+
+
+def test_watch_piped_into_head_ends_quietly_when_head_has_read_enough() -> None:
+    completed = subprocess.run(
+        [
+            "bash",
+            "-c",
+            f"{sys.executable} -m marlin_temp watch --sim --sim-speed 20 --refresh 0.1 --duration 60 | head -n 2; "
+            "echo status=${PIPESTATUS[0]} >&2",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
+    assert len(completed.stdout.splitlines()) == 2
+    assert "status=0" in completed.stderr
+    assert "Broken pipe" not in completed.stderr and "Traceback" not in completed.stderr, completed.stderr
+
+
+@pytest.mark.parametrize("command", ["watch", "set", "log", "print", "bench"])
+def test_help_shows_flags_as_flags_not_as_bool_values(command: str) -> None:
+    result = runner.invoke(app, [command, "--help"], env={"COLUMNS": "120"})
+    assert result.exit_code == 0
+    assert "<bool>" not in result.output
+    assert "--sim " in result.output
+
+
+def test_the_simulator_speed_has_one_name_and_the_old_ones_still_work() -> None:
+    from marlin_aio.simulator._options import build_parser
+
+    shown = runner.invoke(app, ["sim", "--help"])
+    assert shown.exit_code == 0
+    assert "--sim-speed" in shown.output
+    assert "--time-scale" not in shown.output and "--speed " not in shown.output
+    for old in ("--time-scale", "--speed", "--sim-speed"):
+        assert build_parser().parse_args([old, "7"]).time_scale == 7
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["watch", "--sim", "--sim-speed", "0"],
+        ["watch", "--sim", "--duration", "abc"],
+        ["set", "--sim", "--baud", "0", "--hotend", "20"],
+        ["watch", "--bogus"],
+        ["bogus"],
+    ],
+)
+def test_usage_errors_are_one_line_and_exit_2(args: list[str]) -> None:
+    result = runner.invoke(app, args)
+    assert result.exit_code == Exit.USAGE, result.output
+    line = one_line(result.output)
+    assert line.startswith("error:") and "--help" in line

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import termios
 from collections.abc import Callable
 from typing import Any
 
@@ -85,3 +87,56 @@ def test_watch_help_says_what_the_errors_count() -> None:
     assert result.exit_code == 0
     text = " ".join(result.output.split())
     assert "from the moment the connection is established" in text and "board resets" in text
+
+
+def hotend_target(status: dict[str, Any]) -> float | None:
+    heaters: dict[str, dict[str, Any]] = status["heaters"]
+    for key in ("T", "T0", "hotend", "hotend 0"):
+        if key in heaters:
+            target: float | None = heaters[key]["target"]
+            return target
+    raise AssertionError(f"no hotend in {heaters}")
+
+
+async def test_targets_set_by_one_command_survive_into_the_next_on_a_board_that_resets_on_open() -> None:
+    # The first open after plugging in resets such a board; marlin_aio then clears HUPCL, so closing the port leaves
+    # DTR up and the next command's open finds the board running with the target `set` gave it.
+    async with serve_pty(SimulatorConfig(), time_scale=20, reset_on_open=True) as sim:
+        set_result = await asyncio.to_thread(runner.invoke, app, ["set", "--port", sim.url, "--hotend", "180"])
+        assert set_result.exit_code == Exit.OK, set_result.output
+        assert "the board reset when the port was opened" in set_result.stderr
+        result = await watch_in_thread(sim, "--duration", "1")
+    assert result.exit_code == Exit.OK, result.output
+    assert "board reset" not in result.stderr
+    assert hotend_target(last_status(result.stdout)) == 180
+
+
+async def test_a_reset_on_open_that_clears_the_targets_is_said() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=20, reset_on_open=True) as sim:
+        set_result = await asyncio.to_thread(runner.invoke, app, ["set", "--port", sim.url, "--hotend", "180"])
+        assert set_result.exit_code == Exit.OK, set_result.output
+        # Another program sets HUPCL again (as most do by default): its close drops DTR, the next open resets.
+        fd = os.open(sim.url, os.O_RDWR | os.O_NOCTTY)
+        try:
+            attributes = termios.tcgetattr(fd)
+            attributes[2] |= termios.HUPCL
+            termios.tcsetattr(fd, termios.TCSANOW, attributes)
+        finally:
+            os.close(fd)
+        result = await watch_in_thread(sim, "--duration", "1")
+    assert result.exit_code == Exit.OK, result.output
+    assert "note: the board reset when the port was opened; targets set earlier were cleared" in result.stderr
+    assert hotend_target(last_status(result.stdout)) in (0, None)
+
+
+async def test_closing_the_port_leaves_hupcl_cleared_so_dtr_stays_up() -> None:
+    import marlin_aio
+
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+        async with marlin_aio.connect(sim.url) as printer:
+            assert not printer.reset_on_open  # this simulator does not reset on open
+        fd = os.open(sim.url, os.O_RDWR | os.O_NOCTTY)
+        try:
+            assert not termios.tcgetattr(fd)[2] & termios.HUPCL
+        finally:
+            os.close(fd)

@@ -60,7 +60,7 @@ async def run_simulator(settings: SimulatorSettings, *, prog: str = "marlin-sim"
         locked = ", locked (M511)" if config.password is not None else ""
         where = servers[0].url if len(servers) == 1 else f"{len(servers)} printers ({servers[0].url} ...)"
         print(
-            f"{prog}: {config.firmware_name} on {where}, time scale {settings.time_scale:g}{baud}"
+            f"{prog}: {config.firmware_name} on {where}, sim speed {settings.time_scale:g}{baud}"
             f"{', ADVANCED_OK' if config.advanced_ok else ''}{dialects}{locked}; Ctrl-C to stop",
             file=sys.stderr,
             flush=True,

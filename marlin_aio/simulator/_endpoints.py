@@ -13,6 +13,11 @@ the master as a TIOCPKT_IOCTL packet. pyserial's `open()` always sets the port u
 flushes do not, so a client finds the board booting a moment after it opened the port, after the flush that
 ends pyserial's `open()` (which would otherwise throw the banner away). This is Linux behaviour.
 
+DTR is modelled as a real port has it: the first open raises it (the board resets), and closing drops it again
+only while the terminal has HUPCL set, the default. A client that clears HUPCL (`stty -hupcl`, as marlin_aio
+does) leaves DTR up, so the next open finds the board running, targets and all. The slave is held open here, so
+its settings outlive each client, as a real port's do; the setting is read at each set-up.
+
 Only os, pty, tty and termios are used for the pseudo-terminal, never the serial package (the client's business).
 """
 
@@ -74,6 +79,7 @@ class PtyEndpoint:
         self._slave_fd: int | None = None
         self._pending = bytearray()
         self._open_reset: asyncio.TimerHandle | None = None
+        self._dtr_raised = False  # DTR has been up since an open (and no close with HUPCL dropped it)
         self.reading = False
         """Whether the master is being read (its reader is registered)."""
 
@@ -95,6 +101,8 @@ class PtyEndpoint:
         if self._reset_on_open:
             attributes = termios.tcgetattr(slave_fd)
             attributes[3] |= _EXTPROC  # lflag; in raw mode it changes nothing but the reporting
+            # A serial port starts with HUPCL set (a pty without): closing drops DTR until a client clears it.
+            attributes[2] |= termios.HUPCL
             termios.tcsetattr(slave_fd, termios.TCSANOW, attributes)
             fcntl.ioctl(master_fd, termios.TIOCPKT, struct.pack("i", 1))
         os.set_blocking(master_fd, False)
@@ -184,8 +192,16 @@ class PtyEndpoint:
             self._owner._receive_from_host(data)
 
     def _port_opened(self) -> None:
-        """The client set the port up (opened it): the board resets, as DTR would make it, a moment later."""
+        """The client set the port up (opened it): the board resets, as DTR would make it, a moment later, unless
+        DTR stayed up since the last session (HUPCL cleared)."""
         assert self._loop is not None
+        hangs_up = True
+        if self._slave_fd is not None:
+            with contextlib.suppress(termios.error, OSError):
+                hangs_up = bool(termios.tcgetattr(self._slave_fd)[2] & termios.HUPCL)
+        if self._dtr_raised and not hangs_up:
+            return  # DTR never dropped: no reset (a reset already on its way from this open still comes)
+        self._dtr_raised = True
         self._owner._clear_wires()  # what was on the wire belonged to the previous session
         if self._open_reset is not None:
             self._open_reset.cancel()

@@ -101,6 +101,8 @@ class SimulatorOption:
     """The help section it is listed in, if not the main one."""
     default: object = None
     """The value when not given; only for serve options (printer and fault fields keep their own default)."""
+    aliases: tuple[str, ...] = ()
+    """Older names still accepted, not listed in `--help` (scripts written for them keep working)."""
 
 
 #: The on/off dialect switches of SimulatorConfig: each is a flag named after its field (`--bare-busy` sets
@@ -130,12 +132,13 @@ SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
         "--host", "serve", "host", "TCP address to listen on (default %(default)s)", parse=str, default="127.0.0.1"
     ),
     SimulatorOption(
-        "--time-scale",
+        "--sim-speed",
         "serve",
         "time_scale",
-        "simulated seconds per real second (default 1)",
+        "simulated seconds per real second (default 1); the same name as marlin-temp's --sim-speed",
+        aliases=("--time-scale", "--speed"),
         parse=_positive,
-        metavar="TIME_SCALE",
+        metavar="SPEED",
         default=1.0,
     ),
     SimulatorOption(
@@ -231,6 +234,8 @@ def add_simulator_options(parser: argparse.ArgumentParser) -> None:
             if option.choices is not None:
                 arguments["choices"] = option.choices
         groups[option.group].add_argument(option.flag, **arguments)
+        for alias in option.aliases:
+            groups[option.group].add_argument(alias, **(arguments | {"help": argparse.SUPPRESS}))
 
 
 class _OneLineErrors(argparse.ArgumentParser):
