@@ -162,7 +162,8 @@ def terminal_plot(data: PlotData, width: int = 80, height: int = 16) -> Text:
     top = 50.0
     for segments in data.segments.values():
         for segment in segments:
-            top = max(top, *(v for v in segment.actual_c if v is not None), *(v or 0.0 for v in segment.target_c))
+            values = [v for v in segment.actual_c if v is not None] + [v for v in segment.target_c if v is not None]
+            top = max([top, *values])
     # A round top (50s below 100 C, 100s above) so the quarter-height labels are round numbers too.
     step = 50.0 if top * 1.05 <= 100 else 100.0
     top = math.ceil(top * 1.05 / step) * step

@@ -103,10 +103,10 @@ def test_every_on_time_poll_is_a_row_even_with_jitter() -> None:
 def test_the_command_writes_one_row_per_interval_with_its_source(tmp_path: Path) -> None:
     # The defect's own setting: the default 1 s interval, the simulated printer auto-reporting every second.
     output = tmp_path / "temps.csv"
-    result = runner.invoke(app, ["log", "--sim", "--output", str(output), "--duration", "4.5"])
+    result = runner.invoke(app, ["log", "--sim", "--output", str(output), "--duration", "6"])
     assert result.exit_code == 0, result.output
     rows = rows_on_disk(output)
-    assert 2 <= len(rows) <= 5
+    assert 2 <= len(rows) <= 7  # at most one a second (the handshake takes some of the six)
     times = [float(row["epoch_s"]) for row in rows]
     assert all(later - earlier >= 0.5 for earlier, later in itertools.pairwise(times)), times
     sources = {row["source"] for row in rows}
@@ -157,9 +157,9 @@ async def test_reconnect_across_a_simulator_stopped_and_started_again(tmp_path: 
     port = int(url.rsplit(":", 1)[1])
     async with serve_tcp(SimulatorConfig(), port=port, time_scale=20):
         await until(lambda: len(sessions()) == 2 and min(sessions().values()) >= 5, "rows of a second session")
-    logging.cancel()
-    with pytest.raises(asyncio.CancelledError):
-        await logging
+        logging.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await logging
     rows = rows_on_disk(output)
     counts = sessions()
     first, second = counts
