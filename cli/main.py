@@ -188,12 +188,21 @@ def set_targets(
     tool: Annotated[
         int | None, typer.Option("--tool", help="Which hotend --hotend sets (default: active).", min=0)
     ] = None,
-    off: Annotated[bool, typer.Option("--off", help="Turn every heater off.")] = False,
-    wait: Annotated[bool, typer.Option("--wait", help="Wait until the targets are reached, with progress.")] = False,
+    off: Annotated[bool, typer.Option("--off", help="Turn every heater off (every hotend, bed, chamber).")] = False,
+    wait: Annotated[
+        bool,
+        typer.Option(
+            "--wait", help="Wait until the targets are reached, with progress; with --off, until cool (--cool-to)."
+        ),
+    ] = False,
     tolerance: Annotated[float, typer.Option("--tolerance", help="With --wait: how close counts (C).", min=0)] = 2.0,
     timeout: Annotated[
         float | None, typer.Option("--timeout", help="With --wait: give up after this many seconds.", min=0.1)
     ] = None,
+    cool_to: Annotated[
+        float,
+        typer.Option("--cool-to", help="With --off --wait (or a target of 0): wait until below this (C).", min=0),
+    ] = 50.0,
     port: PortOption = None,
     baud: BaudOption = None,
     sim: SimOption = False,
@@ -207,23 +216,31 @@ def set_targets(
     """Set heater targets and print what the printer confirmed; --wait heats up with a progress bar per heater.
 
     Targets are checked before anything is sent: not a number, negative or above the limit (hotend 260 C,
-    bed 140 C, chamber 60 C by default: Marlin's own clamps) exits with code 2 and one line saying why.
+    bed 140 C, chamber 60 C by default: Marlin's own clamps) exits with code 2 and one line saying why, as does a
+    heater the printer does not have (--tool 1 on a one-hotend printer, --chamber with no chamber).
+
+    What is printed is the target the printer confirmed, which can differ from the one asked for: Marlin keeps
+    whole degrees and caps a target at its own maximum; the line says so, and --wait waits for the confirmed
+    target. --off --wait waits until every heater is below --cool-to (50 C: safe to touch).
     """
     from .setcmd import SetRequest, set_printer_targets
 
     if off and (hotend or bed or chamber):
         fail("--off turns every heater off; do not combine it with targets", Exit.USAGE)
+    if tool is not None and hotend is None:
+        fail("--tool says which hotend --hotend sets; give --hotend too", Exit.USAGE)
     request = SetRequest(
-        hotend=0.0 if off else _target("hotend", hotend, max_hotend),
-        bed=0.0 if off else _target("bed", bed, max_bed),
+        hotend=None if off else _target("hotend", hotend, max_hotend),
+        bed=None if off else _target("bed", bed, max_bed),
         chamber=_target("chamber", chamber, max_chamber),
         tool=tool,
         off=off,
         wait=wait,
         tolerance_c=tolerance,
         timeout_s=timeout,
+        cool_to_c=cool_to,
     )
-    if request.hotend is None and request.bed is None and request.chamber is None:
+    if not off and request.hotend is None and request.bed is None and request.chamber is None:
         fail("nothing to set: give --hotend, --bed, --chamber or --off", Exit.USAGE)
     options = ConnectOptions(
         port=port,
@@ -355,6 +372,16 @@ def print_file(
     keep_heaters: Annotated[
         bool, typer.Option("--keep-heaters", help="On cancel, leave heaters and fan as they are.")
     ] = False,
+    from_line: Annotated[
+        int | None,
+        typer.Option(
+            "--from-line",
+            help="Resume a failed print at line N of the file: the header (every command before the first move) "
+            "runs, then line N on. Read the checks below first.",
+            min=1,
+            show_default=False,
+        ),
+    ] = None,
     port: PortOption = None,
     baud: BaudOption = None,
     sim: SimOption = False,
@@ -364,18 +391,40 @@ def print_file(
 ) -> None:
     """Stream a G-code file with line numbers, checksums and resends, with a progress bar and live temperatures.
 
-    Ctrl-C asks whether to cancel (on a terminal); a cancel lets the printer finish what it has, then turns the
+    The whole file is checked before anything is sent: a line Marlin cannot take exits with code 2 and its line
+    number. Display text (M117, M118, M0/M1) with letters beyond ASCII is sent transliterated (café as cafe), with a
+    warning. While the printer waits for a heater (M109, M190 in the file) the view says so instead of a rate.
+
+    Keys on a terminal: p pauses (no new lines are sent; the moves the printer has finish, heaters stay on), r
+    resumes, ! is the emergency stop: M112 at once, with no question asked; the printer halts and needs a reset
+    (exit code 7). Ctrl-C asks whether to cancel; a cancel lets the printer finish what it has, then turns the
     heaters and fan off. If the printer stops answering, the print fails with a diagnosis of who went silent.
+
+    --from-line N: when a print stopped, the message gives the last line the printer answered. Before resuming,
+    check: the part is still stuck to the bed (keep the bed hot meanwhile); homing in the header (G28) will not
+    hit the part (printers that home Z on the bed bring the nozzle down on it: raise Z or edit the header); line N
+    starts a layer (its Z move; slicers mark layers with comments such as ;LAYER:), as moves the printer had
+    buffered may not have run; and with absolute extrusion (M82) E goes on from where it was: the header's G92 E0
+    resets it, so the layer must reset E itself (G92 E...) or you add that line.
     """
     from .printcmd import PrintSettings, print_gcode
+    from .printfile import plan_print
 
-    if not path.is_file():
+    if path.is_dir():
+        fail(f"{path} is a directory: give a G-code file", Exit.USAGE)
+    if not path.exists():
         fail(f"no such file: {path}", Exit.USAGE)
     if send_ahead is False and window is not None:
         fail("--ping-pong sends one line at a time; do not combine it with --window", Exit.USAGE)
+    try:
+        plan = plan_print(path, from_line)
+    except ValueError as exc:
+        fail(str(exc), Exit.USAGE)
+    except OSError as exc:
+        fail(f"cannot read {path}: {exc.strerror or exc}", Exit.USAGE)
     ahead = window is not None if send_ahead is None else send_ahead
     options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
-    settings = PrintSettings(path=path, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters)
+    settings = PrintSettings(plan=plan, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters)
     code = run(print_gcode(options, settings, Console(highlight=False), _stderr()))
     raise typer.Exit(int(code))
 

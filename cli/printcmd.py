@@ -1,90 +1,146 @@
-"""`marlin-temp print FILE`: stream a G-code file with a progress bar and live temperatures.
+"""`marlin-temp print FILE`: stream a G-code file with a progress view, live temperatures and keys.
 
-Ctrl-C does not kill a print half way through a line: it asks (on a terminal) whether to cancel, and a cancel
-stops feeding, lets the printer answer what it has, then turns the heaters and fan off (unless --keep-heaters).
+The file is read and checked whole before connecting (`printfile.plan_print`), so a bad file costs nothing; the view
+is drawn by the pure functions of `printview`. On a terminal, p pauses (no new lines are sent; what the printer has
+finishes, heaters stay on), r resumes, and ! sends M112 at once, with no question: an emergency stop must not wait
+for a second key. Ctrl-C does not kill a print half way through a line: it asks (on a terminal) whether to cancel,
+and a cancel stops feeding, lets the printer answer what it has, then turns the heaters and fan off (unless
+--keep-heaters).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import enum
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
-from rich.console import Console, Group
+from rich.console import Console
 from rich.live import Live
-from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
-from rich.text import Text
+from rich.markup import escape
 
 import marlin_aio
 
 from .connect import ConnectOptions, Exit, open_printer
+from .printfile import GcodePlan
+from .printview import KEYS_HELP, PrintStatus, RateWindow, heating_text, plain_status, print_view, temperatures_text
 from .terminal import key_presses, on_stop_signals
 
-__all__ = ["PrintSettings", "print_gcode"]
+__all__ = ["PrintSettings", "print_gcode", "print_status"]
 
 CANCEL_SCRIPT = marlin_aio.COOL_DOWN
+_QUESTION = "cancel the print? y = yes, any other key = go on"
+_PLAIN_EVERY_S = 2.0
 
 
 @dataclass(frozen=True)
 class PrintSettings:
-    """What `print` was asked to do."""
+    """What `print` was asked to do: the checked file and how to send it."""
 
-    path: Path
+    plan: GcodePlan
     send_ahead: bool = False
     window_bytes: int | None = None
     keep_heaters: bool = False
 
 
-def _temperatures(printer: marlin_aio.Printer) -> Text:
-    reading = printer.latest
-    text = Text("  ")
-    if reading is None:
-        return text.append("temperatures: waiting for a reading", style="dim")
-    for key, style in (("T", "red"), ("B", "blue"), ("C", "green")):
-        heater = reading.temperatures.heaters.get(key)
-        if heater is not None:
-            target = "off" if not heater.target else f"{heater.target:.0f}"
-            text.append(f"{marlin_aio.heater_name(key)} ", style=style).append(f"{heater.actual:.1f}/{target} °C   ")
-    return text
+class _Outcome(enum.Enum):
+    DONE = "done"
+    CANCELLED = "cancelled"
+    STOPPED = "stopped"  # the emergency stop
 
 
-def _plain_progress(progress: marlin_aio.PrintProgress, printer: marlin_aio.Printer) -> str:
-    fraction = progress.fraction
-    percent = "?" if fraction is None else f"{fraction * 100:5.1f}%"
-    total = "?" if progress.lines_total is None else str(progress.lines_total)
-    eta = progress.eta_s
-    line = f"{percent} {progress.lines_acked}/{total} lines {progress.lines_per_s:.0f} lines/s"
-    line += f" ETA {'?' if eta is None else time.strftime('%H:%M:%S', time.gmtime(eta))}"
-    return line + _temperatures(printer).plain.rstrip()
+def print_status(
+    progress: marlin_aio.PrintProgress,
+    plan: GcodePlan,
+    reading: marlin_aio.TemperatureReading | None,
+    lines_per_s: float | None,
+    *,
+    question: str | None = None,
+    keys: str | None = None,
+    cancelling: bool = False,
+) -> PrintStatus:
+    """One frame of the view from the print's progress, the file's plan and the latest reading."""
+    in_flight = progress.lines_sent > progress.lines_acked
+    wait = plan.heat_wait_running(progress.last_source_line, in_flight)
+    state = "printing"
+    if cancelling:
+        state = "cancelling"
+    elif progress.state is marlin_aio.PrintState.PAUSED:
+        state = "paused"
+    elif wait is not None:
+        state = "heating"
+    return PrintStatus(
+        name=plan.path.name,
+        lines_done=progress.lines_acked,
+        lines_total=plan.commands,
+        state=state,
+        lines_per_s=lines_per_s,
+        heating=heating_text(wait, reading) if wait is not None and state == "heating" else None,
+        temperatures=temperatures_text(reading),
+        question=question,
+        keys=keys,
+    )
+
+
+def _announce(plan: GcodePlan, errors: Console) -> None:
+    """Say what the plan changed or skips, before the print starts."""
+    for line, written, sent in plan.transliterated:
+        errors.print(
+            f"[yellow]warning:[/] line {line}: {escape(repr(written))} is sent as {escape(repr(sent))} "
+            "(the printer takes ASCII only)",
+            highlight=False,
+        )
+    if plan.transliterated_count > len(plan.transliterated):
+        more = plan.transliterated_count - len(plan.transliterated)
+        errors.print(f"[yellow]warning:[/] and {more} more lines with non-ASCII text, sent the same way")
+    if plan.from_line is not None and plan.first_move_line is not None:
+        if plan.from_line <= plan.first_move_line:
+            errors.print(
+                f"--from-line {plan.from_line} is not past the first move (line {plan.first_move_line}): "
+                "the whole file runs"
+            )
+        else:
+            errors.print(
+                f"resuming: the {plan.header_lines} header commands before the first move (line "
+                f"{plan.first_move_line}) run first, then line {plan.from_line} on"
+            )
 
 
 async def print_gcode(options: ConnectOptions, settings: PrintSettings, console: Console, errors: Console) -> Exit:
-    """Stream the file; return the exit code (0 done, 130 cancelled).
+    """Stream the file; return the exit code (0 done, 130 cancelled, 7 after the emergency stop).
 
     Raises:
         MarlinError: the print failed (a `PrintStalledError` carries the trace, printed before raising).
-        ValueError: a line of the file is not a valid command (nothing was sent).
     """
+    plan = settings.plan
+    _announce(plan, errors)
     interrupted = asyncio.Event()
     with on_stop_signals(interrupted.set):
         async with open_printer(options, errors) as (printer, label), printer.poll_temperatures(1.0):
             handle = await printer.start_print(
-                settings.path, send_ahead=settings.send_ahead, window_bytes=settings.window_bytes
+                plan.lines(), send_ahead=settings.send_ahead, window_bytes=settings.window_bytes
             )
             mode = "send-ahead" if settings.send_ahead else "ping-pong"
-            errors.print(f"printing {settings.path.name} on {label} ({mode}); Ctrl-C to cancel", style="dim")
+            errors.print(f"printing {plan.path.name} on {label} ({mode}); Ctrl-C to cancel", style="dim")
             try:
                 script = () if settings.keep_heaters else CANCEL_SCRIPT
-                cancelled = await _follow(handle, printer, console, errors, interrupted, script)
+                outcome = await _follow(handle, printer, plan, console, interrupted, script)
             except marlin_aio.PrintStalledError as exc:
                 errors.print(f"[bold red]error:[/] {exc}", highlight=False)
                 errors.print("last lines sent (>>) and received (<<), seconds before the stall:", style="dim")
                 errors.print(exc.trace, highlight=False, markup=False)
                 raise
             final = handle.progress
-            if cancelled:
+            if outcome is _Outcome.STOPPED:
+                errors.print(
+                    f"[bold red]emergency stop:[/] M112 sent after line {final.last_source_line} "
+                    f"({final.lines_acked} commands done); the printer is halted: reset it (its reset button or "
+                    "power) before it prints again",
+                    highlight=False,
+                )
+                return Exit.HALTED
+            if outcome is _Outcome.CANCELLED:
                 heaters = "heaters left on" if settings.keep_heaters else "heaters and fan turned off"
                 errors.print(
                     f"cancelled after line {final.last_source_line} ({final.lines_acked} commands done); {heaters}"
@@ -92,8 +148,8 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                 return Exit.INTERRUPTED
             errors.print(
                 f"done: {final.lines_acked} commands in {final.elapsed_s:.1f} s "
-                f"({final.lines_per_s:.0f} lines/s, {final.bytes_acked / max(final.elapsed_s, 1e-9):.0f} bytes/s, "
-                f"{final.resends} resends)"
+                f"({final.lines_per_s:.0f} lines/s on average, "
+                f"{final.bytes_acked / max(final.elapsed_s, 1e-9):.0f} bytes/s, {final.resends} resends)"
             )
             return Exit.OK
 
@@ -101,69 +157,90 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
 async def _follow(
     handle: marlin_aio.PrintHandle,
     printer: marlin_aio.Printer,
+    plan: GcodePlan,
     console: Console,
-    errors: Console,
     interrupted: asyncio.Event,
     script: tuple[str, ...],
-) -> bool:
-    """Show progress until the print ends; handle Ctrl-C, cancelling with `script`. Return True if it was
-    cancelled."""
+) -> _Outcome:
+    """Show progress until the print ends; act on the keys and on Ctrl-C (cancelling with `script`).
+
+    Raises:
+        MarlinError: what ended the print, unless it was cancelled or stopped here.
+    """
     pressed: asyncio.Queue[str] = asyncio.Queue()
-    bar = Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TaskProgressColumn(),
-        TextColumn("{task.completed:.0f}/{task.total:.0f} lines  {task.fields[rate]:.0f} lines/s"),
-        TimeRemainingColumn(),
-        console=console,
-        auto_refresh=False,
-    )
-    total = handle.job.lines_total or 0
-    task = bar.add_task(handle.job.name, total=total or None, rate=0.0)
-    asking = False
-    cancelled = False
+    rate = RateWindow()
+    asking = cancelling = False
+    outcome = _Outcome.DONE
     done = asyncio.ensure_future(handle.wait())
-    live = Live(Group(bar, Text("")), console=console, auto_refresh=False) if console.is_terminal else None
-    last_plain = 0.0
-    with key_presses(pressed.put_nowait) as keys, live if live is not None else contextlib.nullcontext():
-        while not done.done():
-            waiters = [done, asyncio.ensure_future(interrupted.wait()), asyncio.ensure_future(pressed.get())]
-            finished, _ = await asyncio.wait(waiters, timeout=0.25, return_when="FIRST_COMPLETED")
-            for waiter in waiters[1:]:
-                if waiter not in finished:
-                    waiter.cancel()
-            if waiters[1] in finished:
-                interrupted.clear()
-                if asking or not keys:
-                    # A second Ctrl-C, or no terminal to ask on: cancel at once.
-                    cancelled = True
-                    await handle.cancel(script)
-                    break
-                asking = True
-            if waiters[2] in finished and asking:
-                key = waiters[2].result()
-                asking = False
-                if key == "y":
-                    cancelled = True
-                    bar.update(task, description="cancelling...")
-                    await handle.cancel(script)
-                    break
-            progress = handle.progress
-            description = (
-                "[bold yellow]cancel the print? y = yes, any other key = go on[/]" if asking else handle.job.name
-            )
-            bar.update(task, completed=progress.lines_acked, rate=progress.lines_per_s, description=description)
-            if live is not None:
-                live.update(Group(bar, _temperatures(printer)), refresh=True)
-            elif time.monotonic() - last_plain >= 2.0:
-                last_plain = time.monotonic()
-                print(_plain_progress(progress, printer), flush=True)
-        if not cancelled:
-            done.result()  # raises what ended the print
+    last_plain = -_PLAIN_EVERY_S
+    live = Live(console=console, auto_refresh=False) if console.is_terminal else None
+
+    def frame(keys_help: str | None) -> PrintStatus:
         progress = handle.progress
-        bar.update(task, completed=progress.lines_acked, rate=progress.lines_per_s)
-        if live is not None:
-            live.update(Group(bar, _temperatures(printer)), refresh=True)
-    if not done.done():
-        done.cancel()
-    return cancelled
+        status = print_status(
+            progress,
+            plan,
+            printer.latest,
+            rate.lines_per_s(),
+            question=_QUESTION if asking else None,
+            keys=keys_help,
+            cancelling=cancelling,
+        )
+        if status.state == "printing":
+            rate.add(time.monotonic(), progress.lines_acked)
+        else:
+            rate.clear()  # a pause or a wait for heat is not part of the printing rate
+        return status
+
+    try:
+        with key_presses(pressed.put_nowait) as keys, live if live is not None else contextlib.nullcontext():
+            keys_help = KEYS_HELP if keys else None
+            while not done.done():
+                waiters = [done, asyncio.ensure_future(interrupted.wait()), asyncio.ensure_future(pressed.get())]
+                finished, _ = await asyncio.wait(waiters, timeout=0.25, return_when="FIRST_COMPLETED")
+                for waiter in waiters[1:]:
+                    if waiter not in finished:
+                        waiter.cancel()
+                key = waiters[2].result() if waiters[2] in finished else None
+                if key == "!":
+                    # First, before any question: an emergency stop waits for nothing.
+                    printer.emergency_stop()
+                    outcome = _Outcome.STOPPED
+                    break
+                if waiters[1] in finished:
+                    interrupted.clear()
+                    if asking or not keys:
+                        # A second Ctrl-C, or no terminal to ask on: cancel at once.
+                        outcome, cancelling = _Outcome.CANCELLED, True
+                        await handle.cancel(script)
+                        break
+                    asking = True
+                elif key is not None and asking:
+                    asking = False
+                    if key == "y":
+                        outcome, cancelling = _Outcome.CANCELLED, True
+                        if live is not None:
+                            live.update(print_view(frame(keys_help)), refresh=True)
+                        await handle.cancel(script)
+                        break
+                elif key == "p":
+                    handle.pause()
+                elif key == "r":
+                    handle.resume()
+                status = frame(keys_help)
+                if live is not None:
+                    live.update(print_view(status), refresh=True)
+                elif time.monotonic() - last_plain >= _PLAIN_EVERY_S:
+                    last_plain = time.monotonic()
+                    print(plain_status(status), flush=True)
+            if live is not None:
+                live.update(print_view(frame(None)), refresh=True)
+        if outcome is _Outcome.STOPPED:
+            with contextlib.suppress(marlin_aio.PrinterHaltedError):
+                await done
+        elif outcome is _Outcome.DONE:
+            done.result()  # raises what ended the print
+    finally:
+        if not done.done():
+            done.cancel()
+    return outcome

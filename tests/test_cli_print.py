@@ -1,19 +1,32 @@
-"""`marlin-temp print` through CliRunner and a real process, against the simulated printer."""
+"""`marlin-temp print` through CliRunner, a real process and a real terminal (tmux), against the simulated printer;
+the progress view as pure functions rendered by a recording Console."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import re
+import shutil
 import signal
 import subprocess
 import sys
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from rich.console import Console
 from typer.testing import CliRunner
 
-from marlin_aio.simulator import Faults, SimulatorConfig, serve_pty
+from marlin_aio import PrintProgress, PrintState
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.connect import Exit
 from marlin_temp.main import app
+from marlin_temp.printcmd import print_status
+from marlin_temp.printfile import GcodePlan, HeatWait, plan_print, transliterate
+from marlin_temp.printview import PrintStatus, RateWindow, plain_status, print_view
 
 runner = CliRunner()
 
@@ -45,15 +58,31 @@ def test_print_send_ahead(tmp_path: Path, option: str) -> None:
     ("args", "message"),
     [
         (["print", "/no/such/file.gcode", "--sim"], "no such file"),
-        (["print", "{bad}", "--sim"], "line 2: command contains non-ASCII"),
+        (["print", "{dir}", "--sim"], "is a directory"),
+        (["print", "{empty}", "--sim"], "no G-code commands"),
+        (["print", "{comments}", "--sim"], "no G-code commands"),
+        (["print", "{bad}", "--sim"], "line 2: non-ASCII characters in a G1 command"),
+        (["print", "{long}", "--sim"], "line 1: command is"),
         (["print", "{good}", "--sim", "--ping-pong", "--window", "64"], "do not combine"),
+        (["print", "{good}", "--sim", "--from-line", "99"], "--from-line 99 is past the last command (line 4)"),
+        (["print", "{nomoves}", "--sim", "--from-line", "2"], "needs a file with moves"),
     ],
 )
 def test_print_bad_input_exits_2_with_one_line(tmp_path: Path, args: list[str], message: str) -> None:
-    bad = tmp_path / "bad.gcode"
-    bad.write_text("G28\nM117 h\u00e9llo\n")
-    good = write_gcode(tmp_path / "good.gcode", 3)
-    args = [a.replace("{bad}", str(bad)).replace("{good}", str(good)) for a in args]
+    files = {
+        "bad": "G28\nG1 X1\u00e9 Y2\n",
+        "empty": "",
+        "comments": "; only a comment\n\n   ; and another\n",
+        "long": "M117 " + "x" * 120 + "\n",
+        "nomoves": "M140 S0\nM104 S0\n",
+    }
+    for name, text in files.items():
+        (tmp_path / f"{name}.gcode").write_text(text, encoding="utf-8")
+    write_gcode(tmp_path / "good.gcode", 3)
+    (tmp_path / "dir").mkdir()
+    args = [
+        re.sub(r"\{(\w+)\}", lambda m: str(tmp_path / (m[1] if m[1] == "dir" else f"{m[1]}.gcode")), a) for a in args
+    ]
     result = runner.invoke(app, args)
     assert result.exit_code == Exit.USAGE, result.output
     lines = [line for line in result.output.splitlines() if line.strip()]
@@ -88,3 +117,263 @@ def test_ctrl_c_without_a_terminal_cancels_cleanly(tmp_path: Path) -> None:
     assert "cancelled after line" in stderr
     assert "heaters and fan turned off" in stderr
     assert "Traceback" not in stderr
+
+
+# ------------------------------------------------------------------------------------------- the file's plan
+
+
+def test_a_display_message_beyond_ascii_is_transliterated_not_a_reason_to_refuse(tmp_path: Path) -> None:
+    assert transliterate("M117 café crème à 200°C") == "M117 cafe creme a 200C"
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("G28\nM117 café\nG1 X1 ; déplacement\nM118 Straße\n", encoding="utf-8")
+    plan = plan_print(gcode)
+    assert plan.commands == 4
+    assert plan.transliterated == ((2, "M117 café", "M117 cafe"), (4, "M118 Straße", "M118 Strasse"))
+    assert list(plan.lines()) == ["G28\n", "M117 cafe\n", "G1 X1\n", "M118 Strasse\n"]
+
+
+def test_the_plan_knows_where_the_file_waits_for_heat(tmp_path: Path) -> None:
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("M190 S60\n; comment\nM104 S200\nM109 T1 S210.5\nG28\nm191 r40\n", encoding="utf-8")
+    plan = plan_print(gcode)
+    # Keyed by the line answered just before each wait (0: the wait is the first command).
+    assert plan.heat_waits == {
+        0: HeatWait(1, "B", 60.0),
+        3: HeatWait(4, "T1", 210.5),
+        5: HeatWait(6, "C", 40.0),
+    }
+    assert plan.heat_wait_running(3, in_flight=True) == HeatWait(4, "T1", 210.5)
+    assert plan.heat_wait_running(3, in_flight=False) is None  # paused before it: not sent, not waiting
+
+
+def test_from_line_selects_the_header_then_line_n_on(tmp_path: Path) -> None:
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("M140 S0\nG28\nG92 E0\nG1 X1\nG1 X2\nM109 S0\nG1 X3\nG1 X4\n", encoding="utf-8")
+    plan = plan_print(gcode, from_line=7)
+    assert (plan.first_move_line, plan.header_lines, plan.commands) == (4, 3, 5)
+    # Skipped lines stay as empty lines, so the print's line numbers are the file's.
+    assert list(plan.lines()) == ["M140 S0\n", "G28\n", "G92 E0\n", "\n", "\n", "\n", "G1 X3\n", "G1 X4\n"]
+    assert plan.heat_waits == {}  # the skipped M109 is not waited for
+
+
+# ------------------------------------------------------------------------------------------- the view, pure
+
+
+def progress(acked: int, sent: int, last_line: int, state: PrintState = PrintState.RUNNING) -> PrintProgress:
+    return PrintProgress(state, sent, acked, None, acked * 20, acked * 20, None, 60.0, 0, last_line)
+
+
+def rendered(status: PrintStatus, width: int = 120) -> str:
+    console = Console(record=True, width=width)
+    console.print(print_view(status))
+    return console.export_text()
+
+
+def heating_plan() -> GcodePlan:
+    return GcodePlan(Path("part.gcode"), 1_000, heat_waits={2: HeatWait(3, "T", 200.0)})
+
+
+def test_while_the_file_waits_for_heat_the_view_says_heating_not_a_rate() -> None:
+    from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+
+    temperatures = parse_temperatures("T:187.2 /200.0 B:60.0 /60.0 @:127 B@:30 W:?")
+    assert temperatures is not None
+    reading = TemperatureReading(temperatures, 10.0, 1_700_000_000.0, ReadingSource.WAIT)
+    status = print_status(progress(2, 3, 2), heating_plan(), reading, 0.0)
+    assert status.state == "heating" and status.eta_s is None
+    text = rendered(status)
+    assert "heating hotend 187/200 C" in text
+    assert "lines/s" not in text and "ETA" not in text
+    assert "heating hotend 187/200 C" in plain_status(status)
+    # Once the wait was answered, the rate is back.
+    after = print_status(progress(3, 4, 3), heating_plan(), reading, 15.0)
+    assert after.state == "printing" and "15 lines/s" in rendered(after)
+
+
+def test_the_rate_is_the_recent_rate_not_the_average_since_the_start() -> None:
+    window = RateWindow(window_s=10.0)
+    for tenth in range(600):  # 60 s at 100 lines/s
+        window.add(tenth / 10, tenth * 10)
+    for tenth in range(200):  # then 20 s at 15 lines/s
+        window.add(60 + tenth / 10, 6_000 + int(tenth * 1.5))
+    rate = window.lines_per_s()
+    assert rate is not None and 14 <= rate <= 16  # the average since the start would be about 79
+    window.clear()
+    assert window.lines_per_s() is None
+
+
+def test_the_eta_comes_from_the_recent_rate() -> None:
+    status = PrintStatus("part.gcode", 100, 1_000, lines_per_s=15.0)
+    assert status.eta_s == pytest.approx(60.0)
+    assert "ETA 0:01:00" in rendered(status)
+
+
+def test_the_cancel_question_has_a_line_of_its_own_and_the_label_stays() -> None:
+    status = PrintStatus(
+        "part.gcode", 500, 1_000, lines_per_s=15.0, temperatures="hotend 200.0/200 °C", question="cancel the print?"
+    )
+    lines = rendered(status).splitlines()
+    bar_line = next(line for line in lines if "500/1000 lines" in line)
+    assert bar_line.startswith("part.gcode")
+    assert "cancel" not in bar_line
+    assert any(line.strip() == "cancel the print?" for line in lines)
+
+
+def test_paused_shows_paused_and_the_keys() -> None:
+    status = print_status(progress(10, 10, 10, PrintState.PAUSED), heating_plan(), None, 12.0, keys="p pause  r resume")
+    text = rendered(status)
+    assert status.state == "paused" and "paused" in text and "lines/s" not in text
+    assert "p pause  r resume" in text
+
+
+# ------------------------------------------------------------------------------------------- against the simulator
+
+
+def file_commands(path: Path) -> set[str]:
+    return {line.split(";")[0].strip() for line in path.read_text(encoding="utf-8").splitlines()} - {""}
+
+
+async def test_a_cafe_prints_transliterated_with_a_warning(tmp_path: Path) -> None:
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("G28\nM117 café\n" + "".join(f"G1 X{i}\n" for i in range(20)), encoding="utf-8")
+    async with serve_pty(SimulatorConfig(motion_time_scale=0), time_scale=50) as sim:
+        result = await asyncio.to_thread(runner.invoke, app, ["print", str(gcode), "--port", sim.url])
+        executed = list(sim.printer.executed)
+    assert result.exit_code == Exit.OK, result.output
+    assert "warning: line 2: 'M117 café' is sent as 'M117 cafe'" in result.output
+    assert "done: 22 commands" in result.output
+    assert "M117 cafe" in executed
+
+
+async def test_from_line_runs_the_header_then_line_n_on(tmp_path: Path) -> None:
+    header = ["M140 S0", "M104 S0", "G28", "G92 E0"]
+    moves = [f"G1 X{i} Y{i % 7} E{i * 0.1:.1f}" for i in range(1, 101)]
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("; sliced\n" + "\n".join(header + moves) + "\n", encoding="utf-8")
+    from_line = 1 + len(header) + 60  # the file line of moves[59]
+    assert gcode.read_text().splitlines()[from_line - 1] == moves[59]
+    async with serve_pty(SimulatorConfig(motion_time_scale=0), time_scale=50) as sim:
+        args = ["print", str(gcode), "--port", sim.url, "--from-line", str(from_line)]
+        result = await asyncio.to_thread(runner.invoke, app, args)
+        ran = [command for command in sim.printer.executed if command in file_commands(gcode)]
+    assert result.exit_code == Exit.OK, result.output
+    assert "the 4 header commands before the first move (line 6) run first, then line 65 on" in result.output
+    assert ran == header + moves[59:]
+
+
+async def test_a_heater_wait_in_the_file_shows_heating_not_zero_lines_per_s(tmp_path: Path) -> None:
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("M109 S150\n" + "".join(f"G1 X{i}\n" for i in range(50)), encoding="utf-8")
+    # 5x: the heat-up takes some seconds of real time, so the plain lines (every 2 s) catch it.
+    async with serve_pty(SimulatorConfig(motion_time_scale=0), time_scale=5) as sim:
+        result = await asyncio.to_thread(runner.invoke, app, ["print", str(gcode), "--port", sim.url])
+    assert result.exit_code == Exit.OK, result.output
+    heating = [line for line in result.stdout.splitlines() if re.search(r"(heating|waiting for) hotend", line)]
+    assert heating, result.output
+    assert all("lines/s" not in line and "ETA" not in line for line in heating), heating
+
+
+# ------------------------------------------------------------------------------------------- keys, in a terminal
+
+needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
+
+
+class Tmux:
+    """One tmux server of our own (its own socket), as in test_cli_terminal.py."""
+
+    def __init__(self) -> None:
+        self.socket = f"marlin-test-{uuid.uuid4().hex[:8]}"
+
+    def run(self, *args: str) -> str:
+        return subprocess.run(["tmux", "-L", self.socket, *args], capture_output=True, text=True, check=True).stdout
+
+    def screen(self) -> str:
+        return self.run("capture-pane", "-p", "-t", "w")
+
+    def wait_for(self, condition: Callable[[str], bool], what: str, limit_s: float = 60.0) -> str:
+        """Poll the screen until `condition` holds (bounded); the screen is the only signal a terminal gives."""
+        end = time.monotonic() + limit_s
+        while time.monotonic() < end:
+            screen = self.screen()
+            if condition(screen):
+                return screen
+            time.sleep(0.1)
+        raise AssertionError(f"timed out waiting for {what}; the screen shows:\n{self.screen()}")
+
+
+@pytest.fixture
+def tmux() -> Iterator[Tmux]:
+    server = Tmux()
+    yield server
+    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
+
+
+@contextlib.contextmanager
+def simulator_in_a_thread(config: SimulatorConfig, time_scale: float) -> Iterator[SimulatorServer]:
+    """A simulated printer served on a pty by an event loop of its own, for a command running in another process."""
+    loop = asyncio.new_event_loop()
+    started = threading.Event()
+    served: list[SimulatorServer] = []
+    stop = asyncio.Event()
+
+    async def serve() -> None:
+        async with serve_pty(config, time_scale=time_scale) as server:
+            served.append(server)
+            started.set()
+            await stop.wait()
+
+    thread = threading.Thread(target=loop.run_until_complete, args=(serve(),), daemon=True)
+    thread.start()
+    try:
+        assert started.wait(30), "the simulator did not start"
+        yield served[0]
+    finally:
+        loop.call_soon_threadsafe(stop.set)
+        thread.join(30)
+        loop.close()
+
+
+def moves_run(sim: SimulatorServer) -> int:
+    return sum(1 for command in list(sim.printer.executed) if command.startswith("G1"))
+
+
+def done_lines(screen: str) -> int:
+    found = re.findall(r"(\d+)/\d+ lines", screen)
+    return int(found[-1]) if found else -1
+
+
+def hotend_celsius(screen: str) -> float:
+    found = re.findall(r"hotend (\d+\.\d)/", screen)
+    return float(found[-1]) if found else -1.0
+
+
+@needs_tmux
+def test_print_keys_pause_resume_and_emergency_stop(tmux: Tmux, tmp_path: Path) -> None:
+    gcode = tmp_path / "part.gcode"
+    # The hotend heats while the print runs (no wait), so time visibly passes on the screen while it is paused.
+    gcode.write_text("M104 S250\n" + "".join(f"G1 X{i % 200} Y{i % 150}\n" for i in range(20_000)))
+    with simulator_in_a_thread(SimulatorConfig(motion_time_scale=0), time_scale=2) as sim:
+        command = f"{sys.executable} -m marlin_temp print {gcode} --port {sim.url}; echo MARLIN-EXIT=$?; sleep 600"
+        tmux.run("new-session", "-d", "-s", "w", "-x", "150", "-y", "30", command)
+        tmux.wait_for(lambda s: done_lines(s) > 20 and hotend_celsius(s) > 0, "the print to run")
+        assert "p pause" in tmux.screen() and "emergency stop" in tmux.screen()
+
+        tmux.run("send-keys", "-t", "w", "p")
+        paused = tmux.wait_for(lambda s: "paused" in s, "paused")
+        # What was in flight completes; after that, nothing more goes while the hotend goes on heating.
+        warmer = hotend_celsius(paused) + 3
+        first = tmux.wait_for(lambda s: hotend_celsius(s) > warmer, "time to pass while paused")
+        ran = moves_run(sim)
+        later = tmux.wait_for(lambda s: hotend_celsius(s) > hotend_celsius(first) + 3, "more time to pass")
+        assert done_lines(later) == done_lines(first)
+        assert moves_run(sim) == ran
+        assert "paused" in later
+
+        tmux.run("send-keys", "-t", "w", "r")
+        tmux.wait_for(lambda s: "paused" not in s and done_lines(s) > done_lines(later) + 20, "the print to go on")
+
+        tmux.run("send-keys", "-t", "w", "!")
+        after = tmux.wait_for(lambda s: "MARLIN-EXIT=" in s, "print to exit")
+        assert f"MARLIN-EXIT={int(Exit.HALTED)}" in after, after
+        assert "emergency stop: M112 sent after line" in after and "halted" in after
+        assert sim.printer.halted
