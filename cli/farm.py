@@ -1,0 +1,237 @@
+"""A print farm in one process: N printers on one event loop, each kept connected by a supervisor of its own.
+
+Each printer gets its own `marlin_aio.Printer`, polled at its own rate, and a supervisor task that reconnects it
+with backoff (1 s doubling to 30 s) when it is unplugged, halts or never answered; one printer's failure never
+reaches another's task. What the farm knows of each printer (`FarmPrinter`: link up or down, firmware, the latest
+reading, the last error) is read by whoever shows or forwards it (the MQTT bridge, a farm view), and what happens
+to it (`FarmEvent`: connected, connection lost, halted, reset, thermal runaway) goes to one callback, in order.
+
+Nothing here knows about MQTT: the bridge (`cli.farmbridge`) reads this state at its own rate, so a slow or
+absent broker never slows a serial loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import marlin_aio
+
+if TYPE_CHECKING:
+    from marlin_aio.simulator import SimulatorServer
+
+__all__ = ["BACKOFF_MAX_S", "BACKOFF_START_S", "Farm", "FarmEvent", "FarmPrinter", "PrinterSpec"]
+
+_log = logging.getLogger("marlin_temp.farm")
+
+BACKOFF_START_S = 1.0
+BACKOFF_MAX_S = 30.0
+
+
+@dataclass(frozen=True)
+class PrinterSpec:
+    """One printer of the farm, as configured: a name (used in topics), where it is, and how to poll it."""
+
+    name: str
+    port: str | None
+    """A device path or pyserial URL; None with `sim`."""
+    baud: int = marlin_aio.DEFAULT_BAUDRATE
+    poll_interval_s: float = 0.1
+    timeout_s: float = 10.0
+    max_hotend_celsius: float = marlin_aio.DEFAULT_MAX_HOTEND_CELSIUS
+    max_bed_celsius: float = marlin_aio.DEFAULT_MAX_BED_CELSIUS
+    max_chamber_celsius: float = marlin_aio.DEFAULT_MAX_CHAMBER_CELSIUS
+    password: str | None = None
+    sim: bool = False
+    """Serve a simulated printer for it in this process (on a pty) instead of opening `port`."""
+    sim_speed: float = 1.0
+
+
+@dataclass(frozen=True)
+class FarmEvent:
+    """Something that happened to one printer: `kind` is one of connected, connection_lost, connect_failed,
+    halted, thermal_runaway, reset; `message` says it for people."""
+
+    printer: str
+    kind: str
+    message: str
+    time_s: float = field(default_factory=time.time)
+
+
+@dataclass
+class FarmPrinter:
+    """What the farm knows about one printer now. Written by its supervisor only; read by anyone."""
+
+    spec: PrinterSpec
+    link_up: bool = False
+    firmware: str | None = None
+    last_error: str | None = None
+    latest: marlin_aio.TemperatureReading | None = None
+    readings: int = 0
+    """Readings taken since the farm started (all connections)."""
+    connections: int = 0
+    printer: marlin_aio.Printer | None = None
+    """The open printer while the link is up (to send it commands), else None."""
+    url: str | None = None
+    """Where it is reached: the port, or the simulator's pty."""
+
+    @property
+    def name(self) -> str:
+        """The printer's name."""
+        return self.spec.name
+
+    def on_reading(self, reading: marlin_aio.TemperatureReading) -> None:
+        """Keep the newest reading: called for every reading, so it only stores it."""
+        self.latest = reading
+        self.readings += 1
+
+
+class Farm:
+    """Runs every printer of `specs` until cancelled; `on_event` gets each `FarmEvent` as it happens.
+
+    Args:
+        specs: the printers; names must be unique.
+        on_event: called on the event loop with each event, in order.
+        backoff_start_s, backoff_max_s: how long a supervisor waits before reconnecting, doubling from the first
+            to the second after each failed attempt.
+    """
+
+    def __init__(
+        self,
+        specs: list[PrinterSpec],
+        on_event: Callable[[FarmEvent], None],
+        *,
+        backoff_start_s: float = BACKOFF_START_S,
+        backoff_max_s: float = BACKOFF_MAX_S,
+    ) -> None:
+        names = [spec.name for spec in specs]
+        if len(set(names)) != len(names):
+            raise ValueError(f"printer names must be unique: {', '.join(names)}")
+        self.printers = {spec.name: FarmPrinter(spec) for spec in specs}
+        self._on_event = on_event
+        self._backoff_start_s = backoff_start_s
+        self._backoff_max_s = backoff_max_s
+        self.sims: dict[str, SimulatorServer] = {}
+        """The simulated printers' servers, by printer name (tests reach in to unplug one)."""
+
+    async def run(self) -> None:
+        """Supervise every printer until cancelled; one task each, named after its printer. The simulated
+        printers it served are stopped when it ends."""
+        try:
+            async with asyncio.TaskGroup() as group:
+                for farm_printer in self.printers.values():
+                    group.create_task(self._supervise(farm_printer), name=f"printer {farm_printer.name}")
+        finally:
+            for server in self.sims.values():
+                await server.aclose()
+
+    def _emit(self, farm_printer: FarmPrinter, kind: str, message: str) -> None:
+        if kind in ("connection_lost", "halted", "thermal_runaway", "connect_failed"):
+            farm_printer.last_error = message
+        try:
+            self._on_event(FarmEvent(farm_printer.name, kind, message))
+        except Exception:  # a listener's bug must not stop a printer's supervisor
+            _log.exception("event listener failed on %s %s", farm_printer.name, kind)
+
+    async def _supervise(self, farm_printer: FarmPrinter) -> None:
+        delay = self._backoff_start_s
+        reported_down = False
+        while True:
+            try:
+                async with self._connected(farm_printer) as printer:
+                    delay = self._backoff_start_s
+                    reported_down = False
+                    await self._watch(farm_printer, printer)
+            except marlin_aio.MarlinError as exc:
+                if farm_printer.link_up:
+                    farm_printer.link_up = False
+                    kind = (
+                        "thermal_runaway"
+                        if isinstance(exc, marlin_aio.ThermalRunawayError)
+                        else ("halted" if isinstance(exc, marlin_aio.PrinterHaltedError) else "connection_lost")
+                    )
+                    self._emit(farm_printer, kind, str(exc))
+                elif not reported_down:
+                    # Said once per outage, not at every retry.
+                    self._emit(farm_printer, "connect_failed", str(exc))
+                reported_down = True
+            finally:
+                farm_printer.link_up = False
+                farm_printer.printer = None
+            _log.info("%s: reconnecting in %g s", farm_printer.name, delay)
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, self._backoff_max_s)
+
+    @contextlib.asynccontextmanager
+    async def _connected(self, farm_printer: FarmPrinter) -> AsyncIterator[marlin_aio.Printer]:
+        spec = farm_printer.spec
+        async with contextlib.AsyncExitStack() as stack:
+            url = spec.port
+            if spec.sim:
+                server = self.sims.get(spec.name)
+                if server is None:
+                    from marlin_aio.simulator import SimulatorConfig, serve_pty
+
+                    # The simulated printer lives as long as the farm: a reconnect finds it as it was left.
+                    server = serve_pty(SimulatorConfig(seed=len(self.sims)), time_scale=spec.sim_speed)
+                    await server.start()
+                    self.sims[spec.name] = server
+                url = server.url
+            assert url is not None
+            farm_printer.url = url
+            printer = marlin_aio.Printer(
+                url,
+                baudrate=spec.baud,
+                timeout_s=spec.timeout_s,
+                max_hotend_celsius=spec.max_hotend_celsius,
+                max_bed_celsius=spec.max_bed_celsius,
+                max_chamber_celsius=spec.max_chamber_celsius,
+                password=spec.password,
+            )
+            await stack.enter_async_context(printer)
+            farm_printer.printer = printer
+            yield printer
+
+    async def _watch(self, farm_printer: FarmPrinter, printer: marlin_aio.Printer) -> None:
+        """Poll a connected printer until its link fails; raise that failure."""
+        farm_printer.link_up = True
+        farm_printer.connections += 1
+        farm_printer.firmware = printer.firmware.name if printer.firmware is not None else None
+        farm_printer.last_error = None
+        self._emit(
+            farm_printer,
+            "connected",
+            f"connected to {farm_printer.url} ({farm_printer.firmware or 'firmware unknown'})",
+        )
+        if printer.reset_on_open:
+            self._emit(
+                farm_printer, "reset", "the board reset when the port was opened; targets set earlier were cleared"
+            )
+        stop = printer.on_reading(farm_printer.on_reading)
+        resets = printer.stats.resets
+        try:
+            async with printer.poll_temperatures(farm_printer.spec.poll_interval_s):
+                failure = asyncio.ensure_future(printer.wait_for_failure())
+                try:
+                    while True:
+                        # Resets while connected show in the counters; look once a second, not per reading.
+                        done, _ = await asyncio.wait([failure], timeout=1.0)
+                        now_resets = printer.stats.resets
+                        if now_resets > resets:
+                            resets = now_resets
+                            self._emit(
+                                farm_printer,
+                                "reset",
+                                "the printer reset (it printed 'start'); its targets were cleared",
+                            )
+                        if done:
+                            raise failure.result()
+                finally:
+                    failure.cancel()
+        finally:
+            stop()

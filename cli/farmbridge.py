@@ -1,0 +1,379 @@
+"""The farm's bridge to an MQTT broker: telemetry, state, events and availability per printer, and Home Assistant
+discovery, published with aiomqtt.
+
+Topics, for a printer named `NAME` under the prefix `P` (default `marlin`):
+
+- `P/NAME/telemetry`: `{"time": epoch_s, "heaters": {"hotend": {"actual", "target", "power_percent"}, ...}}` at
+  the bridge's rate (QoS 0). Heaters a printer does not report are never in it.
+- `P/NAME/state` (retained): `{"link": "up" | "down", "firmware", "print", "last_error", "readings_dropped"}`,
+  published when it changes.
+- `P/NAME/events` (QoS 1): `{"event", "message", "time"}` for connected, connection_lost, connect_failed, halted,
+  thermal_runaway, reset. Never dropped while the queue has room: kept until the broker acknowledged them.
+- `P/NAME/availability` (retained): `online` while the printer's link is up, else `offline`.
+- `P/bridge/availability` (retained): `online`, and `offline` as the bridge's Last Will, so a crashed bridge shows.
+- `homeassistant/sensor/marlin_NAME/.../config` (retained): Home Assistant discovery.
+
+Backpressure: a sampler takes each printer's newest reading at the rate into a bounded buffer whatever the
+broker does, dropping (and counting) the oldest when the broker cannot keep up; the serial loops never wait for the
+broker. Events wait in a queue of their own (bounded too: past the bound the oldest is dropped, counted, and
+logged). When the broker goes away the bridge reconnects with backoff and publishes availability, state and
+discovery again.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import ssl
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import aiomqtt
+
+import marlin_aio
+
+from .farm import Farm, FarmEvent, FarmPrinter
+
+__all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug"]
+
+_log = logging.getLogger("marlin_temp.bridge")
+
+EVENT_QUEUE = 10_000
+TELEMETRY_BUFFER = 1_000
+
+
+@dataclass(frozen=True)
+class BrokerSettings:
+    """Where the broker is and how to log in. `password` is never printed (its repr hides it)."""
+
+    host: str = "127.0.0.1"
+    port: int = 1883
+    username: str | None = None
+    password: str | None = field(default=None, repr=False)
+    client_id: str | None = None
+    tls_ca: str | None = None
+    tls_cert: str | None = None
+    tls_key: str | None = None
+    keepalive_s: int = 30
+
+    @property
+    def address(self) -> str:
+        """`host:port`, for messages."""
+        return f"{self.host}:{self.port}"
+
+    def tls_context(self) -> ssl.SSLContext | None:
+        """The TLS context the options ask for (a CA, a client certificate), or None for a plain connection."""
+        if self.tls_ca is None and self.tls_cert is None:
+            return None
+        context = ssl.create_default_context(cafile=self.tls_ca)
+        if self.tls_cert is not None:
+            context.load_cert_chain(self.tls_cert, self.tls_key)
+        return context
+
+
+@dataclass(frozen=True)
+class BridgeSettings:
+    """What the bridge publishes and how often."""
+
+    prefix: str = "marlin"
+    rate_hz: float = 2.0
+    discovery: bool = True
+    discovery_prefix: str = "homeassistant"
+    backoff_start_s: float = 1.0
+    backoff_max_s: float = 30.0
+
+
+def heater_slug(name: str) -> str:
+    """A heater's name as a topic or entity id part: `"hotend 0"` gives `"hotend_0"`."""
+    return name.replace(" ", "_")
+
+
+def telemetry_payload(reading: marlin_aio.TemperatureReading) -> dict[str, Any]:
+    """The telemetry of one reading: every heater reported, by name, in degrees Celsius and percent."""
+    heaters: dict[str, dict[str, float | None]] = {}
+    for key, heater in reading.temperatures.heaters.items():
+        if key == "T" and "T0" in reading.temperatures.heaters:
+            continue  # with several hotends, each is reported by number; `T` repeats the active one
+        fraction = heater.power_fraction
+        heaters[marlin_aio.heater_name("T" if key == "T" else key)] = {
+            "actual": _finite(heater.actual),
+            "target": _finite(heater.target),
+            "power_percent": None if fraction is None else round(fraction * 100, 1),
+        }
+    return {"time": round(reading.wall_time_s, 3), "heaters": heaters}
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
+class Bridge:
+    """Publishes `farm`'s printers to the broker until cancelled. Give `on_event` to the farm as its listener.
+
+    Counters (`published`, `telemetry_dropped`, `events_lost`) say what happened to the messages.
+    """
+
+    def __init__(self, farm: Farm, broker: BrokerSettings, settings: BridgeSettings | None = None) -> None:
+        settings = settings or BridgeSettings()
+        if not settings.rate_hz > 0:
+            raise ValueError(f"the telemetry rate must be positive, got {settings.rate_hz}")
+        self.farm = farm
+        self.broker = broker
+        self.settings = settings
+        self._telemetry: deque[tuple[str, str]] = deque(maxlen=TELEMETRY_BUFFER)
+        self._events: deque[FarmEvent] = deque()
+        self._wake = asyncio.Event()
+        self._last_sampled: dict[str, int] = {}
+        self._states: dict[str, str] = {}
+        self._published_states: dict[str, str] = {}
+        self._heaters: dict[str, tuple[str, ...]] = {}
+        self._announced: dict[str, tuple[str, ...]] = {}
+        self.connected = False
+        self.connections = 0
+        self.published = 0
+        self.telemetry_dropped = 0
+        self.events_lost = 0
+        self.on_connected: Callable[[], None] | None = None
+
+    # ------------------------------------------------------------------------------------------- topics
+
+    def topic(self, printer: str, leaf: str) -> str:
+        """`prefix/printer/leaf`."""
+        return f"{self.settings.prefix}/{printer}/{leaf}"
+
+    @property
+    def bridge_availability_topic(self) -> str:
+        """The bridge's own availability (its Last Will sets it offline)."""
+        return f"{self.settings.prefix}/bridge/availability"
+
+    # ------------------------------------------------------------------------------------------- intake
+
+    def on_event(self, event: FarmEvent) -> None:
+        """Queue a printer's event for delivery (the farm's listener); past the bound the oldest is lost."""
+        if len(self._events) >= EVENT_QUEUE:
+            lost = self._events.popleft()
+            self.events_lost += 1
+            _log.warning(
+                "event queue full (%d): lost %s %s from %s", EVENT_QUEUE, lost.kind, lost.message, lost.printer
+            )
+        self._events.append(event)
+        self._wake.set()
+
+    def _sample(self) -> None:
+        """Take each printer's newest reading, if new, into the telemetry buffer; note state changes."""
+        for farm_printer in self.farm.printers.values():
+            name = farm_printer.name
+            reading = farm_printer.latest
+            if reading is not None and self._last_sampled.get(name) != farm_printer.readings:
+                self._last_sampled[name] = farm_printer.readings
+                payload = telemetry_payload(reading)
+                if len(self._telemetry) == self._telemetry.maxlen:
+                    self.telemetry_dropped += 1  # the oldest goes: a slow broker never slows a printer
+                self._telemetry.append((name, json.dumps(payload, separators=(",", ":"))))
+                heaters = tuple(payload["heaters"])
+                if heaters and heaters != self._heaters.get(name):
+                    self._heaters[name] = heaters
+            self._states[name] = json.dumps(self._state(farm_printer), separators=(",", ":"))
+        self._wake.set()
+
+    def _state(self, farm_printer: FarmPrinter) -> dict[str, Any]:
+        return {
+            "link": "up" if farm_printer.link_up else "down",
+            "firmware": farm_printer.firmware,
+            "print": None,
+            "last_error": farm_printer.last_error,
+            "port": farm_printer.url or farm_printer.spec.port,
+        }
+
+    # ------------------------------------------------------------------------------------------- running
+
+    async def run(self) -> None:
+        """Sample at the rate and publish whenever connected; reconnect to the broker with backoff. Runs until
+        cancelled."""
+        async with asyncio.TaskGroup() as group:
+            group.create_task(self._sampler(), name="telemetry sampler")
+            group.create_task(self._connection_loop(), name="broker connection")
+
+    async def _sampler(self) -> None:
+        interval = 1.0 / self.settings.rate_hz
+        loop = asyncio.get_running_loop()
+        next_at = loop.time()
+        while True:
+            self._sample()
+            next_at += interval
+            delay = next_at - loop.time()
+            if delay < 0:
+                next_at = loop.time()  # behind (a stalled loop): skip, do not catch up
+                delay = 0
+            await asyncio.sleep(delay)
+
+    async def _connection_loop(self) -> None:
+        delay = self.settings.backoff_start_s
+        while True:
+            try:
+                async with self._client() as client:
+                    self.connected = True
+                    self.connections += 1
+                    delay = self.settings.backoff_start_s
+                    _log.info("connected to the broker at %s", self.broker.address)
+                    await self._announce(client)
+                    if self.on_connected is not None:
+                        self.on_connected()
+                    try:
+                        await self._publish_forever(client)
+                    except asyncio.CancelledError:
+                        await self._say_goodbye(client)
+                        raise
+            except aiomqtt.MqttError as exc:
+                if self.connected:
+                    _log.warning("lost the broker at %s: %s; reconnecting", self.broker.address, exc)
+                else:
+                    _log.warning("cannot reach the broker at %s: %s; retrying in %g s", self.broker.address, exc, delay)
+            finally:
+                self.connected = False
+                self._published_states.clear()  # republished in full on the next connection
+                self._announced.clear()
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, self.settings.backoff_max_s)
+
+    def _client(self) -> aiomqtt.Client:
+        broker = self.broker
+        return aiomqtt.Client(
+            broker.host,
+            broker.port,
+            username=broker.username,
+            password=broker.password,
+            identifier=broker.client_id,
+            keepalive=broker.keepalive_s,
+            tls_context=broker.tls_context(),
+            will=aiomqtt.Will(self.bridge_availability_topic, "offline", qos=1, retain=True),
+        )
+
+    async def _announce(self, client: aiomqtt.Client) -> None:
+        await client.publish(self.bridge_availability_topic, "online", qos=1, retain=True)
+        self._sample()
+        await self._publish_states(client)
+
+    async def _say_goodbye(self, client: aiomqtt.Client) -> None:
+        """Stopping: every printer and the bridge offline (retained), as the Last Will would say after a crash."""
+        with contextlib.suppress(aiomqtt.MqttError, TimeoutError):
+            async with asyncio.timeout(2.0):
+                for name in self.farm.printers:
+                    await client.publish(self.topic(name, "availability"), "offline", qos=1, retain=True)
+                await client.publish(self.bridge_availability_topic, "offline", qos=1, retain=True)
+
+    async def _publish_forever(self, client: aiomqtt.Client) -> None:
+        while True:
+            self._wake.clear()
+            await self._publish_states(client)
+            await self._publish_discovery(client)
+            while self._events:
+                event = self._events[0]
+                payload = {"event": event.kind, "message": event.message, "time": round(event.time_s, 3)}
+                await client.publish(self.topic(event.printer, "events"), json.dumps(payload), qos=1)
+                self._events.popleft()  # only once the broker has it: a broken link leaves it queued
+                self.published += 1
+            while self._telemetry:
+                name, payload_text = self._telemetry.popleft()
+                await client.publish(self.topic(name, "telemetry"), payload_text, qos=0)
+                self.published += 1
+            await self._wake.wait()
+
+    async def _publish_states(self, client: aiomqtt.Client) -> None:
+        for name, state in list(self._states.items()):
+            if self._published_states.get(name) == state:
+                continue
+            link_up = self.farm.printers[name].link_up
+            await client.publish(self.topic(name, "state"), state, qos=1, retain=True)
+            await client.publish(
+                self.topic(name, "availability"), "online" if link_up else "offline", qos=1, retain=True
+            )
+            self._published_states[name] = state
+            self.published += 2
+
+    async def _publish_discovery(self, client: aiomqtt.Client) -> None:
+        if not self.settings.discovery:
+            return
+        for name, heaters in list(self._heaters.items()):
+            if self._announced.get(name) == heaters:
+                continue
+            for topic, config in self.discovery_messages(name, heaters):
+                await client.publish(topic, json.dumps(config), qos=1, retain=True)
+                self.published += 1
+            self._announced[name] = heaters
+
+    # ------------------------------------------------------------------------------------------- discovery
+
+    def discovery_messages(self, name: str, heaters: tuple[str, ...]) -> list[tuple[str, dict[str, Any]]]:
+        """Home Assistant MQTT discovery for one printer: a device with, per heater, a temperature sensor, a target
+        sensor and a power sensor, and a link sensor; each available while the bridge and the printer are."""
+        node = f"marlin_{name}"
+        device = {
+            "identifiers": [node],
+            "name": name,
+            "manufacturer": "Marlin",
+            "model": (self.farm.printers[name].firmware or "Marlin printer"),
+        }
+        availability = [
+            {"topic": self.bridge_availability_topic},
+            {"topic": self.topic(name, "availability")},
+        ]
+        base = {"device": device, "availability": availability, "availability_mode": "all"}
+        messages: list[tuple[str, dict[str, Any]]] = []
+        prefix = self.settings.discovery_prefix
+        for heater in heaters:
+            slug = heater_slug(heater)
+            for what, unit, device_class, label in (
+                ("actual", "°C", "temperature", heater),
+                ("target", "°C", "temperature", f"{heater} target"),
+                ("power_percent", "%", "power_factor", f"{heater} power"),
+            ):
+                object_id = f"{slug}_{what}"
+                messages.append(
+                    (
+                        f"{prefix}/sensor/{node}/{object_id}/config",
+                        base
+                        | {
+                            "name": label,
+                            "unique_id": f"{node}_{object_id}",
+                            "state_topic": self.topic(name, "telemetry"),
+                            "value_template": f"{{{{ value_json.heaters['{heater}'].{what} }}}}",
+                            "unit_of_measurement": unit,
+                            "device_class": device_class,
+                            "state_class": "measurement",
+                        },
+                    )
+                )
+        messages.append(
+            (
+                f"{prefix}/sensor/{node}/print_progress/config",
+                base
+                | {
+                    "name": "print progress",
+                    "unique_id": f"{node}_print_progress",
+                    "state_topic": self.topic(name, "state"),
+                    "value_template": "{{ value_json.print.percent if value_json.print else 0 }}",
+                    "unit_of_measurement": "%",
+                    "state_class": "measurement",
+                },
+            )
+        )
+        messages.append(
+            (
+                f"{prefix}/sensor/{node}/link/config",
+                base
+                | {
+                    "name": "link",
+                    "unique_id": f"{node}_link",
+                    "state_topic": self.topic(name, "state"),
+                    "value_template": "{{ value_json.link }}",
+                    "availability": [{"topic": self.bridge_availability_topic}],
+                },
+            )
+        )
+        return messages

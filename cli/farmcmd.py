@@ -1,0 +1,128 @@
+"""`marlin-temp farm`: many printers in one process, bridged to an MQTT broker.
+
+The printers (`--port NAME=PORT`, `--config FILE`, `--sim N`) each run on their own supervisor (`cli.farm`), and
+the bridge (`cli.farmbridge`) publishes them to the broker. What happens is printed as one line per event on
+stderr; a summary line when it stops. Secrets (the broker password) come from the environment or a file and are
+never printed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from rich.console import Console
+from rich.markup import escape
+
+from .connect import UsageProblem
+from .farm import Farm, FarmEvent, PrinterSpec
+from .farmbridge import Bridge, BridgeSettings, BrokerSettings
+
+__all__ = ["PASSWORD_ENV", "FarmOptions", "broker_settings", "run_farm"]
+
+#: The environment variable the broker password is read from (a secret never goes on the command line).
+PASSWORD_ENV = "MARLIN_MQTT_PASSWORD"
+
+
+@dataclass(frozen=True)
+class FarmOptions:
+    """How long to run (None: until Ctrl-C) and what to print."""
+
+    duration_s: float | None = None
+    quiet: bool = False
+
+
+def broker_settings(
+    broker: str,
+    *,
+    username: str | None,
+    password_file: Path | None,
+    client_id: str | None,
+    tls_ca: Path | None,
+    tls_cert: Path | None,
+    tls_key: Path | None,
+) -> BrokerSettings:
+    """The broker to use, from `HOST[:PORT]` and the security options; the password from `--password-file` or the
+    environment (`MARLIN_MQTT_PASSWORD`).
+
+    Raises:
+        UsageProblem: a bad address or port, a file that cannot be read, a key without a certificate.
+    """
+    host, sep, port_text = broker.rpartition(":")
+    if not sep:
+        host, port_text = broker, ""
+    if not host:
+        raise UsageProblem(f"--broker {broker!r}: give HOST or HOST:PORT")
+    port = 8883 if (tls_ca or tls_cert) and not port_text else 1883
+    if port_text:
+        if not port_text.isdigit() or not 0 < int(port_text) < 65536:
+            raise UsageProblem(f"--broker {broker!r}: the port must be a number from 1 to 65535")
+        port = int(port_text)
+    password = os.environ.get(PASSWORD_ENV) or None
+    if password_file is not None:
+        try:
+            password = password_file.read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise UsageProblem(f"--password-file {password_file}: {exc.strerror or exc}") from None
+    if password is not None and username is None:
+        raise UsageProblem(f"a broker password was given ({PASSWORD_ENV} or --password-file) but no --username")
+    if tls_key is not None and tls_cert is None:
+        raise UsageProblem("--tls-key needs --tls-cert (the client certificate it belongs to)")
+    for option, path in (("--tls-ca", tls_ca), ("--tls-cert", tls_cert), ("--tls-key", tls_key)):
+        if path is not None and not path.is_file():
+            raise UsageProblem(f"{option} {path}: no such file")
+    return BrokerSettings(
+        host=host,
+        port=port,
+        username=username,
+        password=password,
+        client_id=client_id,
+        tls_ca=str(tls_ca) if tls_ca else None,
+        tls_cert=str(tls_cert) if tls_cert else None,
+        tls_key=str(tls_key) if tls_key else None,
+    )
+
+
+async def run_farm(
+    specs: list[PrinterSpec],
+    broker: BrokerSettings,
+    settings: BridgeSettings,
+    options: FarmOptions,
+    errors: Console,
+) -> Bridge:
+    """Run the farm and its bridge until `duration_s` passed or the task is cancelled; return the bridge (its
+    counters say what was published)."""
+
+    def show(event: FarmEvent) -> None:
+        bridge.on_event(event)
+        if not options.quiet:
+            stamp = time.strftime("%H:%M:%S", time.localtime(event.time_s))
+            errors.print(f"{stamp} {escape(event.printer)}: {escape(event.kind)}: {escape(event.message)}")
+
+    farm = Farm(specs, show)
+    bridge = Bridge(farm, broker, settings)
+    names = ", ".join(spec.name for spec in specs)
+    if not options.quiet:
+        errors.print(
+            f"farm: {len(specs)} printer{'s' if len(specs) != 1 else ''} ({escape(names)}); publishing to "
+            f"{escape(broker.address)} under {escape(settings.prefix)}/ at {settings.rate_hz:g} Hz; Ctrl-C stops",
+            style="dim",
+        )
+    started = time.monotonic()
+    try:
+        async with asyncio.timeout(options.duration_s), asyncio.TaskGroup() as group:
+            group.create_task(farm.run(), name="farm")
+            group.create_task(bridge.run(), name="bridge")
+    except TimeoutError:
+        pass  # --duration is up: every printer and the broker connection were closed on the way out
+    finally:
+        if not options.quiet:
+            errors.print(
+                f"farm: stopped after {time.monotonic() - started:.0f} s; {bridge.published} messages published, "
+                f"{bridge.telemetry_dropped} readings dropped, {bridge.events_lost} events lost",
+                style="dim",
+            )
+    return bridge

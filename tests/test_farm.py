@@ -1,0 +1,312 @@
+"""The print farm and its MQTT bridge, against a real Mosquitto broker started here on 127.0.0.1 and a free port.
+
+The printers are simulated ones on real ptys and TCP ports; the broker is Debian's `mosquitto` (`.ci/run` installs
+it). Messages are read back by a subscriber of our own (aiomqtt) and checked by topic and payload.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator, Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+import pytest
+
+from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
+from marlin_temp.farm import Farm, FarmEvent, PrinterSpec
+from marlin_temp.farmbridge import Bridge, BridgeSettings, BrokerSettings
+
+MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if os.path.exists("/usr/sbin/mosquitto") else None)
+pytestmark = pytest.mark.skipif(
+    MOSQUITTO is None, reason="Mosquitto is not installed: apt-get install mosquitto (.ci/run installs it)"
+)
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port: int = probe.getsockname()[1]
+        return port
+
+
+@dataclass
+class Broker:
+    """A Mosquitto process on 127.0.0.1:`port`; `stop()` and `start()` restart it on the same port."""
+
+    directory: Path
+    port: int = field(default_factory=free_port)
+    process: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        config = self.directory / "mosquitto.conf"
+        # Persistence keeps a subscriber's session across a restart (SIGTERM saves it), as a production broker would.
+        config.write_text(
+            f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence true\n"
+            f"persistence_location {self.directory}/\nautosave_interval 1\n"
+        )
+        assert MOSQUITTO is not None
+        self.process = subprocess.Popen(
+            [MOSQUITTO, "-c", str(config)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        for _ in range(200):  # until it accepts connections, bounded
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", self.port), timeout=0.1):
+                return
+            if self.process.poll() is not None:
+                raise RuntimeError(f"mosquitto exited with {self.process.returncode}")
+            time.sleep(0.05)  # polling a condition (the port accepts), bounded
+        raise RuntimeError("mosquitto did not start listening within 10 s")
+
+    def stop(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.process = None
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[Broker]:
+    running = Broker(tmp_path)
+    running.start()
+    try:
+        yield running
+    finally:
+        running.stop()
+
+
+class Subscriber:
+    """Every message under `#` with its topic, kept in order; `until()` waits for a condition on them."""
+
+    def __init__(self) -> None:
+        self.messages: list[tuple[str, bytes, bool]] = []
+        self._changed = asyncio.Event()
+
+    def payloads(self, topic: str) -> list[Any]:
+        return [json.loads(payload) for t, payload, _ in self.messages if t == topic]
+
+    def texts(self, topic: str) -> list[str]:
+        return [payload.decode() for t, payload, _ in self.messages if t == topic]
+
+    async def until(self, condition: Callable[[], bool], what: str, timeout_s: float = 20.0) -> None:
+        async with asyncio.timeout(timeout_s):
+            while not condition():
+                self._changed.clear()
+                await self._changed.wait()
+        assert condition(), what
+
+    async def run(self, port: int, identifier: str = "test-subscriber", *, clean: bool = True) -> None:
+        async with aiomqtt.Client("127.0.0.1", port, identifier=identifier, clean_session=clean) as client:
+            await client.subscribe("#", qos=1)
+            async for message in client.messages:
+                payload = message.payload if isinstance(message.payload, bytes) else str(message.payload).encode()
+                self.messages.append((message.topic.value, payload, message.retain))
+                self._changed.set()
+
+
+@contextlib.asynccontextmanager
+async def subscribed(port: int, **kwargs: Any) -> AsyncIterator[Subscriber]:
+    subscriber = Subscriber()
+    task = asyncio.create_task(subscriber.run(port, **kwargs))
+    try:
+        yield subscriber
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+            await task
+
+
+@contextlib.asynccontextmanager
+async def running(farm: Farm, bridge: Bridge) -> AsyncIterator[None]:
+    tasks = [asyncio.create_task(farm.run()), asyncio.create_task(bridge.run())]
+    try:
+        yield
+    finally:
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+
+def farm_and_bridge(specs: list[PrinterSpec], port: int, **settings: Any) -> tuple[Farm, Bridge, list[FarmEvent]]:
+    events: list[FarmEvent] = []
+
+    def listen(event: FarmEvent) -> None:
+        events.append(event)
+        bridge.on_event(event)
+
+    farm = Farm(specs, listen, backoff_start_s=0.2, backoff_max_s=0.5)
+    bridge = Bridge(
+        farm,
+        BrokerSettings(port=port, keepalive_s=5),
+        BridgeSettings(backoff_start_s=0.2, backoff_max_s=0.5, **({"rate_hz": 10.0} | settings)),
+    )
+    return farm, bridge, events
+
+
+async def test_telemetry_state_and_availability_arrive_with_only_the_heaters_each_printer_has(broker: Broker) -> None:
+    async with (
+        serve_pty(SimulatorConfig(has_bed=False), time_scale=20) as bedless,
+        serve_pty(SimulatorConfig(has_chamber=True), time_scale=20) as chambered,
+        subscribed(broker.port) as sub,
+    ):
+        specs = [
+            PrinterSpec("bedless", bedless.url, poll_interval_s=0.05),
+            PrinterSpec("chambered", chambered.url, poll_interval_s=0.05),
+        ]
+        farm, bridge, _ = farm_and_bridge(specs, broker.port)
+        async with running(farm, bridge):
+            await sub.until(
+                lambda: (
+                    len(sub.payloads("marlin/bedless/telemetry")) >= 3
+                    and len(sub.payloads("marlin/chambered/telemetry")) >= 3
+                ),
+                "telemetry from both printers",
+            )
+    for telemetry in sub.payloads("marlin/bedless/telemetry"):
+        assert set(telemetry["heaters"]) == {"hotend"}  # no bed: never published, not even as null
+        assert telemetry["heaters"]["hotend"].keys() == {"actual", "target", "power_percent"}
+        assert isinstance(telemetry["time"], float)
+    for telemetry in sub.payloads("marlin/chambered/telemetry"):
+        assert set(telemetry["heaters"]) == {"hotend", "bed", "chamber"}
+        assert 0 <= telemetry["heaters"]["bed"]["power_percent"] <= 100
+    assert "online" in sub.texts("marlin/bedless/availability")
+    assert "online" in sub.texts("marlin/bridge/availability")
+    states = sub.payloads("marlin/chambered/state")
+    assert states[-1]["link"] in ("up", "down") and any(state["link"] == "up" for state in states)
+    assert any(state["firmware"] and "Marlin" in state["firmware"] for state in states)
+    connected = sub.payloads("marlin/bedless/events")
+    assert connected and connected[0]["event"] == "connected"
+    # A clean stop says offline, as the Last Will would after a crash.
+    assert sub.texts("marlin/bridge/availability")[-1] == "offline"
+    assert bridge.telemetry_dropped == 0 and bridge.events_lost == 0
+
+
+async def test_discovery_describes_each_heater_of_each_printer_with_valid_topics(broker: Broker) -> None:
+    async with serve_pty(SimulatorConfig(has_bed=False), time_scale=20) as sim, subscribed(broker.port) as sub:
+        farm, bridge, _ = farm_and_bridge([PrinterSpec("p1", sim.url, poll_interval_s=0.05)], broker.port)
+        async with running(farm, bridge):
+            await sub.until(
+                lambda: (
+                    any(t.startswith("homeassistant/") for t, _, _ in sub.messages)
+                    and len(sub.payloads("marlin/p1/telemetry")) >= 2
+                ),
+                "discovery and telemetry",
+            )
+    configs = {t: json.loads(p) for t, p, _ in sub.messages if t.startswith("homeassistant/")}
+    assert all(t.endswith("/config") and t.startswith("homeassistant/sensor/marlin_p1/") for t in configs)
+    unique_ids = [config["unique_id"] for config in configs.values()]
+    assert len(unique_ids) == len(set(unique_ids))
+    assert not any("bed" in unique_id for unique_id in unique_ids)  # no bed, no bed sensor
+    assert {"marlin_p1_hotend_actual", "marlin_p1_hotend_target", "marlin_p1_print_progress"} <= set(unique_ids)
+    telemetry = sub.payloads("marlin/p1/telemetry")[-1]
+    for config in configs.values():
+        assert config["device"]["identifiers"] == ["marlin_p1"]
+        assert config["state_topic"].startswith("marlin/p1/")
+        assert {"topic": "marlin/bridge/availability"} in config["availability"]
+        if config["state_topic"].endswith("telemetry"):
+            # The template names a heater and a field the telemetry really has.
+            heater = config["value_template"].split("'")[1]
+            field_name = config["value_template"].split("].")[1].split()[0]
+            assert field_name in telemetry["heaters"][heater]
+    # Retained: Home Assistant started later still finds the printer.
+    async with subscribed(broker.port, identifier="late") as late:
+        await late.until(
+            lambda: (
+                {t for t, _, retained in late.messages if retained and t.startswith("homeassistant/")} == set(configs)
+            ),
+            "the discovery messages, retained",
+        )
+
+
+async def test_unplugging_one_printer_turns_it_offline_and_back_while_the_other_goes_on(broker: Broker) -> None:
+    # On TCP the simulator keeps listening after a disconnect, like a board plugged back in.
+    async with (
+        serve_tcp(SimulatorConfig(), time_scale=20) as unplugged,
+        serve_pty(SimulatorConfig(), time_scale=20) as steady,
+        subscribed(broker.port) as sub,
+    ):
+        specs = [
+            PrinterSpec("a", unplugged.url, poll_interval_s=0.05),
+            PrinterSpec("b", steady.url, poll_interval_s=0.05),
+        ]
+        farm, bridge, events = farm_and_bridge(specs, broker.port)
+        async with running(farm, bridge):
+            await sub.until(lambda: "online" in sub.texts("marlin/a/availability"), "a online")
+            await unplugged.disconnect()
+            await sub.until(lambda: sub.texts("marlin/a/availability")[-1:] == ["offline"], "a offline")
+            telemetry_of_b = len(sub.payloads("marlin/b/telemetry"))
+            await sub.until(lambda: sub.texts("marlin/a/availability")[-1:] == ["online"], "a back online")
+            await sub.until(lambda: len(sub.payloads("marlin/b/telemetry")) > telemetry_of_b + 5, "b goes on")
+    kinds = [event["event"] for event in sub.payloads("marlin/a/events")]
+    assert kinds[:1] == ["connected"] and "connection_lost" in kinds and kinds.count("connected") >= 2
+    assert [event.kind for event in events if event.printer == "b"] == ["connected"]  # b never noticed
+    lost = next(event for event in sub.payloads("marlin/a/events") if event["event"] == "connection_lost")
+    assert "lost" in lost["message"]
+
+
+async def test_events_while_the_broker_is_down_are_delivered_after_it_restarts(broker: Broker) -> None:
+    async with serve_tcp(SimulatorConfig(), time_scale=20) as sim:
+        farm, bridge, events = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port)
+        async with running(farm, bridge):
+            # A persistent session (QoS 1, not clean): what is published while this subscriber is away waits for it.
+            async with subscribed(broker.port, identifier="event-keeper", clean=False) as sub:
+                await sub.until(lambda: bool(sub.payloads("marlin/a/events")), "the first event")
+            broker.stop()
+            await sim.disconnect()  # connection_lost, then connected again: both while the broker is down
+            for _ in range(400):
+                if sum(event.kind == "connected" for event in events) >= 2:
+                    break
+                await asyncio.sleep(0.05)  # polling a condition (the farm's own events), bounded
+            assert sum(event.kind == "connected" for event in events) >= 2
+            assert not bridge.connected
+            broker.start()
+            async with subscribed(broker.port, identifier="event-keeper", clean=False) as sub:
+                await sub.until(
+                    lambda: (
+                        [e["event"] for e in sub.payloads("marlin/a/events")][-2:] == ["connection_lost", "connected"]
+                    ),
+                    "the queued events after the restart",
+                )
+                await sub.until(lambda: "online" in sub.texts("marlin/bridge/availability"), "the bridge online again")
+    assert bridge.events_lost == 0
+    assert bridge.connections >= 2
+
+
+async def test_a_killed_bridge_shows_offline_through_its_last_will(broker: Broker, tmp_path: Path) -> None:
+    async with subscribed(broker.port) as sub:
+        process = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "marlin_temp",
+            "farm",
+            "--sim",
+            "1",
+            "--sim-speed",
+            "20",
+            "--broker",
+            f"127.0.0.1:{broker.port}",
+            stdout=asyncio.subprocess.DEVNULL,
+            stderr=asyncio.subprocess.DEVNULL,
+        )
+        try:
+            await sub.until(lambda: len(sub.payloads("marlin/sim1/telemetry")) >= 2, "the bridge publishing")
+        finally:
+            process.kill()  # no goodbye: only the broker can say it went
+            await process.wait()
+        await sub.until(lambda: sub.texts("marlin/bridge/availability")[-1:] == ["offline"], "the Last Will")
