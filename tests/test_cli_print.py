@@ -333,8 +333,8 @@ def simulator_in_a_thread(config: SimulatorConfig, time_scale: float) -> Iterato
         loop.close()
 
 
-def moves_run(sim: SimulatorServer) -> int:
-    return sum(1 for command in list(sim.printer.executed) if command.startswith("G1"))
+def dwells_run(sim: SimulatorServer) -> int:
+    return sum(1 for command in list(sim.printer.executed) if command.startswith("G4"))
 
 
 def done_lines(screen: str) -> int:
@@ -350,9 +350,10 @@ def hotend_celsius(screen: str) -> float:
 @needs_tmux
 def test_print_keys_pause_resume_and_emergency_stop(tmux: Tmux, tmp_path: Path) -> None:
     gcode = tmp_path / "part.gcode"
-    # The hotend heats while the print runs (no wait), so time visibly passes on the screen while it is paused.
-    gcode.write_text("M104 S250\n" + "".join(f"G1 X{i % 200} Y{i % 150}\n" for i in range(20_000)))
-    with simulator_in_a_thread(SimulatorConfig(motion_time_scale=0), time_scale=2) as sim:
+    # The hotend heats while the print runs (no wait), so time visibly passes on the screen while it is paused;
+    # dwells of 5 ms pace the print (at most 200 lines/s), so it is still running when the keys are pressed.
+    gcode.write_text("M104 S260\n" + "G4 P5\n" * 30_000)
+    with simulator_in_a_thread(SimulatorConfig(), time_scale=1) as sim:
         command = f"{sys.executable} -m marlin_temp print {gcode} --port {sim.url}; echo MARLIN-EXIT=$?; sleep 600"
         tmux.run("new-session", "-d", "-s", "w", "-x", "150", "-y", "30", command)
         tmux.wait_for(lambda s: done_lines(s) > 20 and hotend_celsius(s) > 0, "the print to run")
@@ -363,10 +364,10 @@ def test_print_keys_pause_resume_and_emergency_stop(tmux: Tmux, tmp_path: Path) 
         # What was in flight completes; after that, nothing more goes while the hotend goes on heating.
         warmer = hotend_celsius(paused) + 3
         first = tmux.wait_for(lambda s: hotend_celsius(s) > warmer, "time to pass while paused")
-        ran = moves_run(sim)
+        ran = dwells_run(sim)
         later = tmux.wait_for(lambda s: hotend_celsius(s) > hotend_celsius(first) + 3, "more time to pass")
         assert done_lines(later) == done_lines(first)
-        assert moves_run(sim) == ran
+        assert dwells_run(sim) == ran
         assert "paused" in later
 
         tmux.run("send-keys", "-t", "w", "r")
