@@ -180,7 +180,22 @@ def _target(name: str, raw: str | None, limit: float) -> float | None:
         fail(f"{exc}{hint}", Exit.USAGE)
 
 
-@app.command("set", epilog=EXIT_CODES_HELP)
+# Typer keeps single line breaks in help paragraphs, so each paragraph is one string.
+_SET_HELP = "\n\n".join(
+    (
+        "Set heater targets and print what the printer confirmed; --wait heats up with a progress bar per heater.",
+        "Targets are checked before anything is sent: not a number, negative or above the limit (hotend 260 C, "
+        "bed 140 C, chamber 60 C by default: Marlin's own clamps) exits with code 2 and one line saying why, as "
+        "does a heater the printer does not have (--tool 1 on a one-hotend printer, --chamber with no chamber).",
+        "What is printed is the target the printer confirmed, which can differ from the one asked for: Marlin "
+        "keeps whole degrees and caps a target at its own maximum; the line says so, and --wait waits for the "
+        "confirmed target. --off turns off every hotend, the bed and the chamber; --off --wait waits until each "
+        "is below --cool-to (50 C: safe to touch).",
+    )
+)
+
+
+@app.command("set", help=_SET_HELP, epilog=EXIT_CODES_HELP)
 def set_targets(
     hotend: Annotated[str | None, typer.Option("--hotend", help="Hotend target in C (0 turns it off).")] = None,
     bed: Annotated[str | None, typer.Option("--bed", help="Bed target in C (0 turns it off).")] = None,
@@ -213,16 +228,7 @@ def set_targets(
     max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
     max_chamber: MaxChamberOption = DEFAULT_MAX_CHAMBER_CELSIUS,
 ) -> None:
-    """Set heater targets and print what the printer confirmed; --wait heats up with a progress bar per heater.
-
-    Targets are checked before anything is sent: not a number, negative or above the limit (hotend 260 C,
-    bed 140 C, chamber 60 C by default: Marlin's own clamps) exits with code 2 and one line saying why, as does a
-    heater the printer does not have (--tool 1 on a one-hotend printer, --chamber with no chamber).
-
-    What is printed is the target the printer confirmed, which can differ from the one asked for: Marlin keeps
-    whole degrees and caps a target at its own maximum; the line says so, and --wait waits for the confirmed
-    target. --off --wait waits until every heater is below --cool-to (50 C: safe to touch).
-    """
+    """Set heater targets, print what the printer confirmed, wait if asked (the help text is `_SET_HELP`)."""
     from .setcmd import SetRequest, set_printer_targets
 
     if off and (hotend or bed or chamber):
@@ -348,7 +354,30 @@ def log(
 # ------------------------------------------------------------------------------------------- print
 
 
-@app.command("print", epilog=EXIT_CODES_HELP)
+# Typer keeps single line breaks in help paragraphs, so each paragraph is one string.
+_PRINT_HELP = "\n\n".join(
+    (
+        "Stream a G-code file with line numbers, checksums and resends, with a progress bar and live temperatures.",
+        "The whole file is checked before anything is sent: a line Marlin cannot take exits with code 2 and its "
+        "line number. Display text (M117, M118, M0/M1) with letters beyond ASCII is sent transliterated (café as "
+        "cafe), with a warning. While the printer waits for a heater (M109, M190 in the file) the view says so "
+        "instead of a rate.",
+        "Keys on a terminal: p pauses (no new lines are sent; the moves the printer has finish, heaters stay on), "
+        "r resumes, ! is the emergency stop: M112 at once, with no question asked; the printer halts and needs a "
+        "reset (exit code 7). Ctrl-C asks whether to cancel; a cancel lets the printer finish what it has, then "
+        "turns the heaters and fan off. If the printer stops answering, the print fails with a diagnosis of who "
+        "went silent.",
+        "--from-line N: when a print stops, the message gives the last line the printer answered. Before resuming, "
+        "check: the part is still stuck to the bed (keep the bed hot meanwhile); homing in the header (G28) will "
+        "not hit the part (printers that home Z on the bed bring the nozzle down on it: raise Z or edit the "
+        "header); line N starts a layer (its Z move; slicers mark layers with comments such as ;LAYER:), as moves "
+        "the printer had buffered may not have run; and with absolute extrusion (M82) E goes on from where it "
+        "was: the header's G92 E0 resets it, so the layer must set E itself (G92 E...) or you add that line.",
+    )
+)
+
+
+@app.command("print", help=_PRINT_HELP, epilog=EXIT_CODES_HELP)
 def print_file(
     path: Annotated[Path, typer.Argument(help="The G-code file to print.", show_default=False)],
     send_ahead: Annotated[
@@ -377,7 +406,7 @@ def print_file(
         typer.Option(
             "--from-line",
             help="Resume a failed print at line N of the file: the header (every command before the first move) "
-            "runs, then line N on. Read the checks below first.",
+            "runs, then line N on. Check what the description above says first.",
             min=1,
             show_default=False,
         ),
@@ -389,24 +418,7 @@ def print_file(
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
 ) -> None:
-    """Stream a G-code file with line numbers, checksums and resends, with a progress bar and live temperatures.
-
-    The whole file is checked before anything is sent: a line Marlin cannot take exits with code 2 and its line
-    number. Display text (M117, M118, M0/M1) with letters beyond ASCII is sent transliterated (café as cafe), with a
-    warning. While the printer waits for a heater (M109, M190 in the file) the view says so instead of a rate.
-
-    Keys on a terminal: p pauses (no new lines are sent; the moves the printer has finish, heaters stay on), r
-    resumes, ! is the emergency stop: M112 at once, with no question asked; the printer halts and needs a reset
-    (exit code 7). Ctrl-C asks whether to cancel; a cancel lets the printer finish what it has, then turns the
-    heaters and fan off. If the printer stops answering, the print fails with a diagnosis of who went silent.
-
-    --from-line N: when a print stopped, the message gives the last line the printer answered. Before resuming,
-    check: the part is still stuck to the bed (keep the bed hot meanwhile); homing in the header (G28) will not
-    hit the part (printers that home Z on the bed bring the nozzle down on it: raise Z or edit the header); line N
-    starts a layer (its Z move; slicers mark layers with comments such as ;LAYER:), as moves the printer had
-    buffered may not have run; and with absolute extrusion (M82) E goes on from where it was: the header's G92 E0
-    resets it, so the layer must reset E itself (G92 E...) or you add that line.
-    """
+    """Stream a G-code file with a progress view, keys and --from-line (the help text is `_PRINT_HELP`)."""
     from .printcmd import PrintSettings, print_gcode
     from .printfile import plan_print
 

@@ -378,3 +378,13 @@ def test_print_keys_pause_resume_and_emergency_stop(tmux: Tmux, tmp_path: Path) 
         assert f"MARLIN-EXIT={int(Exit.HALTED)}" in after, after
         assert "emergency stop: M112 sent after line" in after and "halted" in after
         assert sim.printer.halted
+
+
+def test_print_help_explains_the_keys_and_what_to_check_before_from_line() -> None:
+    result = runner.invoke(app, ["print", "--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0
+    text = " ".join(result.output.split())
+    assert "p pauses" in text and "r resumes" in text and "! is the emergency stop" in text
+    assert "--from-line" in text
+    for check in ("still stuck to the bed", "homing in the header (G28)", "starts a layer", "absolute extrusion"):
+        assert check in text, check
