@@ -8,6 +8,7 @@ async function the tests can call too. Every failure ends as one line on stderr 
 from __future__ import annotations
 
 import asyncio
+import sys
 from collections.abc import Coroutine
 from pathlib import Path
 from typing import Annotated, Any, NoReturn, TypeVar
@@ -438,6 +439,93 @@ def print_file(
     options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
     settings = PrintSettings(plan=plan, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters)
     code = run(print_gcode(options, settings, Console(highlight=False), _stderr()))
+    raise typer.Exit(int(code))
+
+
+# ------------------------------------------------------------------------------------------- send
+
+
+@app.command("send", epilog=EXIT_CODES_HELP)
+def send(
+    commands: Annotated[
+        list[str] | None,
+        typer.Argument(help='G-code commands, one per argument: send "G28" "G1 X10 F3000".', show_default=False),
+    ] = None,
+    port: PortOption = None,
+    baud: BaudOption = None,
+    sim: SimOption = False,
+    sim_speed: SimSpeedOption = 1.0,
+    timeout: TimeoutOption = 10.0,
+    password: PasswordOption = None,
+) -> None:
+    """Send G-code commands in order and print each reply (its lines, then ok).
+
+    Every command is checked first: a line break, non-ASCII, an empty command or one too long for Marlin exits
+    with code 2 and nothing is sent. The first failure (timeout, halt, lost link) ends the run with its exit code;
+    a command the printer does not know exits 1 after the others ran. Homing and probing (G28, G29, ...) get at
+    least 3 minutes. M112 is the emergency stop: sent at once, the printer halts.
+    """
+    from .sendcmd import check_commands, send_commands
+
+    try:
+        checked = check_commands(commands or [])
+    except UsageProblem as exc:
+        fail(str(exc), exc.code)
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
+    code = run(send_commands(options, checked, Console(highlight=False, soft_wrap=True), _stderr()))
+    raise typer.Exit(int(code))
+
+
+# ------------------------------------------------------------------------------------------- terminal
+
+
+@app.command("terminal", epilog=EXIT_CODES_HELP)
+def terminal(
+    port: PortOption = None,
+    baud: BaudOption = None,
+    sim: SimOption = False,
+    sim_speed: SimSpeedOption = 1.0,
+    timeout: TimeoutOption = 10.0,
+    password: PasswordOption = None,
+    interval: Annotated[
+        float, typer.Option("--interval", help="Seconds between the (hidden) temperature polls.", min=0.05)
+    ] = 1.0,
+    temperatures_every: Annotated[
+        float,
+        typer.Option(
+            "--temperatures-every",
+            help="Add a temperature line to the scrollback at most this often, when they changed (0: never).",
+            min=0,
+        ),
+    ] = 30.0,
+    history: Annotated[
+        Path | None,
+        typer.Option(
+            "--history",
+            help="History file. Default: $XDG_STATE_HOME/marlin-temp/history (~/.local/state/marlin-temp/history).",
+            show_default=False,
+        ),
+    ] = None,
+    no_history: Annotated[bool, typer.Option("--no-history", help="Keep no history after this session.")] = False,
+) -> None:
+    """Interactive G-code console: type commands, read replies; temperatures in the bottom bar.
+
+    Tab completes the common G and M codes (with what each does); Up/Down and Ctrl-R reach the history of earlier
+    sessions. Replies are printed as they come, and you can type on while a long command runs. Ctrl-C clears the
+    line, Ctrl-D quits. F12 (or ! or M112, then Enter) sends the emergency stop at once, ahead of anything queued:
+    the printer halts and needs a reset (the exit code is then 7). Needs a terminal: from scripts use send.
+    """
+    from .console import ConsoleSettings, default_history_path, run_console
+
+    if not (sys.stdin.isatty() and sys.stdout.isatty()):
+        fail('terminal needs an interactive terminal; from a script use: marlin-temp send "G28" "M114"', Exit.USAGE)
+    settings = ConsoleSettings(
+        poll_interval_s=interval,
+        temperature_every_s=temperatures_every,
+        history_path=None if no_history else history or default_history_path(),
+    )
+    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
+    code = run(run_console(options, settings, _stderr()))
     raise typer.Exit(int(code))
 
 

@@ -19,11 +19,14 @@ from marlin_aio.commands import (
     DEFAULT_MAX_BED_CELSIUS,
     DEFAULT_MAX_CHAMBER_CELSIUS,
     DEFAULT_MAX_HOTEND_CELSIUS,
+    MAX_COMMAND_BYTES,
     check_target,
     checksum,
+    command_code,
     encode_command,
     number_command,
     strip_comment,
+    validate_command,
 )
 from marlin_aio.connection import Command, Connection, Reply
 from marlin_aio.errors import (
@@ -66,6 +69,17 @@ from marlin_aio.events import (
 )
 from marlin_aio.framing import LineSplitter
 from marlin_aio.linkstate import LinkState
+from marlin_aio.motion import (
+    LONG_COMMAND_TIMEOUT_S,
+    LONG_COMMANDS,
+    MAX_DISTANCE_MM,
+    MAX_FEEDRATE_MM_MIN,
+    command_timeout_s,
+    disable_motors_command,
+    extrude_commands,
+    home_command,
+    move_commands,
+)
 from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
 from marlin_aio.printhandle import COOL_DOWN
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
@@ -91,6 +105,11 @@ __all__ = [
     "DEFAULT_MAX_CHAMBER_CELSIUS",
     "DEFAULT_MAX_HOTEND_CELSIUS",
     "HEATER_NAMES",
+    "LONG_COMMANDS",
+    "LONG_COMMAND_TIMEOUT_S",
+    "MAX_COMMAND_BYTES",
+    "MAX_DISTANCE_MM",
+    "MAX_FEEDRATE_MM_MIN",
     "BusyKeepalive",
     "Capability",
     "ChecksumRequiredError",
@@ -148,15 +167,22 @@ __all__ = [
     "check_target",
     "checksum",
     "classify_line",
+    "command_code",
+    "command_timeout_s",
     "connect",
+    "disable_motors_command",
     "encode_command",
+    "extrude_commands",
     "heater_name",
+    "home_command",
     "list_ports",
+    "move_commands",
     "number_command",
     "parse_endstops",
     "parse_position",
     "parse_temperatures",
     "strip_comment",
+    "validate_command",
 ]
 
 # A library logs and lets the application decide where it goes: without a handler of the application's, nothing

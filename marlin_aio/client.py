@@ -33,6 +33,7 @@ from marlin_aio.handshake import handshake, send_until_processed
 from marlin_aio.heaters import HeaterLimits, describe_heaters, target_commands, targets_reached, wanted_targets
 from marlin_aio.link import Link
 from marlin_aio.linkstate import LinkState
+from marlin_aio.motion import command_timeout_s, disable_motors_command, extrude_commands, home_command, move_commands
 from marlin_aio.parsing import parse_endstops, parse_position
 from marlin_aio.poller import Poller
 from marlin_aio.printhandle import PrintHandle
@@ -210,6 +211,74 @@ class Printer:
         """
         self._link.emergency_stop()
         _log.warning("emergency stop (M112) sent to %s", self.port)
+
+    async def home(self, *axes: str, timeout_s: float | None = None) -> Reply:
+        """Home the axes given (`home()` homes all, `home("x", "y")` two) with G28; return its reply.
+
+        Homing is answered only when it is done, so unless `timeout_s` says otherwise the wait is at least
+        `LONG_COMMAND_TIMEOUT_S` (3 minutes), for boards that stay silent meanwhile (see `marlin_aio.motion`).
+
+        Raises:
+            ValueError: an axis is not X, Y or Z.
+            MarlinError: as `send`.
+        """
+        command = home_command(axes)
+        if timeout_s is None:
+            timeout_s = command_timeout_s(command, self.timeout_s)
+        return await self.send(command, timeout_s=timeout_s)
+
+    async def move(
+        self,
+        *,
+        x: float | None = None,
+        y: float | None = None,
+        z: float | None = None,
+        feedrate_mm_min: float | None = None,
+        relative: bool = False,
+        timeout_s: float | None = None,
+    ) -> Reply:
+        """Move in a straight line to (`x`, `y`, `z`) in millimetres, or by that much with `relative`; return the
+        move's reply. Marlin answers once the move is planned, not when it is done (M400 waits for that).
+
+        The mode is sent with the move (G90 or G91 before it) and the printer is left in absolute mode.
+        `feedrate_mm_min` is G-code's `F`; without it the printer's current speed is used.
+
+        Raises:
+            ValueError: no axis given, a coordinate is not a finite number, the feed rate is not positive, ...
+                (nothing is sent).
+            MarlinError: as `send`.
+        """
+        commands = move_commands(x=x, y=y, z=z, feedrate_mm_min=feedrate_mm_min, relative=relative)
+        return (await self._send_together(commands, timeout_s))[1]
+
+    async def extrude(
+        self, length_mm: float, *, feedrate_mm_min: float = 300.0, timeout_s: float | None = None
+    ) -> Reply:
+        """Push `length_mm` of filament through the hotend (negative retracts) at `feedrate_mm_min`; return the
+        move's reply. Marlin refuses below its minimum extrusion temperature and says so in the reply's lines.
+
+        Raises:
+            ValueError: the length is 0 or not a finite number, the feed rate is not positive, ... (nothing is sent).
+            MarlinError: as `send`.
+        """
+        commands = extrude_commands(length_mm, feedrate_mm_min=feedrate_mm_min)
+        return (await self._send_together(commands, timeout_s))[1]
+
+    async def disable_motors(self, *axes: str) -> Reply:
+        """Turn the stepper motors of the axes given (X, Y, Z, E) off with M84, or all of them; return its reply.
+
+        Marlin finishes the moves already planned first. The position is lost: home again before moving.
+
+        Raises:
+            ValueError: an axis is not X, Y, Z or E.
+            MarlinError: as `send`.
+        """
+        return await self.send(disable_motors_command(axes))
+
+    async def _send_together(self, commands: list[str], timeout_s: float | None) -> list[Reply]:
+        # Each `send` queues its command before its first await, so gathering them queues these back to back: no
+        # other task's command can land between a G91 and the move it is meant for.
+        return await asyncio.gather(*(self.send(command, timeout_s=timeout_s) for command in commands))
 
     # ------------------------------------------------------------------------------------------- temperatures
 
