@@ -445,7 +445,20 @@ def print_file(
 # ------------------------------------------------------------------------------------------- send
 
 
-@app.command("send", epilog=EXIT_CODES_HELP)
+# Typer keeps single line breaks in help paragraphs, so each paragraph is one string.
+_SEND_HELP = "\n\n".join(
+    (
+        "Send G-code commands in order and print each reply (its lines, then ok).",
+        "Every command is checked first: a line break, non-ASCII, an empty command or one too long for Marlin exits "
+        "with code 2 and nothing is sent. The first failure (timeout, halt, lost link) ends the run with its exit "
+        "code; a command the printer does not know exits 1 after the others ran.",
+        "Homing and probing (G28, G29, ...) get at least 3 minutes. M112 is the emergency stop: sent at once, the "
+        "printer halts.",
+    )
+)
+
+
+@app.command("send", help=_SEND_HELP, epilog=EXIT_CODES_HELP)
 def send(
     commands: Annotated[
         list[str] | None,
@@ -458,13 +471,7 @@ def send(
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
 ) -> None:
-    """Send G-code commands in order and print each reply (its lines, then ok).
-
-    Every command is checked first: a line break, non-ASCII, an empty command or one too long for Marlin exits
-    with code 2 and nothing is sent. The first failure (timeout, halt, lost link) ends the run with its exit code;
-    a command the printer does not know exits 1 after the others ran. Homing and probing (G28, G29, ...) get at
-    least 3 minutes. M112 is the emergency stop: sent at once, the printer halts.
-    """
+    """Send G-code commands in order and print each reply (the help text is `_SEND_HELP`)."""
     from .sendcmd import check_commands, send_commands
 
     try:
@@ -479,7 +486,20 @@ def send(
 # ------------------------------------------------------------------------------------------- terminal
 
 
-@app.command("terminal", epilog=EXIT_CODES_HELP)
+_TERMINAL_HELP = "\n\n".join(
+    (
+        "Interactive G-code console: type commands, read replies; temperatures in the bottom bar.",
+        "Tab completes the common G and M codes (with what each does); Up/Down and Ctrl-R reach the history of "
+        "earlier sessions. Replies are printed as they come, and you can type on while a long command runs. Ctrl-C "
+        "clears the line, Ctrl-D quits.",
+        "F12 (or ! or M112, then Enter) sends the emergency stop at once, ahead of anything queued: the printer "
+        "halts and needs a reset (the exit code is then 7).",
+        "Needs a terminal: from scripts use send.",
+    )
+)
+
+
+@app.command("terminal", help=_TERMINAL_HELP, epilog=EXIT_CODES_HELP)
 def terminal(
     port: PortOption = None,
     baud: BaudOption = None,
@@ -508,13 +528,7 @@ def terminal(
     ] = None,
     no_history: Annotated[bool, typer.Option("--no-history", help="Keep no history after this session.")] = False,
 ) -> None:
-    """Interactive G-code console: type commands, read replies; temperatures in the bottom bar.
-
-    Tab completes the common G and M codes (with what each does); Up/Down and Ctrl-R reach the history of earlier
-    sessions. Replies are printed as they come, and you can type on while a long command runs. Ctrl-C clears the
-    line, Ctrl-D quits. F12 (or ! or M112, then Enter) sends the emergency stop at once, ahead of anything queued:
-    the printer halts and needs a reset (the exit code is then 7). Needs a terminal: from scripts use send.
-    """
+    """The interactive G-code console (the help text is `_TERMINAL_HELP`)."""
     from .console import ConsoleSettings, default_history_path, run_console
 
     if not (sys.stdin.isatty() and sys.stdout.isatty()):
