@@ -122,7 +122,26 @@ def main(
 # ------------------------------------------------------------------------------------------- watch
 
 
-@app.command(epilog=EXIT_CODES_HELP)
+# Typer keeps single line breaks in help paragraphs, so each paragraph is one string.
+_WATCH_HELP = "\n\n".join(
+    (
+        "Live view of every heater: table, chart of the last minute, link statistics. q or Ctrl-C quits.",
+        "Keys set targets while watching: h hotend and b bed (type the degrees, Enter; Esc cancels), o every "
+        "heater off, + and - step the last one chosen by 5 C, 1 PLA (200/60 C), 2 PETG (240/80 C), f the fan "
+        "(percent), and : sends one G-code line, its reply shown under the chart. Targets are checked against "
+        "--max-hotend and --max-bed as in set; one refused is shown in the view and nothing is sent. Narrow "
+        "terminals (down to 40 columns) get a compact table.",
+        "With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and "
+        "power, and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints "
+        "one plain line per refresh instead (or JSON lines with --json), and q is the only key.",
+        "The footer counts timeouts and errors (failed commands, board resets) from the moment the connection is "
+        "established: a board that resets when the port opens, printing 'start' and its banner during the "
+        "handshake, is starting up, not failing.",
+    )
+)
+
+
+@app.command(help=_WATCH_HELP, epilog=EXIT_CODES_HELP)
 def watch(
     port: PortOption = None,
     baud: BaudOption = None,
@@ -140,20 +159,22 @@ def watch(
     json_lines: Annotated[bool, typer.Option("--json", help="Print JSON lines instead of the live view.")] = False,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
     reconnect: Annotated[bool, typer.Option("--reconnect", help="When the printer goes away, keep retrying.")] = False,
+    max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
+    max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
 ) -> None:
-    """Live view of every heater: table, chart of the last minute, link statistics. q or Ctrl-C quits.
-
-    With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and power,
-    and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints one plain
-    line per refresh instead (or JSON lines with --json).
-
-    The footer counts timeouts and errors (failed commands, board resets) from the moment the connection is
-    established: a board that resets when the port opens, printing 'start' and its banner during the
-    handshake, is starting up, not failing.
-    """
+    """Live view of every heater, with keys to set targets (the help text is `_WATCH_HELP`)."""
     from .watch import WatchSettings, watch_printer
 
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
+    options = ConnectOptions(
+        port=port,
+        baud=baud,
+        sim=sim,
+        sim_speed=sim_speed,
+        timeout_s=timeout,
+        max_hotend_celsius=max_hotend,
+        max_bed_celsius=max_bed,
+        password=password,
+    )
     settings = WatchSettings(
         interval_s=interval,
         refresh_s=refresh,

@@ -1,7 +1,11 @@
-"""What `watch` knows: a rolling window of readings per heater, and the figures derived from it.
+"""What `watch` knows: a rolling window of readings per heater, the figures derived from it, and the keys.
 
 Pure data, no I/O and no rich: the live view, the plain-line output and the tests all read the same numbers.
 Readings arrive about every 10 ms, so adding one must be cheap: it appends to a deque and trims the front.
+
+`WatchControls` turns key presses into actions (set targets, fan, a G-code line, quit) without touching the
+printer: every target is checked here, with the limits `set` uses, so a refused one becomes a notice in the view
+and never an action. `watch.py` performs the actions and hands their outcome back as a `Notice`.
 """
 
 from __future__ import annotations
@@ -10,9 +14,34 @@ import statistics
 from collections import deque
 from dataclasses import dataclass
 
-from marlin_aio import HEATER_NAMES, TemperatureReading, heater_name
+from marlin_aio import (
+    DEFAULT_MAX_BED_CELSIUS,
+    DEFAULT_MAX_HOTEND_CELSIUS,
+    HEATER_NAMES,
+    TemperatureReading,
+    check_target,
+    heater_name,
+)
 
-__all__ = ["HEATER_NAMES", "HeaterStatus", "LinkStats", "WatchModel", "heater_name"]
+__all__ = [
+    "HEATER_NAMES",
+    "PRESETS",
+    "STEP_CELSIUS",
+    "Action",
+    "HeaterStatus",
+    "LinkStats",
+    "Notice",
+    "Preset",
+    "Quit",
+    "SendCommand",
+    "SetFan",
+    "SetTargets",
+    "TargetLimits",
+    "TurnOff",
+    "WatchControls",
+    "WatchModel",
+    "heater_name",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,6 +131,11 @@ class WatchModel:
             return keys
         return tools + [k for k in keys if k != "T" and k not in tools]
 
+    def target(self, key: str) -> float | None:
+        """The target of heater `key` in the newest reading (None: never reported, or reported without one)."""
+        series = self.series.get(key)
+        return series[-1][2] if series else None
+
     def status(self, key: str) -> HeaterStatus:
         """The row for one heater."""
         series = self.series[key]
@@ -145,3 +179,261 @@ class WatchModel:
             timeouts=self.timeouts,
             errors=self.errors,
         )
+
+
+# ------------------------------------------------------------------------------------------- keys
+
+
+@dataclass(frozen=True, slots=True)
+class TargetLimits:
+    """The highest targets keys may set: the same `--max-hotend` and `--max-bed` as `marlin-temp set`."""
+
+    hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS
+    bed_celsius: float = DEFAULT_MAX_BED_CELSIUS
+
+
+@dataclass(frozen=True, slots=True)
+class Preset:
+    """A material's usual targets, set with one key."""
+
+    key: str
+    name: str
+    hotend_celsius: float
+    bed_celsius: float
+
+
+PRESETS = (Preset("1", "PLA", 200.0, 60.0), Preset("2", "PETG", 240.0, 80.0))
+STEP_CELSIUS = 5.0
+
+
+@dataclass(frozen=True, slots=True)
+class SetTargets:
+    """Set the active hotend's and/or the bed's target (None: leave it), both already checked."""
+
+    hotend: float | None = None
+    bed: float | None = None
+    label: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class TurnOff:
+    """Turn every heater the printer reports off."""
+
+
+@dataclass(frozen=True, slots=True)
+class SetFan:
+    """Set the part-cooling fan, 0 to 100 percent."""
+
+    percent: float
+
+
+@dataclass(frozen=True, slots=True)
+class SendCommand:
+    """Send one G-code line as typed (the library checks it before anything is written)."""
+
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class Quit:
+    """Leave `watch`."""
+
+
+Action = SetTargets | TurnOff | SetFan | SendCommand | Quit
+
+
+@dataclass(frozen=True, slots=True)
+class Notice:
+    """What the view shows under the chart: the outcome of the last action (a reply's lines, or an error)."""
+
+    title: str
+    lines: tuple[str, ...] = ()
+    error: bool = False
+
+
+_ENTER = ("\r", "\n")
+_BACKSPACE = ("\x7f", "\x08")
+_ESCAPE = "\x1b"
+_CLEAR_LINE = "\x15"  # Ctrl-U, as in a shell
+
+
+@dataclass(frozen=True, slots=True)
+class _Prompt:
+    what: str  # "hotend", "bed", "fan", "command"
+    label: str  # what the input line says before the cursor
+
+
+_PROMPTS = {
+    "h": _Prompt("hotend", "hotend target °C"),
+    "b": _Prompt("bed", "bed target °C"),
+    "f": _Prompt("fan", "fan %"),
+    ":": _Prompt("command", "G-code"),
+}
+
+
+class WatchControls:
+    """The keys of the live view as a small state machine: `press(key, model)` returns what to do, if anything.
+
+    Single keys act at once (presets, off, +/-, quit); h, b, f and : open an input line that Enter submits and Esc
+    cancels. Nothing here sends anything: a target above its limit, or not a number, becomes an error `notice`
+    and no action.
+
+    Args:
+        limits: the highest hotend and bed targets allowed.
+        keys_enabled: whether key presses can arrive at all (stdin is a terminal); the view says so.
+    """
+
+    def __init__(self, limits: TargetLimits | None = None, *, keys_enabled: bool = True) -> None:
+        self.limits = limits or TargetLimits()
+        self.keys_enabled = keys_enabled
+        self.notice: Notice | None = None
+        self.prompt: str | None = None  # the input line's label while one is open
+        self.buffer = ""
+        self.stepped = "hotend"  # the heater + and - change: the last one chosen with h or b
+        self._prompt: _Prompt | None = None
+        # Targets sent but not yet seen in a reading, so + pressed twice quickly steps twice.
+        self._wanted: dict[str, float] = {}
+
+    # ------------------------------------------------------------------ what the view shows
+
+    def help_items(self) -> list[str]:
+        """The key help, one item per key (the view lays them out to fit the width)."""
+        if not self.keys_enabled:
+            return ["Ctrl-C quits (keys need a terminal on stdin)"]
+        if self._prompt is not None:
+            if self._prompt.what == "command":
+                return ["Enter sends", "Esc cancels", "one G-code line, e.g. M114"]
+            return ["digits, then Enter sets", "Esc cancels"]
+        presets = [f"{p.key} {p.name}" for p in PRESETS]
+        return [
+            "h hotend",
+            "b bed",
+            "o off",
+            f"+/- {STEP_CELSIUS:g}C {self.stepped}",
+            *presets,
+            "f fan",
+            ": command",
+            "q quit",
+        ]
+
+    # ------------------------------------------------------------------ keys in
+
+    def press(self, key: str, model: WatchModel) -> Action | None:
+        """Handle one key (a character, or a whole escape sequence); return the action it asks for, if any."""
+        if self._prompt is not None:
+            return self._edit(key)
+        if key == _ESCAPE:
+            self.notice = None
+            return None
+        if len(key) != 1:
+            return None  # arrows and other escape sequences mean nothing here
+        key = key.lower()
+        if key == "q":
+            return Quit()
+        if key in _PROMPTS:
+            self._prompt = _PROMPTS[key]
+            self.prompt = self._prompt.label
+            self.buffer = ""
+            if key in "hb":
+                self.stepped = self._prompt.what
+            return None
+        if key == "o":
+            self._wanted.clear()
+            return TurnOff()
+        if key in "+=-_":
+            return self._step(STEP_CELSIUS if key in "+=" else -STEP_CELSIUS, model)
+        for preset in PRESETS:
+            if key == preset.key:
+                return self._targets(preset.hotend_celsius, preset.bed_celsius, preset.name)
+        return None
+
+    def _edit(self, key: str) -> Action | None:
+        assert self._prompt is not None
+        if key == _ESCAPE:
+            self._close()
+            return None
+        if key in _ENTER:
+            prompt, text = self._prompt, self.buffer.strip()
+            self._close()
+            return self._submit(prompt, text)
+        if key in _BACKSPACE:
+            self.buffer = self.buffer[:-1]
+        elif key == _CLEAR_LINE:
+            self.buffer = ""
+        elif self._prompt.what == "command":
+            if len(key) == 1 and key.isprintable():
+                self.buffer += key
+        elif len(key) == 1 and (key.isdigit() or key == "."):
+            self.buffer += key  # a number only: letters typed by mistake must not become a target
+        return None
+
+    def _close(self) -> None:
+        self._prompt = None
+        self.prompt = None
+        self.buffer = ""
+
+    def _submit(self, prompt: _Prompt, text: str) -> Action | None:
+        if not text:
+            return None  # Enter on an empty line closes it, like Esc
+        if prompt.what == "command":
+            self._wanted.clear()  # the line may set targets itself: the readings say what they are now
+            return SendCommand(text)
+        if prompt.what == "fan":
+            try:
+                percent = float(text)
+            except ValueError:
+                percent = -1.0
+            if not 0.0 <= percent <= 100.0:
+                self.notice = Notice(f"fan speed must be 0 to 100 %, got {text}", error=True)
+                return None
+            return SetFan(percent)
+        if prompt.what == "hotend":
+            return self._targets(text, None, "")
+        return self._targets(None, text, "")
+
+    def _step(self, delta: float, model: WatchModel) -> Action | None:
+        key = "T" if self.stepped == "hotend" else "B"
+        base = self._base(key, model)
+        if delta < 0 and base <= 0:
+            self.notice = Notice(f"the {self.stepped} is already off")
+            return None
+        new = max(base + delta, 0.0)
+        return self._targets(new, None, "") if key == "T" else self._targets(None, new, "")
+
+    def _base(self, key: str, model: WatchModel) -> float:
+        reported = model.target(key)
+        wanted = self._wanted.get(key)
+        if wanted is not None and reported is not None and abs(reported - wanted) < 0.01:
+            del self._wanted[key]  # the printer confirmed it: from now on the readings are the truth
+            wanted = None
+        if wanted is not None:
+            return wanted
+        return reported or 0.0
+
+    def _targets(self, hotend: float | str | None, bed: float | str | None, label: str) -> Action | None:
+        # Both are checked before either is sent: a preset is set whole or not at all.
+        checked: dict[str, float] = {}
+        for name, raw, limit in (
+            ("hotend", hotend, self.limits.hotend_celsius),
+            ("bed", bed, self.limits.bed_celsius),
+        ):
+            if raw is None:
+                continue
+            try:
+                checked[name] = check_target(name, raw, limit)
+            except ValueError as exc:
+                hint = f" (raise the limit with --max-{name})" if "above the limit" in str(exc) else ""
+                refused = f"{label}: " if label else ""
+                self.notice = Notice(f"{refused}{exc}{hint}", ("nothing sent",), error=True)
+                return None
+        for name, value in checked.items():
+            self._wanted["T" if name == "hotend" else "B"] = value
+        return SetTargets(hotend=checked.get("hotend"), bed=checked.get("bed"), label=label)
+
+    # ------------------------------------------------------------------ outcomes in
+
+    def finished(self, action: Action, notice: Notice) -> None:
+        """Show what became of `action`; a target that failed to go out is no longer counted as wanted."""
+        if notice.error and isinstance(action, SetTargets):
+            self._wanted.clear()
+        self.notice = notice

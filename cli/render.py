@@ -8,16 +8,27 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import dataclass
 
+from rich.cells import cell_len
 from rich.console import Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
 from marlin_aio import TemperatureReading
 
-from .model import HeaterStatus, LinkStats, WatchModel, heater_name
+from .model import HeaterStatus, LinkStats, WatchControls, WatchModel, heater_name
 
-__all__ = ["chart", "footer", "heater_table", "json_line", "plain_line", "watch_view"]
+__all__ = [
+    "chart",
+    "controls_view",
+    "footer",
+    "heater_table",
+    "json_line",
+    "plain_line",
+    "table_lines",
+    "watch_view",
+]
 
 _COLOURS = {"T": "red", "B": "blue", "C": "green"}
 # One colour per hotend, so each curve in the chart can be told apart; none of them is the bed's or chamber's.
@@ -35,6 +46,31 @@ def _fmt(value: float | None, spec: str, unit: str = "") -> str:
     return "-" if value is None else f"{value:{spec}}{unit}"
 
 
+def _flow(items: list[Text], width: int | None, indent: str = "", separator: str = "  ") -> Text:
+    """`items` joined by `separator`, starting a new line (with `indent`) where the next would pass `width`.
+
+    Items break only between each other, so "latency 0.3 ms median" or "2 PETG" is never split across lines.
+    """
+    text = Text(indent)
+    used = cell_len(indent)
+    for index, item in enumerate(items):
+        length = item.cell_len
+        if index and width is not None and used + len(separator) + length > width:
+            text.append("\n" + indent)
+            used = cell_len(indent)
+        elif index:
+            text.append(separator)
+            used += len(separator)
+        text.append_text(item)
+        used += length
+    return text
+
+
+def _lines(text: Text, width: int) -> int:
+    """Lines `text` takes at `width` columns (a line longer than the width wraps)."""
+    return sum(max(1, -(-cell_len(line) // max(width, 1))) for line in text.plain.split("\n"))
+
+
 def _eta(seconds: float | None, state: str) -> str:
     if state == "holding":
         return "at target"
@@ -44,35 +80,133 @@ def _eta(seconds: float | None, state: str) -> str:
     return f"{minutes}:{secs:02d}" if minutes else f"{secs} s"
 
 
-def heater_table(statuses: list[HeaterStatus]) -> Table:
-    """One row per heater: actual, target, power, rate, state, time to target."""
-    table = Table(expand=False, box=None, padding=(0, 2), header_style="bold")
-    for column, justify in [
-        ("heater", "left"),
-        ("actual", "right"),
-        ("target", "right"),
-        ("power", "right"),
-        ("rate", "right"),
-        ("state", "left"),
-        ("to target", "right"),
-    ]:
-        table.add_column(column, justify=justify)  # type: ignore[arg-type]
-    for status in statuses:
-        table.add_row(
-            Text(status.name, style=_colour(status.key)),
-            _fmt(status.actual, ".1f", " °C"),
-            "off" if not status.target else _fmt(status.target, ".0f", " °C"),
-            _fmt(status.power_percent, ".0f", " %"),
-            _fmt(status.rate_c_per_s, "+.2f", " °C/s"),
-            Text(status.state, style=_STATE_STYLE.get(status.state, "")),
-            _eta(status.eta_s, status.state),
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    """One way to lay the table out; `heater_table` takes the first that fits the width."""
+
+    units_in_cells: bool  # "189.9 °C" in each cell, or "189.9" under a two-line "actual / °C" header
+    gap: int  # spaces between columns
+    columns: tuple[str, ...]
+
+
+_ALL_COLUMNS = ("heater", "actual", "target", "power", "rate", "state", "eta")
+# Widest first. Below ~75 columns the units move into the header (a cell never wraps "°C" onto a line of its own),
+# then the gaps shrink, then power and the time to target go: a name is never cut to "hote…".
+_LAYOUTS = (
+    _Layout(True, 4, _ALL_COLUMNS),
+    _Layout(True, 2, _ALL_COLUMNS),
+    _Layout(False, 2, _ALL_COLUMNS),
+    _Layout(False, 1, _ALL_COLUMNS),
+    _Layout(False, 1, ("heater", "actual", "target", "rate", "state", "eta")),
+    _Layout(False, 1, ("heater", "actual", "target", "rate", "state")),
+    _Layout(False, 1, ("heater", "actual", "target", "state")),
+)
+_HEADERS = {
+    "heater": ("heater", ""),
+    "actual": ("actual", "°C"),
+    "target": ("target", "°C"),
+    "power": ("power", "%"),
+    "rate": ("rate", "°C/s"),
+    "state": ("state", ""),
+    "eta": ("to target", ""),
+}
+_RIGHT = {"actual", "target", "power", "rate", "eta"}
+
+
+def _cells(status: HeaterStatus, units: bool) -> dict[str, str]:
+    """The text of each column for one heater, with or without units."""
+    if units:
+        return {
+            "heater": status.name,
+            "actual": _fmt(status.actual, ".1f", " °C"),
+            "target": "off" if not status.target else _fmt(status.target, ".0f", " °C"),
+            "power": _fmt(status.power_percent, ".0f", " %"),
+            "rate": _fmt(status.rate_c_per_s, "+.2f", " °C/s"),
+            "state": status.state,
+            "eta": _eta(status.eta_s, status.state),
+        }
+    return {
+        "heater": status.name,
+        "actual": _fmt(status.actual, ".1f"),
+        "target": "off" if not status.target else _fmt(status.target, ".0f"),
+        "power": _fmt(status.power_percent, ".0f"),
+        "rate": _fmt(status.rate_c_per_s, "+.2f"),
+        "state": status.state,
+        # "holding" already says it is there; the short form keeps the column narrow.
+        "eta": "-" if status.state == "holding" else _eta(status.eta_s, status.state),
+    }
+
+
+def _header(column: str, units: bool) -> str:
+    name, unit = _HEADERS[column]
+    if units:
+        return name
+    if column == "eta":
+        return "to\ntarget"  # the header is two lines anyway, and "to target" is wider than any time
+    return f"{name}\n{unit}" if unit else name
+
+
+def _layout_width(layout: _Layout, rows: list[dict[str, str]]) -> int:
+    widths = []
+    for column in layout.columns:
+        cells = [cell_len(row[column]) for row in rows]
+        cells += [cell_len(part) for part in _header(column, layout.units_in_cells).split("\n")]
+        widths.append(max(cells))
+    edge = 2 if layout.gap == 4 else 0  # the widest layout keeps its indent of two spaces
+    return sum(widths) + layout.gap * (len(widths) - 1) + 2 * edge
+
+
+def _choose_layout(statuses: list[HeaterStatus], width: int | None) -> _Layout:
+    if width is None:
+        return _LAYOUTS[0]
+    for layout in _LAYOUTS:
+        rows = [_cells(status, layout.units_in_cells) for status in statuses]
+        if _layout_width(layout, rows) <= width:
+            return layout
+    return _LAYOUTS[-1]
+
+
+def table_lines(statuses: list[HeaterStatus], width: int | None = None) -> int:
+    """How many lines `heater_table(statuses, width)` takes (its header is two lines once units move into it)."""
+    return (1 if _choose_layout(statuses, width).units_in_cells else 2) + len(statuses)
+
+
+def heater_table(statuses: list[HeaterStatus], width: int | None = None) -> Table:
+    """One row per heater: actual, target, power, rate, state, time to target.
+
+    Given the `width` it must fit, the table takes the widest layout that fits: below about 75 columns the units
+    move into a second header line, and at 40 columns power and the time to target are left out; the heater names
+    and the numbers are never cut.
+    """
+    layout = _choose_layout(statuses, width)
+    if layout.gap == 4:
+        table = Table(expand=False, box=None, padding=(0, 2), header_style="bold")
+    else:
+        # Each cell pads only its right side; pad_edge drops it after the last column.
+        table = Table(expand=False, box=None, padding=(0, layout.gap, 0, 0), pad_edge=False, header_style="bold")
+    for column in layout.columns:
+        table.add_column(
+            _header(column, layout.units_in_cells),
+            justify="right" if column in _RIGHT else "left",
+            no_wrap=True,
         )
+    for status in statuses:
+        cells = _cells(status, layout.units_in_cells)
+        row: list[Text | str] = []
+        for column in layout.columns:
+            if column == "heater":
+                row.append(Text(cells[column], style=_colour(status.key)))
+            elif column == "state":
+                row.append(Text(cells[column], style=_STATE_STYLE.get(status.state, "")))
+            else:
+                row.append(cells[column])
+        table.add_row(*row)
     return table
 
 
 def chart(model: WatchModel, width: int = 72, height: int = 12, now: float | None = None) -> Text:
     """A chart of the last `model.window_s` seconds: actual (•) and target (─) of each hotend, the bed and chamber."""
-    keys = [k for k in model.heater_keys() if k[0] in "TBC"]
+    keys = _chart_keys(model)
     plot_width = max(width - 7, 10)
     end = now if now is not None else (model.latest_time or 0.0)
     start = end - model.window_s
@@ -117,36 +251,101 @@ def chart(model: WatchModel, width: int = 72, height: int = 12, now: float | Non
         text.append("\n")
     axis = f"-{model.window_s:.0f} s".ljust(plot_width - 3) + "now"
     text.append("      " + axis, style="dim")
-    legend = Text("      ")
-    for key in keys:
-        legend.append(f"• {heater_name(key)}  ", style=_colour(key))
-    legend.append("─ target", style="dim")
-    return Text("\n").join([text, legend])
+    return Text("\n").join([text, _legend(keys, width)])
 
 
-def footer(port: str, firmware: str, link: LinkStats) -> Text:
-    """The status line: port, firmware, polls per second, latency, and counts of timeouts and errors."""
+def _chart_keys(model: WatchModel) -> list[str]:
+    return [k for k in model.heater_keys() if k[0] in "TBC"]
+
+
+def _legend(keys: list[str], width: int) -> Text:
+    items = [Text(f"• {heater_name(key)}", style=_colour(key)) for key in keys]
+    return _flow([*items, Text("─ target", style="dim")], width, indent="      ")
+
+
+def footer(port: str, firmware: str, link: LinkStats, width: int | None = None, quit_hint: str = "q quits") -> Text:
+    """The status line: port, firmware, polls per second, latency, and counts of timeouts and errors.
+
+    Given a `width`, it breaks between its parts rather than inside one; `quit_hint` ends it (empty: left out,
+    when the key help line below says how to quit).
+    """
     latency = (
         "-"
         if link.latency_median_ms is None
         else f"{link.latency_median_ms:.1f} ms median, {link.latency_worst_ms or 0:.1f} worst"
     )
-    text = Text()
-    text.append(f"{port}", style="bold")
-    # "Marlin 2.1.2.4 (Jan  1 2024 12:00:00)": the build date only crowds the line.
-    text.append(f"  {firmware.split(' (')[0]}  ", style="dim")
-    text.append(f"{link.polls_per_s:.0f} polls/s  latency {latency}  ")
     style = "bold red" if link.timeouts or link.errors else "dim"
-    text.append(f"{link.timeouts} timeouts  {link.errors} errors", style=style)
-    text.append("  q quits", style="dim")
+    parts = [
+        Text(port, style="bold"),
+        # "Marlin 2.1.2.4 (Jan  1 2024 12:00:00)": the build date only crowds the line.
+        Text(firmware.split(" (")[0], style="dim"),
+        Text(f"{link.polls_per_s:.0f} polls/s"),
+        Text(f"latency {latency}"),
+        Text(f"{link.timeouts} timeouts  {link.errors} errors", style=style),
+    ]
+    if quit_hint:
+        parts.append(Text(quit_hint, style="dim"))
+    return _flow(parts, width)
+
+
+def controls_view(controls: WatchControls, width: int | None = None) -> Text:
+    """Under the chart: the last action's outcome (a reply, or an error in red), the input line, the key help."""
+    text = Text()
+    notice = controls.notice
+    if notice is not None:
+        style = "bold red" if notice.error else "bold"
+        text.append(f"error: {notice.title}" if notice.error else notice.title, style=style)
+        for line in notice.lines:
+            text.append("\n  " + line)
+        text.append("\n")
+    if controls.prompt is not None:
+        text.append(f"{controls.prompt}: ", style="bold cyan")
+        text.append(controls.buffer)
+        text.append("_", style="blink")  # a cursor: the terminal's own is hidden while the view is live
+        text.append("\n")
+    text.append_text(_flow([_help_item(item) for item in controls.help_items()], width))
     return text
 
 
-def watch_view(model: WatchModel, port: str, firmware: str, width: int = 80, chart_height: int = 12) -> Group:
-    """The whole live view: heater table, chart, footer."""
+def _help_item(item: str) -> Text:
+    """`h hotend` with its key in bold, so the keys stand out of the line."""
+    key, _, rest = item.partition(" ")
+    text = Text(key, style="bold")
+    if rest:
+        text.append(" " + rest, style="dim")
+    return text
+
+
+def watch_view(
+    model: WatchModel,
+    port: str,
+    firmware: str,
+    width: int = 80,
+    chart_height: int = 12,
+    *,
+    height: int | None = None,
+    controls: WatchControls | None = None,
+) -> Group:
+    """The whole live view: heater table, chart, footer, and (with `controls`) the reply area and the key help.
+
+    Everything is laid out for `width` columns (40 and up). Given the terminal's `height`, the chart takes what
+    the other parts leave (6 to 30 rows) instead of `chart_height`.
+    """
     statuses = [model.status(key) for key in model.heater_keys()]
-    parts: list[RenderableType] = [heater_table(statuses), Text(""), chart(model, width=width, height=chart_height)]
-    parts += [Text(""), footer(port, firmware, model.link())]
+    quit_hint = "q quits" if controls is None else ""
+    bottom = footer(port, firmware, model.link(), width, quit_hint=quit_hint)
+    under = controls_view(controls, width) if controls is not None else None
+    if height is not None:
+        # table, a blank line, (the chart,) its time axis and legend, a blank line, the footer
+        used = table_lines(statuses, width) + 2 + _lines(_legend(_chart_keys(model), width), width)
+        used += 1 + _lines(bottom, width)
+        if under is not None:
+            used += _lines(under, width)
+        chart_height = min(max(height - used - 1, 6), 30)  # one line spare: the cursor's line after the view
+    parts: list[RenderableType] = [heater_table(statuses, width), Text("")]
+    parts += [chart(model, width=width, height=chart_height), Text(""), bottom]
+    if under is not None:
+        parts.append(under)
     return Group(*parts)
 
 

@@ -1,8 +1,13 @@
-"""The terminal as an input: Ctrl-C and SIGTERM as events (not exceptions mid-line), and single key presses."""
+"""The terminal as an input: Ctrl-C and SIGTERM as events (not exceptions mid-line), and single key presses.
+
+Keys come as they are typed; `raw=True` keeps their case and hands an escape sequence (an arrow key, F1) over
+whole, so a program that reads typed text (watch's G-code line) can ignore it instead of seeing `[A`.
+"""
 
 from __future__ import annotations
 
 import asyncio
+import codecs
 import contextlib
 import os
 import signal
@@ -11,7 +16,9 @@ import termios
 import tty
 from collections.abc import Callable, Iterator
 
-__all__ = ["key_presses", "on_stop_signals"]
+__all__ = ["key_presses", "on_stop_signals", "split_keys"]
+
+_ESCAPE = "\x1b"
 
 
 @contextlib.contextmanager
@@ -36,12 +43,38 @@ def on_stop_signals(callback: Callable[[], None]) -> Iterator[None]:
             loop.remove_signal_handler(signum)
 
 
-@contextlib.contextmanager
-def key_presses(callback: Callable[[str], None]) -> Iterator[bool]:
-    """While active, call `callback` with each key pressed (lower case); yield whether stdin is a terminal at all.
+def split_keys(text: str) -> list[str]:
+    """Split what one read of the terminal gave into keys: one character each, an escape sequence whole.
 
-    The terminal is put in cbreak mode (keys arrive one at a time, unechoed; Ctrl-C still raises SIGINT) and its
-    mode is restored afterwards, however the block ends.
+    CSI sequences (`ESC [` parameters, then a final letter or `~`) and SS3 ones (`ESC O` and one character) are
+    one key; an ESC followed by anything else, or by nothing, is the Esc key on its own.
+    """
+    keys: list[str] = []
+    index = 0
+    while index < len(text):
+        char = text[index]
+        if char == _ESCAPE and index + 1 < len(text) and text[index + 1] in "[O":
+            end = index + 2
+            if text[index + 1] == "[":
+                # parameters and intermediates are 0x20-0x3F; the final byte is 0x40-0x7E
+                while end < len(text) and "\x20" <= text[end] <= "\x3f":
+                    end += 1
+            end = min(end + 1, len(text))
+            keys.append(text[index:end])
+            index = end
+            continue
+        keys.append(char)
+        index += 1
+    return keys
+
+
+@contextlib.contextmanager
+def key_presses(callback: Callable[[str], None], *, raw: bool = False) -> Iterator[bool]:
+    """While active, call `callback` with each key pressed; yield whether stdin is a terminal at all.
+
+    Keys are lower case, one character each; with `raw`, as typed (case kept, escape sequences whole, see
+    `split_keys`). The terminal is put in cbreak mode (keys arrive one at a time, unechoed; Ctrl-C still raises
+    SIGINT) and its mode is restored afterwards, however the block ends.
     """
     if not sys.stdin.isatty():
         yield False
@@ -49,10 +82,13 @@ def key_presses(callback: Callable[[str], None]) -> Iterator[bool]:
     fd = sys.stdin.fileno()
     saved = termios.tcgetattr(fd)
     loop = asyncio.get_running_loop()
+    # A character of several bytes may be split between two reads: decode incrementally.
+    decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")
 
     def on_readable() -> None:
         with contextlib.suppress(OSError):
-            for key in os.read(fd, 64).decode(errors="replace").lower():
+            text = decoder.decode(os.read(fd, 64))
+            for key in split_keys(text) if raw else text.lower():
                 callback(key)
 
     try:

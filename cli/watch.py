@@ -1,8 +1,13 @@
 """`marlin-temp watch`: readings arrive about every 10 ms, the screen redraws about once a second.
 
-Readings go into the `WatchModel` as they arrive (cheap); rendering happens only at the refresh interval, so
-CPU stays low on a Raspberry Pi. In a terminal the view is a rich `Live` on the alternate screen, restored on
-exit; `q` or Ctrl-C leaves. Piped, it prints one plain line (or JSON line) per refresh.
+Readings go into the `WatchModel` as they arrive (cheap); rendering happens only at the refresh interval (and
+when a key is pressed), so CPU stays low on a Raspberry Pi. In a terminal the view is a rich `Live` on the
+alternate screen, restored on exit; `q` or Ctrl-C leaves. Piped, it prints one plain line (or JSON line) per
+refresh, and only `q` (when stdin is a terminal) means anything.
+
+In the live view, keys set targets, the fan, or send a G-code line (`WatchControls` decides what a key means and
+checks targets; nothing it refuses is sent). One task performs those actions one after another, beside the
+polling, and hands each outcome back to the view: the port is held by watch, so this is where `set` runs now.
 """
 
 from __future__ import annotations
@@ -22,7 +27,18 @@ import marlin_aio
 
 from .connect import ConnectOptions, Exit, open_printer
 from .logfile import TemperatureLog
-from .model import WatchModel
+from .model import (
+    Action,
+    Notice,
+    Quit,
+    SendCommand,
+    SetFan,
+    SetTargets,
+    TargetLimits,
+    TurnOff,
+    WatchControls,
+    WatchModel,
+)
 from .render import plain_line, watch_view
 from .terminal import key_presses, on_stop_signals
 
@@ -108,6 +124,49 @@ def _json_status(model: WatchModel) -> str:
     )
 
 
+_REPLY_LINES = 8  # of a G-code reply shown under the chart; M503 prints dozens
+
+
+def _celsius(value: float) -> str:
+    return "off" if value == 0 else f"{value:g} °C"
+
+
+async def _perform(printer: marlin_aio.Printer, action: Action, model: WatchModel) -> Notice:
+    """Do what a key asked; return what the view should say about it.
+
+    Raises:
+        ValueError: the library refused the command before sending it (a G-code line that is not ASCII, too long).
+        MarlinError: as `Printer.send`.
+    """
+    if isinstance(action, SetTargets):
+        await printer.set_temperatures(hotend=action.hotend, bed=action.bed)
+        pairs = (("hotend", action.hotend), ("bed", action.bed))
+        said = ", ".join(f"{name} target {_celsius(value)}" for name, value in pairs if value is not None)
+        return Notice(f"{action.label}: {said}" if action.label else said)
+    if isinstance(action, TurnOff):
+        keys = model.heater_keys()
+        hotends = [key for key in keys if key[0] == "T" and key[1:].isdigit()]
+        # Every hotend by number when the printer reports several; otherwise the one there is.
+        for key in hotends:
+            await printer.set_temperatures(hotend=0, tool=int(key[1:]))
+        await printer.set_temperatures(
+            hotend=None if hotends else 0, bed=0 if "B" in keys else None, chamber=0 if "C" in keys else None
+        )
+        return Notice("every heater off")
+    if isinstance(action, SetFan):
+        await printer.set_fan(action.percent / 100)
+        return Notice("fan off" if action.percent == 0 else f"fan {action.percent:g} %")
+    if isinstance(action, SendCommand):
+        reply = await printer.send(action.text)
+        lines = list(reply.lines)
+        ok = f"ok {reply.ok.payload}".rstrip()
+        shown = lines[-_REPLY_LINES:]
+        if len(lines) > len(shown) or reply.lines_dropped:
+            shown.insert(0, f"({len(lines) - len(shown) + reply.lines_dropped} earlier lines not shown)")
+        return Notice(f"> {action.text}", (*shown, ok))
+    raise AssertionError(f"not an action to perform: {action!r}")
+
+
 async def _session(
     printer: marlin_aio.Printer,
     label: str,
@@ -117,10 +176,14 @@ async def _session(
     log: TemperatureLog | None,
     stop: asyncio.Event,
     deadline: float | None,
+    limits: TargetLimits,
 ) -> None:
     loop = asyncio.get_running_loop()
     live_view = console.is_terminal and not settings.json_lines
     firmware = printer.firmware.name if printer.firmware else "unknown firmware"
+    controls = WatchControls(limits)
+    actions: asyncio.Queue[Action] = asyncio.Queue()
+    wake = asyncio.Event()  # a key was pressed or an action finished: redraw now, not at the next refresh
 
     first = asyncio.Event()  # the first reading is shown as soon as it is read, not a refresh period later
 
@@ -131,43 +194,87 @@ async def _session(
             if log is not None:
                 log.add(reading)
 
+    async def perform() -> None:
+        while True:
+            action = await actions.get()
+            if isinstance(action, SendCommand):
+                # M109, G28 and the like take a while: say it went out rather than show nothing.
+                controls.notice = Notice(f"> {action.text}", ("(waiting for the reply)",))
+                wake.set()
+            try:
+                notice = await _perform(printer, action, model)
+            except (ValueError, marlin_aio.MarlinError) as exc:
+                # A lost link or a halt also ends the readings, and watch with them; until then, say it here.
+                notice = Notice(str(exc), error=True)
+            controls.finished(action, notice)
+            wake.set()
+
+    def on_key(key: str) -> None:
+        if not live_view:
+            if key.lower() == "q":  # piped: as before, q is the only key
+                stop.set()
+            return
+        action = controls.press(key, model)
+        if isinstance(action, Quit):
+            stop.set()
+        elif action is not None:
+            actions.put_nowait(action)
+        wake.set()
+
     def view() -> Text | object:
         if not model.series:
             return Text(f"{label}: waiting for the first reading...")
-        chart_height = min(max(console.height - len(model.heater_keys()) - 10, 6), 30)
-        return watch_view(model, label, firmware, width=console.width, chart_height=chart_height)
+        return watch_view(model, label, firmware, width=console.width, height=console.height, controls=controls)
 
     since = 0.0
     baseline = _Baseline.now(model, printer)  # after the handshake: `open_printer` has run it
     async with printer.poll_temperatures(settings.interval_s):
         consumer = asyncio.create_task(consume(), name="marlin-temp readings")
+        performer = asyncio.create_task(perform(), name="marlin-temp key actions")
         stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
+        waker = asyncio.create_task(wake.wait(), name="marlin-temp redraw")
         first_reading: asyncio.Task[bool] | None = asyncio.create_task(first.wait(), name="marlin-temp first reading")
         live = Live(console=console, screen=True, auto_refresh=False, transient=True) if live_view else None
         try:
             with (
                 live if live is not None else contextlib.nullcontext(),
-                key_presses(lambda key: stop.set() if key == "q" else None),
+                key_presses(on_key, raw=live_view) as keys_enabled,
             ):
+                controls.keys_enabled = keys_enabled
+                next_refresh = loop.time() + settings.refresh_s
                 while True:
-                    timeout = settings.refresh_s
+                    timeout = max(next_refresh - loop.time(), 0.0)
                     if deadline is not None:
                         timeout = min(timeout, max(deadline - loop.time(), 0.0))
-                    waiting = {consumer, stopper} if first_reading is None else {consumer, stopper, first_reading}
+                    waiting: set[asyncio.Task[object]] = {consumer, performer, stopper, waker}
+                    if first_reading is not None:
+                        waiting.add(first_reading)
                     done, _ = await asyncio.wait(waiting, timeout=timeout, return_when="FIRST_COMPLETED")
-                    if first_reading is not None and first_reading in done:
-                        first_reading = None
                     if consumer in done:
                         consumer.result()  # raises what ended the readings (link lost, printer halted)
+                    if performer in done:
+                        performer.result()  # it only ends by a bug: let it show
+                    if waker in done:
+                        wake.clear()
+                        waker = asyncio.create_task(wake.wait(), name="marlin-temp redraw")
+                    # A key redraws the view at once but leaves the refresh schedule (and the piped lines) alone.
+                    scheduled = loop.time() >= next_refresh or stopper in done
+                    if first_reading is not None and first_reading in done:
+                        first_reading = None
+                        scheduled = True
+                    if scheduled:
+                        next_refresh = loop.time() + settings.refresh_s
                     since = _update_link_stats(model, printer, since, baseline)
                     if live is not None:
                         live.update(view(), refresh=True)  # type: ignore[arg-type]
-                    elif model.series:
+                    elif model.series and (scheduled or (deadline is not None and loop.time() >= deadline)):
                         print(_json_status(model) if settings.json_lines else plain_line(model), flush=True)
                     if stopper in done or (deadline is not None and loop.time() >= deadline):
                         return
         finally:
-            tasks = [consumer, stopper] if first_reading is None else [consumer, stopper, first_reading]
+            tasks: list[asyncio.Task[object]] = [consumer, performer, stopper, waker]
+            if first_reading is not None:
+                tasks.append(first_reading)
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
@@ -185,12 +292,13 @@ async def watch_printer(options: ConnectOptions, settings: WatchSettings, consol
     deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
     started = loop.time()
     log = TemperatureLog(settings.log_path) if settings.log_path is not None else None
+    limits = TargetLimits(options.max_hotend_celsius, options.max_bed_celsius)
     with on_stop_signals(stop.set):
         async with log if log is not None else contextlib.nullcontext():
             while True:
                 try:
                     async with open_printer(options, errors) as (printer, label):
-                        await _session(printer, label, model, settings, console, log, stop, deadline)
+                        await _session(printer, label, model, settings, console, log, stop, deadline, limits)
                         break
                 except (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError) as exc:
                     if not settings.reconnect or stop.is_set():
