@@ -171,7 +171,7 @@ async def _follow(
     rate = RateWindow()
     asking = cancelling = False
     outcome = _Outcome.DONE
-    done = asyncio.ensure_future(handle.wait())
+    done = asyncio.create_task(handle.wait())
     last_plain = -_PLAIN_EVERY_S
     live = Live(console=console, auto_refresh=False) if console.is_terminal else None
 
@@ -192,11 +192,14 @@ async def _follow(
             rate.clear()  # a pause or a wait for heat is not part of the printing rate
         return status
 
+    # What ends the loop: the print, or once a cancel is under way, the cancel (which waits for what the printer
+    # has, perhaps a long M109, then sends the script). The loop goes on meanwhile, so ! still works.
+    ending: asyncio.Task[marlin_aio.PrintProgress] = done
     try:
         with key_presses(pressed.put_nowait) as keys, live if live is not None else contextlib.nullcontext():
             keys_help = KEYS_HELP if keys else None
-            while not done.done():
-                waiters = [done, asyncio.ensure_future(interrupted.wait()), asyncio.ensure_future(pressed.get())]
+            while not ending.done():
+                waiters = [ending, asyncio.ensure_future(interrupted.wait()), asyncio.ensure_future(pressed.get())]
                 finished, _ = await asyncio.wait(waiters, timeout=0.25, return_when="FIRST_COMPLETED")
                 for waiter in waiters[1:]:
                     if waiter not in finished:
@@ -207,26 +210,23 @@ async def _follow(
                     printer.emergency_stop()
                     outcome = _Outcome.STOPPED
                     break
+                start_cancel = False
                 if waiters[1] in finished:
                     interrupted.clear()
                     if asking or not keys:
                         # A second Ctrl-C, or no terminal to ask on: cancel at once.
-                        outcome, cancelling = _Outcome.CANCELLED, True
-                        await handle.cancel(script)
-                        break
-                    asking = True
+                        start_cancel = not cancelling
+                    asking = not start_cancel and not cancelling
                 elif key is not None and asking:
                     asking = False
-                    if key == "y":
-                        outcome, cancelling = _Outcome.CANCELLED, True
-                        if live is not None:
-                            live.update(print_view(frame(keys_help)), refresh=True)
-                        await handle.cancel(script)
-                        break
-                elif key == "p":
+                    start_cancel = key == "y"
+                elif key == "p" and not cancelling:
                     handle.pause()
-                elif key == "r":
+                elif key == "r" and not cancelling:
                     handle.resume()
+                if start_cancel:
+                    outcome, cancelling = _Outcome.CANCELLED, True
+                    ending = asyncio.create_task(handle.cancel(script))
                 status = frame(keys_help)
                 if live is not None:
                     live.update(print_view(status), refresh=True)
@@ -237,10 +237,11 @@ async def _follow(
                 live.update(print_view(frame(None)), refresh=True)
         if outcome is _Outcome.STOPPED:
             with contextlib.suppress(marlin_aio.PrinterHaltedError):
-                await done
-        elif outcome is _Outcome.DONE:
-            done.result()  # raises what ended the print
+                await ending
+        else:
+            ending.result()  # raises what ended the print (or the cancel)
     finally:
-        if not done.done():
-            done.cancel()
+        for future in {done, ending}:
+            if not future.done():
+                future.cancel()
     return outcome

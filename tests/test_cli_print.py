@@ -388,3 +388,21 @@ def test_print_help_explains_the_keys_and_what_to_check_before_from_line() -> No
     assert "--from-line" in text
     for check in ("still stuck to the bed", "homing in the header (G28)", "starts a layer", "absolute extrusion"):
         assert check in text, check
+
+
+@needs_tmux
+def test_ctrl_c_in_a_terminal_asks_on_a_line_of_its_own_and_y_cancels(tmux: Tmux, tmp_path: Path) -> None:
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("G4 P5\n" * 30_000)
+    command = f"{sys.executable} -m marlin_temp print {gcode} --sim; echo MARLIN-EXIT=$?; sleep 600"
+    tmux.run("new-session", "-d", "-s", "w", "-x", "150", "-y", "30", command)
+    tmux.wait_for(lambda s: done_lines(s) > 20, "the print to run")
+    tmux.run("send-keys", "-t", "w", "C-c")
+    asked = tmux.wait_for(lambda s: "cancel the print?" in s, "the question")
+    question = next(line for line in asked.splitlines() if "cancel the print?" in line)
+    assert question.startswith("cancel the print?")  # not drawn over the bar's label
+    assert any(line.startswith("part.gcode") and "lines" in line for line in asked.splitlines())
+    tmux.run("send-keys", "-t", "w", "y")
+    after = tmux.wait_for(lambda s: "MARLIN-EXIT=" in s, "print to exit")
+    assert f"MARLIN-EXIT={int(Exit.INTERRUPTED)}" in after, after
+    assert "cancelled after line" in after and "heaters and fan turned off" in after
