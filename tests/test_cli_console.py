@@ -115,7 +115,7 @@ async def test_send_an_unknown_code_exits_1_after_running_the_rest(pty_sim: Simu
 
 
 async def test_send_a_timeout_exits_9_and_sends_no_more(pty_sim: SimulatorServer) -> None:
-    result = await invoke("send", "M105 T9", "M118 E1 after", "--port", pty_sim.url, "--timeout", "0.5")
+    result = await invoke("send", "M105 T9", "M118 E1 after", "--port", pty_sim.url, "--timeout", "2")
     assert result.exit_code == Exit.TIMEOUT
     assert "M105 T9" in one_line(result.stderr)
     assert "M118 E1 after" not in pty_sim.printer.executed

@@ -167,14 +167,14 @@ async def test_a_relative_move_is_not_split_by_another_tasks_command(
 
 
 async def test_homing_on_a_board_without_keepalives_outlasts_the_client_timeout() -> None:
-    # No `busy: processing` while homing takes 20 simulated seconds (1 s here): only the long wait covers it.
-    config = SimulatorConfig(keepalive_interval_s=0, homing_s=20.0)
+    # No `busy: processing` while homing takes 60 simulated seconds (3 s here): only the long wait covers it.
+    config = SimulatorConfig(keepalive_interval_s=0, homing_s=60.0)
     async with (
         serve_pty(config, time_scale=TIME_SCALE) as server,
-        marlin_aio.connect(server.url, timeout_s=0.5) as printer,
+        marlin_aio.connect(server.url, timeout_s=1.0) as printer,
     ):
         await printer.move(x=50, z=10)
         reply = await printer.home()
-        assert reply.latency_s > 0.5
+        assert reply.latency_s > 1.0  # the client's own timeout would have given up
         assert printer.stats.timeouts == 0
         assert await printer.position() == pytest.approx({"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0})
