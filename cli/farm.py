@@ -55,7 +55,8 @@ class PrinterSpec:
 @dataclass(frozen=True)
 class FarmEvent:
     """Something that happened to one printer: `kind` is one of connected, connection_lost, connect_failed,
-    halted, thermal_runaway, reset; `message` says it for people."""
+    halted, thermal_runaway, reset, print_started, print_finished, print_cancelled, print_failed; `message` says
+    it for people."""
 
     printer: str
     kind: str
@@ -79,6 +80,25 @@ class FarmPrinter:
     """The open printer while the link is up (to send it commands), else None."""
     url: str | None = None
     """Where it is reached: the port, or the simulator's pty."""
+    print_handle: marlin_aio.PrintHandle | None = None
+    """The print started over MQTT, if any (finished or not)."""
+    print_file: str | None = None
+
+    def print_status(self) -> dict[str, object] | None:
+        """The print's progress for the state topic, or None when no print was started."""
+        handle = self.print_handle
+        if handle is None:
+            return None
+        progress = handle.progress
+        total = progress.source_bytes_total
+        percent = round(100 * progress.source_bytes_acked / total, 1) if total else None
+        return {
+            "file": self.print_file,
+            "state": progress.state.value,
+            "percent": percent,
+            "lines_acked": progress.lines_acked,
+            "last_file_line": progress.last_source_line,
+        }
 
     @property
     def name(self) -> str:
@@ -130,8 +150,9 @@ class Farm:
             for server in self.sims.values():
                 await server.aclose()
 
-    def _emit(self, farm_printer: FarmPrinter, kind: str, message: str) -> None:
-        if kind in ("connection_lost", "halted", "thermal_runaway", "connect_failed"):
+    def emit(self, farm_printer: FarmPrinter, kind: str, message: str) -> None:
+        """Tell the listener that `kind` happened to `farm_printer` (also for events from outside: a print)."""
+        if kind in ("connection_lost", "halted", "thermal_runaway", "connect_failed", "print_failed"):
             farm_printer.last_error = message
         try:
             self._on_event(FarmEvent(farm_printer.name, kind, message))
@@ -155,10 +176,10 @@ class Farm:
                         if isinstance(exc, marlin_aio.ThermalRunawayError)
                         else ("halted" if isinstance(exc, marlin_aio.PrinterHaltedError) else "connection_lost")
                     )
-                    self._emit(farm_printer, kind, str(exc))
+                    self.emit(farm_printer, kind, str(exc))
                 elif not reported_down:
                     # Said once per outage, not at every retry.
-                    self._emit(farm_printer, "connect_failed", str(exc))
+                    self.emit(farm_printer, "connect_failed", str(exc))
                 reported_down = True
             finally:
                 farm_printer.link_up = False
@@ -203,13 +224,13 @@ class Farm:
         farm_printer.connections += 1
         farm_printer.firmware = printer.firmware.name if printer.firmware is not None else None
         farm_printer.last_error = None
-        self._emit(
+        self.emit(
             farm_printer,
             "connected",
             f"connected to {farm_printer.url} ({farm_printer.firmware or 'firmware unknown'})",
         )
         if printer.reset_on_open:
-            self._emit(
+            self.emit(
                 farm_printer, "reset", "the board reset when the port was opened; targets set earlier were cleared"
             )
         stop = printer.on_reading(farm_printer.on_reading)
@@ -224,7 +245,7 @@ class Farm:
                         now_resets = printer.stats.resets
                         if now_resets > resets:
                             resets = now_resets
-                            self._emit(
+                            self.emit(
                                 farm_printer,
                                 "reset",
                                 "the printer reset (it printed 'start'); its targets were cleared",

@@ -31,6 +31,7 @@ import ssl
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import aiomqtt
@@ -38,6 +39,7 @@ import aiomqtt
 import marlin_aio
 
 from .farm import Farm, FarmEvent, FarmPrinter
+from .farmcommands import CommandError, FarmCommand, parse_command, run_command
 
 __all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug"]
 
@@ -86,6 +88,10 @@ class BridgeSettings:
     discovery_prefix: str = "homeassistant"
     backoff_start_s: float = 1.0
     backoff_max_s: float = 30.0
+    allow_commands: bool = False
+    """Take commands on `PREFIX/NAME/command` (off unless asked for)."""
+    allowed_dir: Path | None = None
+    """With commands: the directory prints may be started from (None: no prints over MQTT)."""
 
 
 def heater_slug(name: str) -> str:
@@ -108,6 +114,15 @@ def telemetry_payload(reading: marlin_aio.TemperatureReading) -> dict[str, Any]:
     return {"time": round(reading.wall_time_s, 3), "heaters": heaters}
 
 
+def _command_id(payload: bytes) -> object:
+    """The id of a refused command, when its payload is JSON enough to have one (for the answer)."""
+    try:
+        body = json.loads(payload)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return body.get("id") if isinstance(body, dict) else None
+
+
 def _finite(value: float | None) -> float | None:
     return value if value is not None and math.isfinite(value) else None
 
@@ -126,7 +141,9 @@ class Bridge:
         self.broker = broker
         self.settings = settings
         self._telemetry: deque[tuple[str, str]] = deque(maxlen=TELEMETRY_BUFFER)
-        self._events: deque[FarmEvent] = deque()
+        # Events and command answers: QoS 1, each kept until the broker acknowledged it.
+        self._reliable: deque[tuple[str, str]] = deque()
+        self._group: asyncio.TaskGroup | None = None
         self._wake = asyncio.Event()
         self._last_sampled: dict[str, int] = {}
         self._states: dict[str, str] = {}
@@ -155,13 +172,15 @@ class Bridge:
 
     def on_event(self, event: FarmEvent) -> None:
         """Queue a printer's event for delivery (the farm's listener); past the bound the oldest is lost."""
-        if len(self._events) >= EVENT_QUEUE:
-            lost = self._events.popleft()
+        payload = {"event": event.kind, "message": event.message, "time": round(event.time_s, 3)}
+        self._queue_reliable(self.topic(event.printer, "events"), payload)
+
+    def _queue_reliable(self, topic: str, payload: dict[str, Any]) -> None:
+        if len(self._reliable) >= EVENT_QUEUE:
+            lost_topic, lost = self._reliable.popleft()
             self.events_lost += 1
-            _log.warning(
-                "event queue full (%d): lost %s %s from %s", EVENT_QUEUE, lost.kind, lost.message, lost.printer
-            )
-        self._events.append(event)
+            _log.warning("event queue full (%d): lost %s on %s", EVENT_QUEUE, lost, lost_topic)
+        self._reliable.append((topic, json.dumps(payload)))
         self._wake.set()
 
     def _sample(self) -> None:
@@ -185,7 +204,7 @@ class Bridge:
         return {
             "link": "up" if farm_printer.link_up else "down",
             "firmware": farm_printer.firmware,
-            "print": None,
+            "print": farm_printer.print_status(),
             "last_error": farm_printer.last_error,
             "port": farm_printer.url or farm_printer.spec.port,
         }
@@ -196,6 +215,7 @@ class Bridge:
         """Sample at the rate and publish whenever connected; reconnect to the broker with backoff. Runs until
         cancelled."""
         async with asyncio.TaskGroup() as group:
+            self._group = group  # commands run here: a broker that goes away does not cancel a G28 half-way
             group.create_task(self._sampler(), name="telemetry sampler")
             group.create_task(self._connection_loop(), name="broker connection")
 
@@ -225,11 +245,15 @@ class Bridge:
                     if self.on_connected is not None:
                         self.on_connected()
                     try:
-                        await self._publish_forever(client)
+                        async with asyncio.TaskGroup() as session:
+                            session.create_task(self._publish_forever(client), name="publisher")
+                            if self.settings.allow_commands:
+                                session.create_task(self._listen(client), name="command listener")
                     except asyncio.CancelledError:
                         await self._say_goodbye(client)
                         raise
-            except aiomqtt.MqttError as exc:
+            except* aiomqtt.MqttError as group:
+                exc = group.exceptions[0]
                 if self.connected:
                     _log.warning("lost the broker at %s: %s; reconnecting", self.broker.address, exc)
                 else:
@@ -240,6 +264,50 @@ class Bridge:
                 self._announced.clear()
             await asyncio.sleep(delay)
             delay = min(delay * 2, self.settings.backoff_max_s)
+
+    async def _listen(self, client: aiomqtt.Client) -> None:
+        """Take commands from `PREFIX/+/command`; each is checked here and run in a task of its own."""
+        await client.subscribe(f"{self.settings.prefix}/+/command", qos=1)
+        async for message in client.messages:
+            parts = message.topic.value.split("/")
+            if len(parts) < 3 or parts[-1] != "command":
+                continue
+            name = parts[-2]
+            payload = message.payload if isinstance(message.payload, bytes) else str(message.payload).encode()
+            try:
+                command = parse_command(name, payload, self.farm.printers, self.settings.allowed_dir)
+            except CommandError as exc:
+                self._answer(name, _command_id(payload), error=str(exc))
+                continue
+            assert self._group is not None
+            self._group.create_task(self._run(command), name=f"command {command.action} on {name}")
+
+    async def _run(self, command: FarmCommand) -> None:
+        farm_printer = self.farm.printers[command.printer]
+        try:
+            result = await run_command(command, farm_printer)
+        except (CommandError, ValueError, RuntimeError, marlin_aio.MarlinError) as exc:
+            self._answer(command.printer, command.id, error=str(exc))
+            return
+        self._answer(command.printer, command.id, result=result)
+        if command.action == "print" and farm_printer.print_handle is not None:
+            self.farm.emit(farm_printer, "print_started", f"printing {farm_printer.print_file}")
+            progress = await farm_printer.print_handle.wait()
+            kind = {"done": "print_finished", "cancelled": "print_cancelled"}.get(progress.state.value, "print_failed")
+            self.farm.emit(
+                farm_printer,
+                kind,
+                f"{farm_printer.print_file}: {progress.state.value} at file line {progress.last_source_line}",
+            )
+
+    def _answer(self, printer: str, command_id: object, *, result: Any = None, error: str | None = None) -> None:
+        answer: dict[str, Any] = {"id": command_id, "ok": error is None}
+        if error is None:
+            answer["result"] = result
+        else:
+            answer["error"] = error
+            _log.warning("command for %s refused or failed: %s", printer, error)
+        self._queue_reliable(self.topic(printer, "response"), answer)
 
     def _client(self) -> aiomqtt.Client:
         broker = self.broker
@@ -272,11 +340,10 @@ class Bridge:
             self._wake.clear()
             await self._publish_states(client)
             await self._publish_discovery(client)
-            while self._events:
-                event = self._events[0]
-                payload = {"event": event.kind, "message": event.message, "time": round(event.time_s, 3)}
-                await client.publish(self.topic(event.printer, "events"), json.dumps(payload), qos=1)
-                self._events.popleft()  # only once the broker has it: a broken link leaves it queued
+            while self._reliable:
+                topic, payload_text = self._reliable[0]
+                await client.publish(topic, payload_text, qos=1)
+                self._reliable.popleft()  # only once the broker has it: a broken link leaves it queued
                 self.published += 1
             while self._telemetry:
                 name, payload_text = self._telemetry.popleft()
@@ -349,6 +416,46 @@ class Bridge:
                         },
                     )
                 )
+        if self.settings.allow_commands:
+            spec = self.farm.printers[name].spec
+            for heater in heaters:
+                slug = heater_slug(heater)
+                limit = {"bed": spec.max_bed_celsius, "chamber": spec.max_chamber_celsius}.get(
+                    heater, spec.max_hotend_celsius
+                )
+                command = json.dumps({"action": "set_target", "heater": heater, "celsius": 0})
+                messages.append(
+                    (
+                        f"{prefix}/number/{node}/{slug}_target/config",
+                        base
+                        | {
+                            "name": f"{heater} target",
+                            "unique_id": f"{node}_{slug}_target_set",
+                            "command_topic": self.topic(name, "command"),
+                            # Home Assistant fills in the number: the same check as any command applies.
+                            "command_template": command.replace('"celsius": 0', '"celsius": {{ value }}'),
+                            "state_topic": self.topic(name, "telemetry"),
+                            "value_template": f"{{{{ value_json.heaters['{heater}'].target }}}}",
+                            "min": 0,
+                            "max": limit,
+                            "step": 1,
+                            "mode": "box",
+                            "unit_of_measurement": "°C",
+                        },
+                    )
+                )
+            messages.append(
+                (
+                    f"{prefix}/button/{node}/emergency_stop/config",
+                    base
+                    | {
+                        "name": "emergency stop",
+                        "unique_id": f"{node}_emergency_stop",
+                        "command_topic": self.topic(name, "command"),
+                        "payload_press": json.dumps({"action": "emergency_stop"}),
+                    },
+                )
+            )
         messages.append(
             (
                 f"{prefix}/sensor/{node}/print_progress/config",

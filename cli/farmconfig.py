@@ -63,7 +63,8 @@ def _spec(values: dict[str, Any], where: str) -> PrinterSpec:
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
         if not isinstance(value, kind) or isinstance(value, bool):
-            raise ValueError(f"{where}: {key} must be a {kind.__name__}, got {value!r}")
+            what = {int: "a whole number", float: "a number", str: "a string"}[kind]
+            raise ValueError(f"{where}: {key} must be {what}, got {value!r}")
         checked[key] = value
     if "name" not in checked or "port" not in checked:
         raise ValueError(f"{where}: every printer needs a name and a port")

@@ -310,3 +310,130 @@ async def test_a_killed_bridge_shows_offline_through_its_last_will(broker: Broke
             process.kill()  # no goodbye: only the broker can say it went
             await process.wait()
         await sub.until(lambda: sub.texts("marlin/bridge/availability")[-1:] == ["offline"], "the Last Will")
+
+
+def not_polls(commands: list[str]) -> list[str]:
+    """What a printer ran beyond the farm's own polling and start-up (M105, M155, M110, M115)."""
+    return [c for c in commands if c.split()[0] not in ("M105", "M155", "M110", "M115")]
+
+
+async def command(sub: Subscriber, client: aiomqtt.Client, printer: str, payload: str, id_: int) -> dict[str, Any]:
+    """Publish a command and wait for its answer (matched by id)."""
+    await client.publish(f"marlin/{printer}/command", payload, qos=1)
+    topic = f"marlin/{printer}/response"
+    await sub.until(lambda: any(a.get("id") == id_ for a in sub.payloads(topic)), f"the answer to {payload}")
+    answer: dict[str, Any] = next(a for a in sub.payloads(topic) if a.get("id") == id_)
+    return answer
+
+
+async def test_commands_run_and_bad_payloads_are_refused_with_nothing_written(broker: Broker, tmp_path: Path) -> None:
+    jobs = tmp_path / "jobs"
+    jobs.mkdir()
+    (jobs / "small.gcode").write_text("G28\nG1 X10 Y10 F3000\nG1 X20\n")
+    (tmp_path / "secret.gcode").write_text("G28\n")
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_a,
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_b,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="commander") as commander,
+    ):
+        specs = [PrinterSpec("a", sim_a.url, poll_interval_s=0.05), PrinterSpec("b", sim_b.url, poll_interval_s=0.05)]
+        farm, bridge, events = farm_and_bridge(specs, broker.port, allow_commands=True, allowed_dir=jobs)
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up and farm.printers["b"].link_up, "both connected")
+            before = (not_polls(list(sim_a.printer.executed)), not_polls(list(sim_b.printer.executed)))
+            refused = {
+                1: ("a", "{not json"),
+                2: ("nobody", '{"id": 2, "action": "gcode", "command": "M105"}'),
+                3: ("a", '{"id": 3, "action": "set_temperatures", "hotend": 900}'),
+                4: ("a", '{"id": 4, "action": "set_temperatures", "bed": "abc"}'),
+                5: ("a", '{"id": 5, "action": "gcode", "command": "M104 S200\\nM112"}'),
+                6: ("a", '{"id": 6, "action": "print", "path": "../secret.gcode"}'),
+                7: ("a", '{"id": 7, "action": "launch"}'),
+                8: ("a", '{"id": 8, "action": "gcode", "commands": ["M104 S50", "G1 X\\u00e9"]}'),
+            }
+            for id_, (printer, payload) in refused.items():
+                if id_ == 1:
+                    await commander.publish("marlin/a/command", payload, qos=1)
+                    await sub.until(lambda: bool(sub.payloads("marlin/a/response")), "the answer to bad JSON")
+                    answer = sub.payloads("marlin/a/response")[0]
+                    assert answer["ok"] is False and "not JSON" in answer["error"]
+                    continue
+                answer = await command(sub, commander, printer, payload, id_)
+                assert answer["ok"] is False, answer
+            errors = {a["id"]: a["error"] for t in ("a", "nobody") for a in sub.payloads(f"marlin/{t}/response")}
+            assert "no printer named 'nobody'" in errors[2]
+            assert "above" in errors[3] or "260" in errors[3]
+            assert "abc" in errors[4]
+            assert "line break" in errors[5]
+            assert "outside the allowed directory" in errors[6]
+            assert "unknown action" in errors[7]
+            assert "non-ASCII" in errors[8]
+            # Nothing of any refused command reached either printer (M104 S50 came before the bad line: not sent).
+            assert (not_polls(list(sim_a.printer.executed)), not_polls(list(sim_b.printer.executed))) == before
+
+            answer = await command(sub, commander, "a", '{"id": 10, "action": "set_temperatures", "hotend": 50}', 10)
+            assert answer == {"id": 10, "ok": True, "result": {"targets": {"hotend": 50.0}}}
+            answer = await command(
+                sub, commander, "b", '{"id": 11, "action": "set_target", "heater": "bed", "celsius": 40}', 11
+            )
+            assert answer["ok"] is True
+            answer = await command(sub, commander, "a", '{"id": 12, "action": "gcode", "command": "M114"}', 12)
+            assert answer["ok"] is True and answer["result"]["replies"][0]["lines"][0].startswith("X:")
+            assert not_polls(list(sim_a.printer.executed))[-2:] == ["M104 S50", "M114"]
+            assert not_polls(list(sim_b.printer.executed))[-1:] == ["M140 S40"]
+            await sub.until(
+                lambda: any(t["heaters"]["hotend"]["target"] == 50 for t in sub.payloads("marlin/a/telemetry")),
+                "the new target in the telemetry",
+            )
+
+            answer = await command(sub, commander, "b", '{"id": 13, "action": "print", "path": "small.gcode"}', 13)
+            assert answer["ok"] is True
+            await sub.until(
+                lambda: [e["event"] for e in sub.payloads("marlin/b/events")][-1:] == ["print_finished"],
+                "the print to finish",
+            )
+            assert [c for c in not_polls(list(sim_b.printer.executed)) if c != "M140 S40"][-3:] == [
+                "G28",
+                "G1 X10 Y10 F3000",
+                "G1 X20",
+            ]
+            await sub.until(
+                lambda: any((s["print"] or {}).get("state") == "done" for s in sub.payloads("marlin/b/state")),
+                "the state to show the print done",
+            )
+
+            # With commands on, Home Assistant gets a number per heater target and the emergency stop button, whose
+            # payloads are the commands above.
+            configs = {t: json.loads(p) for t, p, _ in sub.messages if t.startswith("homeassistant/")}
+            number = configs["homeassistant/number/marlin_a/hotend_target/config"]
+            assert number["command_topic"] == "marlin/a/command" and number["max"] == 260
+            assert json.loads(number["command_template"].replace("{{ value }}", "42"))["celsius"] == 42
+            button = configs["homeassistant/button/marlin_a/emergency_stop/config"]
+            assert json.loads(button["payload_press"]) == {"action": "emergency_stop"}
+
+            answer = await command(sub, commander, "a", '{"id": 14, "action": "emergency_stop"}', 14)
+            assert answer["ok"] is True
+            await sub.until(lambda: "halted" in [e["event"] for e in sub.payloads("marlin/a/events")], "a halted")
+            assert "b" not in {event.printer for event in events if event.kind == "halted"}
+
+
+async def test_commands_are_off_unless_allowed(broker: Broker) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="commander") as commander,
+    ):
+        farm, bridge, _ = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port)
+        async with running(farm, bridge):
+            await sub.until(lambda: len(sub.payloads("marlin/a/telemetry")) >= 2, "telemetry")
+            await commander.publish("marlin/a/command", '{"id": 1, "action": "gcode", "command": "G28"}', qos=1)
+            # Our own publish is delivered to the subscriber after the bridge has had it; more telemetry after that
+            # means the bridge went on without answering.
+            await sub.until(lambda: bool(sub.texts("marlin/a/command")), "the command on the broker")
+            seen = len(sub.payloads("marlin/a/telemetry"))
+            await sub.until(lambda: len(sub.payloads("marlin/a/telemetry")) > seen + 3, "telemetry after it")
+    assert sub.payloads("marlin/a/response") == []
+    assert "G28" not in list(sim.printer.executed)
+    configs = [t for t, _, _ in sub.messages if t.startswith("homeassistant/")]
+    assert not any("/number/" in t or "/button/" in t for t in configs)  # no controls that would not work
