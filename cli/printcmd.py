@@ -230,6 +230,8 @@ async def _follow(
                 status = frame(keys_help)
                 if live is not None:
                     live.update(print_view(status), refresh=True)
+                elif status.question is not None and waiters[1] in finished:
+                    print(status.question, flush=True)  # keys on a terminal, output to a pipe: ask plainly
                 elif time.monotonic() - last_plain >= _PLAIN_EVERY_S:
                     last_plain = time.monotonic()
                     print(plain_status(status), flush=True)
