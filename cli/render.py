@@ -1,6 +1,8 @@
 """Rendering: pure functions from the watch model to rich renderables and plain text.
 
 Nothing here touches the printer or the terminal; tests render into `Console(record=True, width=...)`.
+Every part is laid out for the width it is given, from 40 columns up: the table takes the widest of its layouts
+that fits, and the lines made of several parts (footer, legend, key help) break between parts, never inside one.
 """
 
 from __future__ import annotations
