@@ -14,6 +14,7 @@ something changed, so an idle printer does not flood the screen.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -360,16 +361,23 @@ class _Console:
             refresh_interval=0.5,
             style=_STYLE,
         )
-        async with self.printer.poll_temperatures(self.settings.poll_interval_s):
-            follower = asyncio.create_task(self.follow_temperatures(), name="console temperatures")
-            try:
-                await self.prompt_loop(self.session)
-            finally:
-                follower.cancel()
-                for task in list(self.running):
-                    task.cancel()  # one still waiting to be written never is; one written runs on the printer
-                await asyncio.gather(follower, *self.running, return_exceptions=True)
-                await asyncio.gather(*self.printing, return_exceptions=True)  # what is still to print, printed
+        polling = contextlib.AsyncExitStack()
+        await polling.enter_async_context(self.printer.poll_temperatures(self.settings.poll_interval_s))
+        follower = asyncio.create_task(self.follow_temperatures(), name="console temperatures")
+        try:
+            await self.prompt_loop(self.session)
+        finally:
+            abandoned = bool(self.running)
+            follower.cancel()
+            for task in list(self.running):
+                task.cancel()  # one still waiting to be written never is; one written runs on the printer
+            await asyncio.gather(follower, *self.running, return_exceptions=True)
+            await asyncio.gather(*self.printing, return_exceptions=True)  # what is still to print, printed
+            # Stopping the polls turns M155 off, which queues behind a command still running on the printer (a
+            # long dwell, a heat-up): not worth a wait for that. Unsent, it is never written.
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(1.0 if abandoned else None):
+                    await polling.aclose()
         if self.failure is not None:
             raise self.failure
         return Exit.HALTED if self.halted else Exit.OK

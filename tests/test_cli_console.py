@@ -272,6 +272,22 @@ async def test_f12_halts_the_printer_at_once_even_while_a_long_command_runs(
 
 
 @needs_tmux
+async def test_ctrl_d_leaves_at_once_while_a_long_command_runs(
+    pty_sim: SimulatorServer, tmux_server: Tmux, tmp_path: Path
+) -> None:
+    tmux = tmux_server
+    start_terminal(tmux, pty_sim.url, tmp_path, "--no-history")
+    await wait_for(tmux, lambda s: "marlin>" in s, "the prompt")
+    typed(tmux, "G4 S3600", "Enter")  # 3 minutes at this simulator's speed, longer than any wait below
+    await wait_for(tmux, lambda s: "running: 1" in s, "the dwell to be under way")
+    typed(tmux, "", "C-d")
+    screen = await wait_for(tmux, lambda s: "MARLIN-EXIT=" in s, "the console to quit")
+    assert "MARLIN-EXIT=0" in screen
+    assert "left without waiting for: G4 S3600" in screen
+    assert not pty_sim.printer.halted  # leaving is not a stop: the printer finishes what it was given
+
+
+@needs_tmux
 async def test_the_console_ends_with_exit_8_when_the_printer_goes_away(
     pty_sim: SimulatorServer, tmux_server: Tmux, tmp_path: Path
 ) -> None:
