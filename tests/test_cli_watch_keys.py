@@ -375,3 +375,16 @@ def test_watch_help_lists_the_keys() -> None:
     text = " ".join(result.output.split())
     for words in ("1 PLA", "2 PETG", "--max-hotend", "--max-bed", "G-code line", "40 columns"):
         assert words in text
+
+
+@needs_tmux
+def test_without_a_terminal_on_stdin_the_live_view_has_no_keys(tmux: Tmux) -> None:
+    command = (
+        f"echo h2 | {sys.executable} -m marlin_temp watch --sim --sim-speed 20 --refresh 0.3 --duration 4; "
+        "echo MARLIN-EXIT=$?; sleep 600"
+    )
+    tmux.run("new-session", "-d", "-s", "w", "-x", "100", "-y", "40", sized(command, 100, 40))
+    screen = tmux.wait_for(lambda s: "polls/s" in s, "the live view")
+    assert "Ctrl-C quits (keys need a terminal on stdin)" in screen and "h hotend" not in screen
+    after = tmux.wait_for(lambda s: "MARLIN-EXIT=" in s, "watch to end after --duration")
+    assert "MARLIN-EXIT=0" in after
