@@ -394,7 +394,8 @@ _PRINT_HELP = "\n\n".join(
         "not hit the part (printers that home Z on the bed bring the nozzle down on it: raise Z or edit the "
         "header); line N starts a layer (its Z move; slicers mark layers with comments such as ;LAYER:), as moves "
         "the printer had buffered may not have run; and with absolute extrusion (M82) E goes on from where it "
-        "was: the header's G92 E0 resets it, so the layer must set E itself (G92 E...) or you add that line.",
+        "was: the header's G92 E0 resets it, so the layer must set E itself (G92 E...) or you add that line (a "
+        "warning names the line to add when it finds the jump).",
     )
 )
 

@@ -94,6 +94,8 @@ def _announce(plan: GcodePlan, errors: Console) -> None:
     if plan.transliterated_count > len(plan.transliterated):
         more = plan.transliterated_count - len(plan.transliterated)
         errors.print(f"[yellow]warning:[/] and {more} more lines with non-ASCII text, sent the same way")
+    if plan.extrusion_warning is not None:
+        errors.print(f"[yellow]warning:[/] {escape(plan.extrusion_warning)}", highlight=False)
     if plan.from_line is not None and plan.first_move_line is not None:
         if plan.from_line <= plan.first_move_line:
             errors.print(

@@ -74,6 +74,7 @@ class GcodePlan:
     # The heater waits, keyed by the file line of the command sent just before each (0: it is the first), which is
     # what a print's progress reports as the last line answered while the wait runs.
     heat_waits: dict[int, HeatWait] = field(default_factory=dict)
+    extrusion_warning: str | None = None  # with from_line: the resumed part would extrude from the header's E
 
     def lines(self) -> Iterator[str]:
         """The file's lines as they are to be sent: selected, transliterated, skipped ones empty.
@@ -119,15 +120,18 @@ def plan_print(path: Path, from_line: int | None = None) -> GcodePlan:
     changed: list[tuple[int, str, str]] = []
     changed_count = 0
     waits: dict[int, HeatWait] = {}
+    extrusion = _Extrusion(from_line, first_move) if from_line is not None and first_move is not None else None
     with path.open(encoding="utf-8", errors="replace") as source:
         for number, raw in enumerate(source, 1):
             command = marlin_aio.strip_comment(raw)
             if not command:
                 continue
             last_command_line = number
+            code = _code(command)
+            if extrusion is not None:
+                extrusion.follow(number, code, command)
             if not plan._selected(number):
                 continue
-            code = _code(command)
             if not command.isascii():
                 if code not in _TEXT_COMMANDS:
                     raise ValueError(
@@ -161,7 +165,59 @@ def plan_print(path: Path, from_line: int | None = None) -> GcodePlan:
         tuple(changed),
         changed_count,
         waits,
+        extrusion.warning if extrusion is not None else None,
     )
+
+
+class _Extrusion:
+    """Follows E through the file, to warn when `--from-line` would resume absolute extrusion from the header's E.
+
+    Resuming at a layer of a file with absolute E (M82) goes wrong quietly: the header's `G92 E0` sets E to 0, and
+    the layer's first extruding move then pushes out all the filament of the layers skipped. A layer that sets E
+    itself (`G92 E...`) is fine.
+    """
+
+    def __init__(self, from_line: int, first_move: int) -> None:
+        self.from_line = from_line
+        self.first_move = first_move
+        self.absolute = True  # Marlin starts in M82
+        self.e = 0.0  # where E stands, as the file has it
+        self.header_e: float | None = None  # the last G92 E of the header
+        self.warning: str | None = None
+        self._settled = from_line <= first_move  # the whole file runs: nothing to check
+
+    def follow(self, number: int, code: str, command: str) -> None:
+        """Take the next command of the file (skipped or not)."""
+        if self._settled:
+            return
+        if code in ("M82", "G90"):
+            self.absolute = True
+        elif code in ("M83", "G91"):
+            self.absolute = False
+        elif code not in _MOVES and code != "G92":
+            return
+        match = _CODE.match(command)
+        parameters = _PARAMETER.findall(command[match.end() :] if match else "")
+        e = next((value for letter, value in parameters if letter.upper() == "E"), None)
+        if e is None:
+            return
+        value = float(e)
+        if code == "G92":
+            self.e = value
+            self.header_e = value if number < self.first_move else self.header_e
+            self._settled = number >= self.from_line  # the resumed part sets E itself
+            return
+        if number < self.from_line:
+            self.e = value if self.absolute else self.e + value
+            return
+        self._settled = True
+        if self.absolute and self.header_e is not None and value - self.header_e > 1.0:
+            self.warning = (
+                f"the first extruding move from line {self.from_line} on (line {number}) goes to E{value:g} with "
+                f"absolute extrusion, but the header's G92 E{self.header_e:g} sets E to {self.header_e:g}: it would "
+                f"push out {value - self.header_e:g} mm of filament at once. E stood at {self.e:g} before line "
+                f"{self.from_line}: put 'G92 E{self.e:g}' there, or resume at a layer that sets E itself"
+            )
 
 
 def _first_move(path: Path) -> int | None:

@@ -406,3 +406,20 @@ def test_ctrl_c_in_a_terminal_asks_on_a_line_of_its_own_and_y_cancels(tmux: Tmux
     after = tmux.wait_for(lambda s: "MARLIN-EXIT=" in s, "print to exit")
     assert f"MARLIN-EXIT={int(Exit.INTERRUPTED)}" in after, after
     assert "cancelled after line" in after and "heaters and fan turned off" in after
+
+
+def test_from_line_warns_when_absolute_extrusion_would_resume_from_the_headers_e(tmp_path: Path) -> None:
+    header = "M82\nG28\nG92 E0\n"
+    layers = "G1 Z0.2\nG1 X1 E10\nG1 X2 E20\n;LAYER:1\nG1 Z0.4\nG1 X3 E30\nG1 X4 E40\n"
+    gcode = tmp_path / "absolute.gcode"
+    gcode.write_text(header + layers, encoding="utf-8")
+    warning = plan_print(gcode, from_line=8).extrusion_warning
+    assert warning is not None
+    assert "goes to E30" in warning and "push out 30 mm" in warning and "'G92 E20'" in warning
+    # A layer that sets E itself, relative extrusion, or the whole file: nothing to warn about.
+    gcode.write_text(header + layers.replace(";LAYER:1\n", ";LAYER:1\nG92 E20\n"), encoding="utf-8")
+    assert plan_print(gcode, from_line=8).extrusion_warning is None
+    gcode.write_text(header.replace("M82", "M83") + layers, encoding="utf-8")
+    assert plan_print(gcode, from_line=8).extrusion_warning is None
+    gcode.write_text(header + layers, encoding="utf-8")
+    assert plan_print(gcode, from_line=2).extrusion_warning is None
