@@ -36,7 +36,7 @@ import marlin_aio
 from marlin_aio import TemperatureReading, command_code, command_timeout_s, heater_name
 
 from .connect import ConnectOptions, Exit, open_printer
-from .sendcmd import EMERGENCY_STOP_NOTE, check_command, reply_lines, unknown_command
+from .sendcmd import check_command, emergency_stop_notes, reply_lines, unknown_command
 
 __all__ = [
     "EMERGENCY_STOP_KEY",
@@ -267,7 +267,7 @@ class _Console:
             self.say(f"error: {exc}", "class:error")
             return
         self.halted = True
-        self.say(EMERGENCY_STOP_NOTE, "class:stop")
+        self.show(lambda: [("class:stop", note) for note in emergency_stop_notes(self.printer.capabilities)])
 
     def handle(self, text: str) -> None:
         """Act on one entered line: a word of the console's, the emergency stop, or a command for the printer."""

@@ -7,7 +7,7 @@ is not queued behind the others: it goes out at once as the emergency stop (`Pri
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from rich.console import Console
 
@@ -16,12 +16,29 @@ from marlin_aio import MAX_COMMAND_BYTES, command_code, command_timeout_s, valid
 
 from .connect import ConnectOptions, Exit, UsageProblem, open_printer
 
-__all__ = ["EMERGENCY_STOP_NOTE", "check_command", "check_commands", "reply_lines", "send_commands", "unknown_command"]
+__all__ = [
+    "check_command",
+    "check_commands",
+    "emergency_stop_notes",
+    "reply_lines",
+    "send_commands",
+    "unknown_command",
+]
 
 #: What a line number and checksum add to a command on the wire, at their longest while a console session lasts.
 _NUMBERING = len("N99999 *255")
 
-EMERGENCY_STOP_NOTE = "emergency stop sent (M112): the printer halted; reset it (or power it off and on) to go on"
+
+def emergency_stop_notes(capabilities: Mapping[str, bool]) -> list[str]:
+    """What to tell the user once M112 is written; a board that said (M115) it has no EMERGENCY_PARSER reads it
+    only when its turn comes, after the commands it already has, so the user must know to cut the power."""
+    notes = ["emergency stop sent (M112): the printer halts; reset it (or power it off and on) to go on"]
+    if capabilities.get("EMERGENCY_PARSER") is False:
+        notes.append(
+            "this firmware has no EMERGENCY_PARSER: it acts on M112 only after the commands it already holds; "
+            "if it must stop now, cut its power"
+        )
+    return notes
 
 
 def check_command(text: str) -> str:
@@ -89,7 +106,8 @@ async def send_commands(options: ConnectOptions, commands: Sequence[str], consol
                 console.print(f"> {command}", style="bold", markup=False)
             if command_code(command) == "M112":
                 printer.emergency_stop()
-                console.print(EMERGENCY_STOP_NOTE, style="bold red", markup=False)
+                for note in emergency_stop_notes(printer.capabilities):
+                    console.print(note, style="bold red", markup=False)
                 continue
             reply = await printer.send(command, timeout_s=command_timeout_s(command, options.timeout_s))
             for line in reply_lines(reply):

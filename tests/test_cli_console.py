@@ -16,13 +16,14 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from conftest import TIME_SCALE
 from prompt_toolkit.completion import CompleteEvent
 from prompt_toolkit.document import Document
 from test_cli_terminal import Tmux
 from typer.testing import CliRunner, Result
 
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
-from marlin_aio.simulator import SimulatorServer
+from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.connect import Exit
 from marlin_temp.console import GcodeCompleter, default_history_path, temperature_line
 from marlin_temp.main import app
@@ -125,9 +126,18 @@ async def test_send_m112_is_the_emergency_stop_and_what_follows_exits_7(pty_sim:
     result = await invoke("send", "M112", "G28", "--port", pty_sim.url)
     assert result.exit_code == Exit.HALTED
     assert "emergency stop sent" in result.stdout
+    assert "EMERGENCY_PARSER" not in result.stdout  # this board acts on M112 as it arrives: no warning
     assert "M112" in one_line(result.stderr)  # G28 was refused: the printer is halted
     await wait_until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
     assert "G28" not in pty_sim.printer.executed
+
+
+async def test_send_m112_warns_when_the_firmware_has_no_emergency_parser() -> None:
+    async with serve_pty(SimulatorConfig(emergency_parser=False), time_scale=TIME_SCALE) as sim:
+        result = await invoke("send", "M112", "--port", sim.url)
+        assert result.exit_code == Exit.OK, result.output
+        assert "no EMERGENCY_PARSER" in result.stdout and "cut its power" in result.stdout
+        await wait_until(lambda: sim.printer.halted, "the simulated printer to halt")  # its turn came at once
 
 
 def test_send_help_explains_checks_and_exit_codes() -> None:
@@ -198,6 +208,13 @@ async def wait_for(tmux: Tmux, condition: Callable[[str], bool], what: str) -> s
     return await asyncio.to_thread(tmux.wait_for, condition, what)
 
 
+def at_an_empty_prompt(screen: str) -> bool:
+    """The last prompt on the screen is empty: a new line editor is up (keys typed while the last one was closing
+    can go to the closing one, so a test waits for this before typing on)."""
+    prompts = [line.rstrip() for line in screen.splitlines() if line.startswith("marlin>")]
+    return bool(prompts) and prompts[-1] == "marlin>"
+
+
 def typed(tmux: Tmux, text: str, *keys: str) -> None:
     if text:
         tmux.run("send-keys", "-t", "w", "-l", text)  # literally: no key names inside G-code
@@ -226,6 +243,7 @@ async def test_terminal_runs_commands_shows_replies_hides_polls_and_keeps_histor
     typed(tmux, "M11")  # completion while typing: the codes with what they do
     await wait_for(tmux, lambda s: "report position" in s and "endstop states" in s, "the completion menu")
     typed(tmux, "", "C-c")  # Ctrl-C drops the line: M11 is never sent
+    await wait_for(tmux, at_an_empty_prompt, "a fresh prompt")
     typed(tmux, "M114", "Enter")
     await wait_for(tmux, lambda s: "X:0.00 Y:0.00 Z:0.00" in s, "the position")
     assert not any(command.startswith("M11 ") or command == "M11" for command in pty_sim.printer.executed)
@@ -236,15 +254,21 @@ async def test_terminal_runs_commands_shows_replies_hides_polls_and_keeps_histor
     history = (tmp_path / "marlin-temp" / "history").read_text()
     assert "M118 E1 hello console" in history and "M114" in history
 
-    # The next session starts with that history: Up brings back the last command.
-    tmux.run("kill-server")
-    start_terminal(tmux, pty_sim.url, tmp_path)
-    await wait_for(tmux, lambda s: "marlin>" in s, "the second session's prompt")
-    typed(tmux, "", "Up")
-    await wait_for(tmux, lambda s: "marlin> M114" in s, "the last command from the history")
-    typed(tmux, "", "C-c")
-    typed(tmux, "", "C-d")
-    await wait_for(tmux, lambda s: "MARLIN-EXIT=0" in s, "the second session to quit")
+    # The next session starts with that history: Up brings back the last command. (A terminal of its own: a
+    # tmux server that was just killed may still hold its socket.)
+    second = Tmux()
+    try:
+        start_terminal(second, pty_sim.url, tmp_path)
+        await wait_for(second, lambda s: "marlin>" in s, "the second session's prompt")
+        typed(second, "", "Up")
+        await wait_for(second, lambda s: "marlin> M114" in s, "the last command from the history")
+        typed(second, "", "C-c")
+        await wait_for(second, at_an_empty_prompt, "a fresh prompt")
+        typed(second, "", "C-d")
+        await wait_for(second, lambda s: "MARLIN-EXIT=0" in s, "the second session to quit")
+    finally:
+        kill = ["tmux", "-L", second.socket, "kill-server"]
+        await asyncio.to_thread(subprocess.run, kill, capture_output=True, check=False)
 
 
 @needs_tmux
@@ -269,6 +293,21 @@ async def test_f12_halts_the_printer_at_once_even_while_a_long_command_runs(
     typed(tmux, "", "C-d")
     screen = await wait_for(tmux, lambda s: "MARLIN-EXIT=" in s, "the console to quit")
     assert f"MARLIN-EXIT={int(Exit.HALTED)}" in screen
+
+
+@needs_tmux
+@pytest.mark.parametrize("typed_stop", ["!", "m112 ; stop"])
+async def test_typing_the_stop_halts_the_printer_too(
+    pty_sim: SimulatorServer, tmux_server: Tmux, tmp_path: Path, typed_stop: str
+) -> None:
+    tmux = tmux_server
+    start_terminal(tmux, pty_sim.url, tmp_path, "--no-history")
+    await wait_for(tmux, lambda s: "marlin>" in s, "the prompt")
+    typed(tmux, typed_stop, "Enter")
+    await wait_until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
+    await wait_for(tmux, lambda s: "emergency stop sent" in s and "HALTED" in s, "the stop to show")
+    typed(tmux, "", "C-d")
+    await wait_for(tmux, lambda s: f"MARLIN-EXIT={int(Exit.HALTED)}" in s, "the console to quit with 7")
 
 
 @needs_tmux
