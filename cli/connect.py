@@ -11,7 +11,6 @@ from rich.console import Console
 
 import marlin_aio
 from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS
-from marlin_aio.simulator import SimulatorConfig, serve_pty
 
 __all__ = ["EXIT_CODES_HELP", "ConnectOptions", "Exit", "UsageProblem", "exit_code_for", "open_printer"]
 
@@ -120,6 +119,9 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
         MarlinError: opening or the handshake failed.
     """
     if options.sim:
+        # Imported here: a command on a real printer (and every --help) need not load the simulator.
+        from marlin_aio.simulator import SimulatorConfig, serve_pty
+
         async with (
             serve_pty(SimulatorConfig(), time_scale=options.sim_speed) as server,
             options.printer(server.url, options.baud or marlin_aio.DEFAULT_BAUDRATE) as printer,
@@ -132,11 +134,24 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
         try:
             printer = options.printer(port, baud)
             await printer.open()
-        except marlin_aio.HandshakeError:
+        except marlin_aio.HandshakeError as exc:
             if index + 1 < len(rates):
                 console.print(f"no answer at {baud} baud, trying {rates[index + 1]}", style="dim")
                 continue
+            if len(rates) > 1:
+                # The library's hint names the other common rate, which was tried already.
+                tried = " and ".join(str(rate) for rate in rates)
+                raise marlin_aio.HandshakeError(
+                    f"no answer from {port} at {tried} baud (is it the printer's port, and is the printer on?); "
+                    f"at {baud}: {exc}",
+                    step=exc.step,
+                ) from exc
             raise
+        if printer.reset_on_open:
+            # Boards reset by DTR on the first open after plugging in; a user who set targets before must know.
+            console.print(
+                "note: the board reset when the port was opened; targets set earlier were cleared", style="yellow"
+            )
         try:
             yield printer, port
         finally:

@@ -8,14 +8,16 @@ async function the tests can call too. Every failure ends as one line on stderr 
 from __future__ import annotations
 
 import asyncio
+import os
 import sys
-from collections.abc import Coroutine
+from collections.abc import Coroutine, Sequence
 from pathlib import Path
 from typing import Annotated, Any, NoReturn, TypeVar
 
 import typer
 from rich.console import Console
 from rich.markup import escape
+from typer.core import TyperGroup
 
 import marlin_aio
 from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, check_target
@@ -24,7 +26,56 @@ from .connect import EXIT_CODES_HELP, ConnectOptions, Exit, UsageProblem, exit_c
 
 __all__ = ["app"]
 
+
+class _Commands(TyperGroup):
+    """The command group, showing on/off options as bare flags in `--help` (typer lists `--sim <bool>` otherwise,
+    which reads as if a value were needed)."""
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:  # Any: click's types differ between typer releases
+        command = super().get_command(ctx, cmd_name)
+        if command is not None:
+            for param in command.get_params(ctx):
+                if getattr(param, "is_flag", False) and getattr(param, "metavar", "") is None:
+                    param.metavar = ""
+        return command
+
+    def main(
+        self,
+        args: Sequence[str] | None = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        windows_expand_args: bool = True,
+        **extra: Any,
+    ) -> Any:
+        """Run the command line; a usage error (a bad value, an unknown option) is one line on stderr, exit 2."""
+        kwargs = {"args": args, "prog_name": prog_name, "complete_var": complete_var} | extra
+        kwargs["windows_expand_args"] = windows_expand_args
+        if not standalone_mode:
+            return super().main(standalone_mode=False, **kwargs)
+        try:
+            outcome = super().main(standalone_mode=False, **kwargs)
+        except _CLICK_EXCEPTION as exc:
+            if type(exc).__name__ == "NoArgsIsHelpError":
+                exc.show()  # type: ignore[attr-defined]  # `marlin-temp` alone shows the help
+            else:
+                ctx = getattr(exc, "ctx", None)
+                where = f" ({ctx.command_path} --help lists the options)" if ctx is not None else ""
+                message = exc.format_message()  # type: ignore[attr-defined]
+                _stderr().print(f"[bold red]error:[/] {escape(message)}{escape(where)}", markup=True)
+            sys.exit(getattr(exc, "exit_code", 2))
+        except typer.Abort:
+            _stderr().print("aborted")
+            sys.exit(1)
+        sys.exit(outcome if isinstance(outcome, int) else 0)
+
+
+# typer 0.29 carries its own copy of click and older releases use click itself: its ClickException either way.
+_CLICK_EXCEPTION: type[Exception] = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
+
+
 app = typer.Typer(
+    cls=_Commands,
     name="marlin-temp",
     help="Watch, set and log the temperatures of a Marlin 3D printer. Try it with --sim: no printer needed.",
     epilog=EXIT_CODES_HELP,
@@ -50,6 +101,12 @@ def run(main: Coroutine[Any, Any, _T]) -> _T:
     """Run an async command body; map errors to one line and an exit code, Ctrl-C to 130."""
     try:
         return asyncio.run(main)
+    except BrokenPipeError:
+        # The reader went away (`marlin-temp watch | head`): not an error. Point stdout at /dev/null so the flush at
+        # exit does not fail on the closed pipe again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        raise typer.Exit(int(Exit.OK)) from None
     except KeyboardInterrupt:
         _stderr().print("interrupted", style="dim")
         raise typer.Exit(int(Exit.INTERRUPTED)) from None
@@ -75,9 +132,22 @@ PortOption = Annotated[
         show_default=False,
     ),
 ]
+
+
+def _check_baud(value: int | None) -> int | None:
+    if value is not None and value <= 0:
+        raise typer.BadParameter(f"must be a positive number of bits per second, such as 250000 or 115200, got {value}")
+    return value
+
+
 BaudOption = Annotated[
     int | None,
-    typer.Option("--baud", "-b", help="Baud rate. Default 250000, falling back to 115200 when auto-detecting."),
+    typer.Option(
+        "--baud",
+        "-b",
+        help="Baud rate. Default 250000, falling back to 115200 when auto-detecting.",
+        callback=_check_baud,
+    ),
 ]
 SimOption = Annotated[bool, typer.Option("--sim", help="Use the built-in simulated printer (no hardware needed).")]
 SimSpeedOption = Annotated[
@@ -596,6 +666,125 @@ _BENCH_HELP = "\n\n".join(
 )
 
 
+# ------------------------------------------------------------------------------------------- farm
+
+_FARM_HELP = (
+    "Run many printers in one process and publish them to an MQTT broker, with Home Assistant discovery."
+    "\n\n"
+    "Give the printers as --port NAME=PORT (repeatable), --config FILE (TOML: a \\[defaults] table and "
+    "\\[\\[printer]] tables with name, port, baud, poll_interval_s, max_hotend_celsius, ...), or --sim N for N "
+    "simulated printers. Each printer reconnects on its own, with backoff, when it is unplugged, halts or does not "
+    "answer; the others go on."
+    "\n\n"
+    "Per printer NAME it publishes PREFIX/NAME/telemetry (each heater's actual, target and power in percent, at "
+    "--rate), PREFIX/NAME/state (retained JSON), PREFIX/NAME/events (QoS 1, queued while the broker is away) and "
+    "PREFIX/NAME/availability (retained); and PREFIX/bridge/availability with a Last Will, so a crashed bridge "
+    "shows offline. The broker password comes from $MARLIN_MQTT_PASSWORD or --password-file, never from the "
+    "command line."
+    "\n\n"
+    "Try it: install Mosquitto (apt install mosquitto mosquitto-clients), run 'marlin-temp farm --sim 5', and "
+    "watch with: mosquitto_sub -v -t 'marlin/#'"
+)
+
+
+@app.command("farm", help=_FARM_HELP, epilog=EXIT_CODES_HELP)
+def farm(
+    ports: Annotated[
+        list[str] | None, typer.Option("--port", "-p", help="A printer as NAME=PORT (or just PORT); repeatable.")
+    ] = None,
+    config: Annotated[Path | None, typer.Option("--config", help="TOML file listing the printers.")] = None,
+    sim: Annotated[int, typer.Option("--sim", help="Add N simulated printers (sim1, sim2, ...).", min=0)] = 0,
+    sim_speed: SimSpeedOption = 1.0,
+    baud: BaudOption = None,
+    poll_interval: Annotated[
+        float, typer.Option("--poll-interval", help="Seconds between M105 polls of each printer.", min=0.005)
+    ] = 0.1,
+    broker: Annotated[str, typer.Option("--broker", help="MQTT broker as HOST[:PORT].")] = "127.0.0.1:1883",
+    username: Annotated[str | None, typer.Option("--username", help="Broker user name.")] = None,
+    password_file: Annotated[
+        Path | None, typer.Option("--password-file", help="File with the broker password (or $MARLIN_MQTT_PASSWORD).")
+    ] = None,
+    client_id: Annotated[str | None, typer.Option("--client-id", help="MQTT client id (default: a random one).")] = (
+        None
+    ),
+    tls_ca: Annotated[Path | None, typer.Option("--tls-ca", help="CA certificate: connect with TLS (port 8883).")] = (
+        None
+    ),
+    tls_cert: Annotated[Path | None, typer.Option("--tls-cert", help="Client certificate for TLS.")] = None,
+    tls_key: Annotated[Path | None, typer.Option("--tls-key", help="Client certificate's key.")] = None,
+    prefix: Annotated[str, typer.Option("--prefix", help="Topic prefix.")] = "marlin",
+    rate: Annotated[
+        float, typer.Option("--rate", help="Telemetry messages per second and printer (at most the poll rate).")
+    ] = 2.0,
+    discovery: Annotated[
+        bool, typer.Option("--discovery/--no-discovery", help="Publish Home Assistant MQTT discovery.")
+    ] = True,
+    discovery_prefix: Annotated[str, typer.Option("--discovery-prefix", help="Home Assistant's prefix.")] = (
+        "homeassistant"
+    ),
+    allow_commands: Annotated[
+        bool,
+        typer.Option(
+            "--allow-commands",
+            help="Take commands on PREFIX/NAME/command (set targets, G-code, prints, emergency stop); off by default.",
+        ),
+    ] = False,
+    allowed_dir: Annotated[
+        Path | None,
+        typer.Option("--allowed-dir", help="With --allow-commands: prints may be started from files in this folder."),
+    ] = None,
+    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+) -> None:
+    from .farmbridge import BridgeSettings
+    from .farmcmd import FarmOptions, broker_settings, run_farm
+    from .farmconfig import check_unique, load_config, specs_from_options
+
+    if duration is not None and not duration > 0:
+        fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
+    if not (rate > 0 and rate <= 1 / poll_interval):
+        fail(f"--rate must be above 0 and at most the poll rate ({1 / poll_interval:g}/s), got {rate:g}", Exit.USAGE)
+    for name, value in (("--prefix", prefix), ("--discovery-prefix", discovery_prefix)):
+        if not value or any(c in value for c in "#+ ") or value.startswith("/") or value.endswith("/"):
+            fail(f"{name} {value!r}: a topic prefix without '#', '+', spaces or a leading or trailing '/'", Exit.USAGE)
+    try:
+        specs = load_config(config) if config is not None else []
+        if ports or sim or not specs:
+            options_specs = specs_from_options(
+                ports or [],
+                sim,
+                baud=baud or marlin_aio.DEFAULT_BAUDRATE,
+                poll_interval_s=poll_interval,
+                sim_speed=sim_speed,
+            )
+            specs = check_unique(specs + options_specs)
+        broker_at = broker_settings(
+            broker,
+            username=username,
+            password_file=password_file,
+            client_id=client_id,
+            tls_ca=tls_ca,
+            tls_cert=tls_cert,
+            tls_key=tls_key,
+        )
+    except UsageProblem as exc:
+        fail(str(exc), exc.code)
+    except ValueError as exc:
+        fail(str(exc), Exit.USAGE)
+    except OSError as exc:
+        fail(f"{config}: {exc.strerror or exc}", Exit.USAGE)
+    if allowed_dir is not None and (not allow_commands or not allowed_dir.is_dir()):
+        fail(f"--allowed-dir {allowed_dir}: needs --allow-commands and an existing folder", Exit.USAGE)
+    settings = BridgeSettings(
+        prefix=prefix,
+        rate_hz=rate,
+        discovery=discovery,
+        discovery_prefix=discovery_prefix,
+        allow_commands=allow_commands,
+        allowed_dir=allowed_dir,
+    )
+    run(run_farm(specs, broker_at, settings, FarmOptions(duration_s=duration), _stderr()))
+
+
 @app.command("bench", help=_BENCH_HELP, epilog=EXIT_CODES_HELP)
 def bench(
     count: Annotated[int, typer.Option("--count", "-n", help="M105 round trips in the latency run.", min=1)] = 500,
@@ -701,7 +890,5 @@ def simulate(ctx: typer.Context) -> None:
     """
     from marlin_aio.simulator.__main__ import main as simulator_main
 
-    # --speed is this command's older name for marlin-sim's --time-scale.
-    args = ["--time-scale" if arg == "--speed" else arg for arg in ctx.args]
-    args = [f"--time-scale={arg.removeprefix('--speed=')}" if arg.startswith("--speed=") else arg for arg in args]
-    raise typer.Exit(simulator_main(args, prog="marlin-temp sim"))
+    # --sim-speed, as in every other command (the older --speed and --time-scale are still accepted).
+    raise typer.Exit(simulator_main(ctx.args, prog="marlin-temp sim"))

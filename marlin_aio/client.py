@@ -29,7 +29,7 @@ from marlin_aio.connection import Connection, Reply
 from marlin_aio.errors import ConnectionLostError, MarlinError, TemperatureTimeoutError
 from marlin_aio.events import Capability, Event, FirmwareInfo, Ok
 from marlin_aio.feed import TemperatureFeed
-from marlin_aio.handshake import handshake, send_until_processed
+from marlin_aio.handshake import BAUD_RATES, handshake, send_until_processed
 from marlin_aio.heaters import HeaterLimits, describe_heaters, target_commands, targets_reached, wanted_targets
 from marlin_aio.link import Link
 from marlin_aio.linkstate import LinkState
@@ -44,8 +44,6 @@ from marlin_aio.trace import Trace
 
 __all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "PrintHandle", "Printer", "connect"]
 
-#: The rates Marlin boards use, the usual first: a host that does not know tries them in this order.
-BAUD_RATES = (250_000, 115_200)
 DEFAULT_BAUDRATE = BAUD_RATES[0]
 
 _log = logging.getLogger("marlin_aio")
@@ -122,6 +120,8 @@ class Printer:
         self._poller = Poller(self._link, timeout_s, self._poll_slow_down)
         self._print: PrintHandle | None = None
         self._connecting = False  # the handshake is under way
+        self._reset_on_open = False
+        self._failure_waiters: list[asyncio.Future[MarlinError]] = []
 
     def _new_link(self) -> Link:
         connection = Connection(numbered=self._numbered, max_in_flight=self._window[0], rx_buffer_bytes=self._window[1])
@@ -130,9 +130,17 @@ class Printer:
             self.baudrate,
             connection,
             on_event=self._on_event,
-            on_failure=self._feed.fail,
+            on_failure=self._failed,
             after_results=self._after_results,
         )
+
+    def _failed(self, error: MarlinError) -> None:
+        # The printer halted or the link went away: readers of temperatures and `wait_for_failure()` learn of it.
+        self._feed.fail(error)
+        waiters, self._failure_waiters = self._failure_waiters, []
+        for waiter in waiters:
+            if not waiter.done():
+                waiter.set_result(error)
 
     # ------------------------------------------------------------------------------------------- lifecycle
 
@@ -166,7 +174,7 @@ class Printer:
             return
         self._connecting = True
         try:
-            await handshake(
+            self._reset_on_open = await handshake(
                 self._link, timeout_s=self.timeout_s, boot_quiet_s=self._boot_quiet_s, password=self._password
             )
         except BaseException:
@@ -175,6 +183,18 @@ class Printer:
         finally:
             self._connecting = False
         _log.info("connected to %s: %s", self.port, self.firmware.name if self.firmware else "unknown firmware")
+        if self._reset_on_open:
+            _log.warning("the board on %s reset when the port was opened; targets set earlier were cleared", self.port)
+
+    @property
+    def reset_on_open(self) -> bool:
+        """True if the board reset as this connection opened the port (it printed its boot banner): targets, fan
+        and other settings made by an earlier connection are gone.
+
+        Boards whose USB bridge wires DTR to reset do this on the first open after plugging in; later opens by
+        this library leave DTR raised (HUPCL cleared) so they keep running, where the platform allows it.
+        """
+        return self._reset_on_open
 
     async def close(self) -> None:
         """Close the port. Commands still waiting fail with `ConnectionLostError`; safe to call twice."""
@@ -589,6 +609,23 @@ class Printer:
     def is_connected(self) -> bool:
         """True while the link is open and has not been lost."""
         return self._link.is_open
+
+    async def wait_for_failure(self) -> MarlinError:
+        """Wait until the printer halts or the link is lost or closed, and return why (the error commands fail with
+        from then on); at once if that has happened already. For a supervisor that keeps a printer connected: no
+        task wakes up per reading while it waits.
+        """
+        if self._link.lost is not None:
+            return self._link.lost
+        if self._link.halted is not None:
+            return self._link.halted
+        waiter: asyncio.Future[MarlinError] = self._link.loop.create_future()
+        self._failure_waiters.append(waiter)
+        try:
+            return await waiter
+        finally:
+            if waiter in self._failure_waiters:
+                self._failure_waiters.remove(waiter)
 
     # ------------------------------------------------------------------------------------------- events
 
