@@ -165,9 +165,6 @@ PasswordOption = Annotated[
     ),
 ]
 # In `set`, --timeout bounds the wait for the targets (as users expect there); the answer timeout moves aside.
-AnswerTimeoutOption = Annotated[
-    float, typer.Option("--answer-timeout", help="Seconds to wait for each answer from the printer.", min=0.1)
-]
 MaxHotendOption = Annotated[float, typer.Option("--max-hotend", help="Highest hotend target allowed (C).")]
 MaxBedOption = Annotated[float, typer.Option("--max-bed", help="Highest bed target allowed (C).")]
 MaxChamberOption = Annotated[float, typer.Option("--max-chamber", help="Highest chamber target allowed (C).")]
@@ -245,6 +242,8 @@ def watch(
         max_bed_celsius=max_bed,
         password=password,
     )
+    if duration is not None and not duration > 0:
+        fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
     settings = WatchSettings(
         interval_s=interval,
         refresh_s=refresh,
@@ -303,8 +302,8 @@ def set_targets(
         ),
     ] = False,
     tolerance: Annotated[float, typer.Option("--tolerance", help="With --wait: how close counts (C).", min=0)] = 2.0,
-    timeout: Annotated[
-        float | None, typer.Option("--timeout", help="With --wait: give up after this many seconds.", min=0.1)
+    wait_timeout: Annotated[
+        float | None, typer.Option("--wait-timeout", help="With --wait: give up after this many seconds.", min=0.1)
     ] = None,
     cool_to: Annotated[
         float,
@@ -314,7 +313,7 @@ def set_targets(
     baud: BaudOption = None,
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
-    answer_timeout: AnswerTimeoutOption = 10.0,
+    timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
     max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
     max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
@@ -335,7 +334,7 @@ def set_targets(
         off=off,
         wait=wait,
         tolerance_c=tolerance,
-        timeout_s=timeout,
+        timeout_s=wait_timeout,
         cool_to_c=cool_to,
     )
     if not off and request.hotend is None and request.bed is None and request.chamber is None:
@@ -345,7 +344,7 @@ def set_targets(
         baud=baud,
         sim=sim,
         sim_speed=sim_speed,
-        timeout_s=answer_timeout,
+        timeout_s=timeout,
         max_hotend_celsius=max_hotend,
         max_bed_celsius=max_bed,
         max_chamber_celsius=max_chamber,

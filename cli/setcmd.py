@@ -266,7 +266,7 @@ async def set_printer_targets(options: ConnectOptions, request: SetRequest, cons
 
     Raises:
         UsageProblem: a target names a heater the printer does not have (nothing is sent).
-        MarlinError: opening, sending or waiting failed (TemperatureTimeoutError after --timeout).
+        MarlinError: opening, sending or waiting failed (TemperatureTimeoutError after --wait-timeout).
     """
     async with open_printer(options, errors) as (printer, label):
         heaters = PrinterHeaters.of(await printer.read_temperatures())

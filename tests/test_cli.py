@@ -150,7 +150,7 @@ def test_set_wait_heats_up_and_returns() -> None:
 
 
 def test_set_wait_timeout_exits_9() -> None:
-    result = runner.invoke(app, ["set", *FAST, "--hotend", "250", "--wait", "--timeout", "0.5"])
+    result = runner.invoke(app, ["set", *FAST, "--hotend", "250", "--wait", "--wait-timeout", "0.5"])
     assert result.exit_code == 9, result.output
     assert "did not reach" in result.output
 

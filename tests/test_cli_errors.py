@@ -41,7 +41,7 @@ async def test_a_busy_port_exits_4() -> None:
 
 def test_a_silent_port_exits_6(dead_pty: tuple[int, str]) -> None:
     _, path = dead_pty
-    result = runner.invoke(app, ["set", "--port", path, "--baud", "250000", "--answer-timeout", "0.5", "--bed", "50"])
+    result = runner.invoke(app, ["set", "--port", path, "--baud", "250000", "--timeout", "0.5", "--bed", "50"])
     assert result.exit_code == Exit.NO_ANSWER
     assert "nothing was received" in one_line(result.output)
 
@@ -59,9 +59,7 @@ def test_garbage_suggests_the_other_baud_rate(dead_pty: tuple[int, str]) -> None
     noise = threading.Thread(target=babble, daemon=True)
     noise.start()
     try:
-        result = runner.invoke(
-            app, ["set", "--port", path, "--baud", "250000", "--answer-timeout", "0.5", "--bed", "50"]
-        )
+        result = runner.invoke(app, ["set", "--port", path, "--baud", "250000", "--timeout", "0.5", "--bed", "50"])
     finally:
         stop.set()
         noise.join()
@@ -81,7 +79,7 @@ def test_after_trying_both_rates_the_hint_names_both_and_suggests_neither_again(
     noise.start()
     try:
         # No --baud: 250000 is tried, then 115200.
-        result = runner.invoke(app, ["set", "--port", path, "--answer-timeout", "0.5", "--bed", "50"])
+        result = runner.invoke(app, ["set", "--port", path, "--timeout", "0.5", "--bed", "50"])
     finally:
         stop.set()
         noise.join()
@@ -258,3 +256,18 @@ def test_usage_errors_are_one_line_and_exit_2(args: list[str]) -> None:
     assert result.exit_code == Exit.USAGE, result.output
     line = one_line(result.output)
     assert line.startswith("error:") and "--help" in line
+
+
+def test_every_command_calls_the_answer_timeout_timeout_and_set_calls_its_wait_limit_wait_timeout() -> None:
+    for command in ("watch", "set", "log", "print", "send", "terminal", "bench"):
+        shown = " ".join(runner.invoke(app, [command, "--help"], env={"COLUMNS": "200"}).output.split())
+        assert "--timeout" in shown and "--answer-timeout" not in shown, command
+    shown = " ".join(runner.invoke(app, ["set", "--help"], env={"COLUMNS": "200"}).output.split())
+    assert "--wait-timeout" in shown
+
+
+@pytest.mark.parametrize("duration", ["0", "-1"])
+def test_watch_refuses_a_duration_that_is_not_positive(duration: str) -> None:
+    result = runner.invoke(app, ["watch", "--sim", "--duration", duration])
+    assert result.exit_code == Exit.USAGE
+    assert "--duration must be a positive number" in one_line(result.output)

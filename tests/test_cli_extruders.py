@@ -81,7 +81,7 @@ def test_one_hotend_keeps_its_plain_name() -> None:
 
 async def test_set_tool_waits_on_that_hotend() -> None:
     async with serve_pty(SimulatorConfig(extruders=2), time_scale=50) as sim:
-        args = ["set", "--port", sim.url, "--tool", "1", "--hotend", "120", "--wait", "--timeout", "20"]
+        args = ["set", "--port", sim.url, "--tool", "1", "--hotend", "120", "--wait", "--wait-timeout", "20"]
         result = await asyncio.to_thread(runner.invoke, app, args)
     assert result.exit_code == Exit.OK, result.output
     assert "hotend 1 target 120 C" in result.output
@@ -90,7 +90,20 @@ async def test_set_tool_waits_on_that_hotend() -> None:
 
 async def test_watch_shows_each_hotend_of_a_two_extruder_printer() -> None:
     async with serve_pty(SimulatorConfig(extruders=2), time_scale=50) as sim:
-        heat = ["set", "--port", sim.url, "--tool", "1", "--hotend", "120", "--bed", "50", "--wait", "--timeout", "20"]
+        heat = [
+            "set",
+            "--port",
+            sim.url,
+            "--tool",
+            "1",
+            "--hotend",
+            "120",
+            "--bed",
+            "50",
+            "--wait",
+            "--wait-timeout",
+            "20",
+        ]
         assert (await asyncio.to_thread(runner.invoke, app, heat)).exit_code == Exit.OK
         plain = await asyncio.to_thread(
             runner.invoke, app, ["watch", "--port", sim.url, "--duration", "1.2", "--refresh", "0.4"]

@@ -98,7 +98,7 @@ def test_the_confirmation_is_plain_when_the_printer_set_what_was_asked() -> None
 async def test_wait_waits_for_the_confirmed_target_not_the_asked_one() -> None:
     # 300 asked, 260 set: waiting for 300 would never end.
     code, output, _ = await set_on(
-        SimulatorConfig(), "--hotend", "300", "--max-hotend", "300", "--wait", "--timeout", "60", time_scale=100
+        SimulatorConfig(), "--hotend", "300", "--max-hotend", "300", "--wait", "--wait-timeout", "60", time_scale=100
     )
     assert code == Exit.OK, output
     assert "reached: hotend target 260 C" in output
@@ -121,16 +121,16 @@ async def test_off_on_a_printer_without_a_bed_sends_no_bed_command() -> None:
 
 
 async def test_off_wait_on_a_cold_printer_returns_at_once() -> None:
-    code, output, _ = await set_on(SimulatorConfig(), "--off", "--wait", "--timeout", "30")
+    code, output, _ = await set_on(SimulatorConfig(), "--off", "--wait", "--wait-timeout", "30")
     assert code == Exit.OK, output
     assert "cool: hotend, bed below 50 C" in output
 
 
 async def test_off_wait_waits_until_the_heaters_are_cool() -> None:
     async with serve_pty(SimulatorConfig(), time_scale=100) as sim:
-        heat = ["set", "--port", sim.url, "--hotend", "80", "--wait", "--timeout", "60"]
+        heat = ["set", "--port", sim.url, "--hotend", "80", "--wait", "--wait-timeout", "60"]
         assert (await asyncio.to_thread(runner.invoke, app, heat)).exit_code == Exit.OK
-        cool = ["set", "--port", sim.url, "--off", "--wait", "--cool-to", "60", "--timeout", "60"]
+        cool = ["set", "--port", sim.url, "--off", "--wait", "--cool-to", "60", "--wait-timeout", "60"]
         result = await asyncio.to_thread(runner.invoke, app, cool)
         check = await asyncio.to_thread(runner.invoke, app, ["set", "--port", sim.url, "--off"])
     assert result.exit_code == Exit.OK, result.output
@@ -141,9 +141,9 @@ async def test_off_wait_waits_until_the_heaters_are_cool() -> None:
 
 async def test_off_wait_times_out_with_exit_9_while_still_hot() -> None:
     async with serve_pty(SimulatorConfig(), time_scale=100) as sim:
-        heat = ["set", "--port", sim.url, "--hotend", "150", "--wait", "--timeout", "60"]
+        heat = ["set", "--port", sim.url, "--hotend", "150", "--wait", "--wait-timeout", "60"]
         assert (await asyncio.to_thread(runner.invoke, app, heat)).exit_code == Exit.OK
-        cool = ["set", "--port", sim.url, "--off", "--wait", "--timeout", "0.5"]
+        cool = ["set", "--port", sim.url, "--off", "--wait", "--wait-timeout", "0.5"]
         result = await asyncio.to_thread(runner.invoke, app, cool)
     assert result.exit_code == Exit.TIMEOUT, result.output
     assert "did not cool below 50 C within 0.5 s" in result.output
