@@ -133,6 +133,16 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                 errors.print("last lines sent (>>) and received (<<), seconds before the stall:", style="dim")
                 errors.print(exc.trace, highlight=False, markup=False)
                 raise
+            except (marlin_aio.ConnectionLostError, marlin_aio.PrinterHaltedError) as exc:
+                # The one line a user reads after a failed print says how far it got and how to go on from there.
+                reached = handle.progress.last_source_line
+                where = f"; the print reached line {reached} of {plan.path.name}"
+                if isinstance(exc, marlin_aio.ConnectionLostError) and reached:
+                    where += (
+                        f" (once the printer is checked, go on with: marlin-temp print {plan.path.name} "
+                        f"--from-line {reached + 1}; see --help)"
+                    )
+                raise type(exc)(f"{exc}{where}") from exc
             final = handle.progress
             if outcome is _Outcome.STOPPED:
                 errors.print(

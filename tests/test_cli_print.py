@@ -423,3 +423,24 @@ def test_from_line_warns_when_absolute_extrusion_would_resume_from_the_headers_e
     assert plan_print(gcode, from_line=8).extrusion_warning is None
     gcode.write_text(header + layers, encoding="utf-8")
     assert plan_print(gcode, from_line=2).extrusion_warning is None
+
+
+async def test_an_unplugged_print_names_the_line_it_reached_and_how_to_go_on(tmp_path: Path) -> None:
+    gcode = write_gcode(tmp_path / "part.gcode", 20_000)
+    async with serve_pty(SimulatorConfig(motion_time_scale=0), time_scale=50) as sim:
+        printing = asyncio.create_task(asyncio.to_thread(runner.invoke, app, ["print", str(gcode), "--port", sim.url]))
+        for _ in range(2_000):
+            if sim.printer.executed_line_count > 300:
+                break
+            await asyncio.sleep(0.01)  # polling a condition (lines run), bounded
+        await sim.disconnect()
+        result = await printing
+    assert result.exit_code == Exit.LOST, result.output
+    error = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert len(error) == 1, result.output
+    match = re.search(r"the print reached line (\d+) of part\.gcode", error[0])
+    assert match is not None, error[0]
+    reached = int(match[1])
+    assert reached > 300
+    assert f"--from-line {reached + 1}" in error[0]
+    assert "the port went away" in error[0]  # in words, not pyserial's
