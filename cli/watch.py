@@ -104,7 +104,8 @@ def _json_status(model: WatchModel) -> str:
     heaters = {}
     for key in model.heater_keys():
         status = model.status(key)
-        heaters[key] = {
+        # By name, as the screen and the log files say them ("hotend", "bed", "hotend 0").
+        heaters[marlin_aio.heater_name(key)] = {
             "actual": status.actual,
             "target": status.target,
             "power_percent": status.power_percent,

@@ -119,9 +119,10 @@ async def test_watch_shows_each_hotend_of_a_two_extruder_printer() -> None:
     assert re.match(r"bed [45]\d\.\d/50 C", parts[2]), line
     assert lines.exit_code == Exit.OK, lines.output
     heaters = json.loads(lines.stdout.splitlines()[-1])["heaters"]
-    assert list(heaters) == ["T0", "T1", "B"]
-    assert heaters["T0"]["target"] == 0 and heaters["T1"]["target"] == 120 and heaters["B"]["target"] == 50
-    assert heaters["T1"]["power_percent"] is not None
+    assert list(heaters) == ["hotend 0", "hotend 1", "bed"]  # by name, as on the screen and in the log files
+    assert heaters["hotend 0"]["target"] == 0 and heaters["hotend 1"]["target"] == 120
+    assert heaters["bed"]["target"] == 50
+    assert heaters["hotend 1"]["power_percent"] is not None
 
 
 def test_watch_help_says_each_hotend_is_shown() -> None:
