@@ -83,6 +83,10 @@ class FarmPrinter:
     print_handle: marlin_aio.PrintHandle | None = None
     """The print started over MQTT, if any (finished or not)."""
     print_file: str | None = None
+    reconnect_at_s: float | None = None
+    """While the supervisor waits to reconnect: when it tries again (`time.monotonic()`), else None."""
+    reading_listeners: list[Callable[[marlin_aio.TemperatureReading], None]] = field(default_factory=list)
+    """Called with every reading after it is kept (a farm view keeps each printer's history with one)."""
 
     def print_status(self) -> dict[str, object] | None:
         """The print's progress for the state topic, or None when no print was started."""
@@ -109,6 +113,8 @@ class FarmPrinter:
         """Keep the newest reading: called for every reading, so it only stores it."""
         self.latest = reading
         self.readings += 1
+        for listener in self.reading_listeners:
+            listener(reading)
 
 
 class Farm:
@@ -185,7 +191,11 @@ class Farm:
                 farm_printer.link_up = False
                 farm_printer.printer = None
             _log.info("%s: reconnecting in %g s", farm_printer.name, delay)
-            await asyncio.sleep(delay)
+            farm_printer.reconnect_at_s = time.monotonic() + delay
+            try:
+                await asyncio.sleep(delay)
+            finally:
+                farm_printer.reconnect_at_s = None
             delay = min(delay * 2, self._backoff_max_s)
 
     @contextlib.asynccontextmanager
