@@ -204,19 +204,45 @@ _WATCH_HELP = "\n\n".join(
         "The footer counts timeouts and errors (failed commands, board resets) from the moment the connection is "
         "established: a board that resets when the port opens, printing 'start' and its banner during the "
         "handshake, is starting up, not failing.",
+        "Several printers (--port given more than once, as NAME=PORT or PORT, and/or --sims N simulated ones) "
+        "get the farm view: one row per printer with each heater's actual/target, its state, print progress and "
+        "link (up, or down and when it reconnects, with the last error). Each printer reconnects by itself, so one "
+        "unplugged shows down while the others go on. 1-9, or the arrows and Enter, open one printer's detail "
+        "(the single-printer view, without the keys that set targets); Esc or Backspace goes back; q quits. "
+        "Piped, it prints one line per printer per refresh.",
     )
 )
 
 
 @app.command(help=_WATCH_HELP, epilog=EXIT_CODES_HELP)
 def watch(
-    port: PortOption = None,
+    ports: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--port",
+            "-p",
+            help="Device path (/dev/ttyUSB0) or pyserial URL (socket://host:port); give it again for each printer "
+            "of a farm, as NAME=PORT. Default: the one printer-like port.",
+            show_default=False,
+        ),
+    ] = None,
     baud: BaudOption = None,
     sim: SimOption = False,
+    sims: Annotated[
+        int, typer.Option("--sims", help="Watch N simulated printers (sim1, sim2, ...) in the farm view.", min=0)
+    ] = 0,
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
-    interval: Annotated[float, typer.Option("--interval", help="Seconds between M105 polls.", min=0.001)] = 0.01,
+    interval: Annotated[
+        float | None,
+        typer.Option(
+            "--interval",
+            help="Seconds between M105 polls (default 0.01; with several printers 0.1 for each).",
+            min=0.001,
+            show_default=False,
+        ),
+    ] = None,
     refresh: Annotated[float, typer.Option("--refresh", help="Seconds between screen redraws.", min=0.05)] = 1.0,
     window: Annotated[float, typer.Option("--window", help="Seconds of history in the chart.", min=5)] = 60.0,
     tolerance: Annotated[float, typer.Option("--tolerance", help="Within this many C a heater is holding.")] = 2.0,
@@ -229,13 +255,39 @@ def watch(
     max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
     max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
 ) -> None:
-    """Live view of every heater, with keys to set targets (the help text is `_WATCH_HELP`)."""
-    from .watch import WatchSettings, watch_printer
+    """Live view of every heater, with keys to set targets; the farm view for several printers (the help text
+    is `_WATCH_HELP`)."""
+    from .watch import WatchSettings, watch_farm, watch_printer
 
+    ports = ports or []
+    farm_specs = []
+    if len(ports) + sims + int(sim) > 1:
+        from dataclasses import replace
+
+        from .farmconfig import specs_from_options
+
+        try:
+            farm_specs = specs_from_options(
+                ports,
+                sims + int(sim),
+                baud=baud or marlin_aio.DEFAULT_BAUDRATE,
+                poll_interval_s=interval or 0.1,
+                sim_speed=sim_speed,
+            )
+        except ValueError as exc:
+            fail(str(exc), Exit.USAGE)
+        farm_specs = [
+            replace(spec, timeout_s=timeout, password=password, max_hotend_celsius=max_hotend, max_bed_celsius=max_bed)
+            for spec in farm_specs
+        ]
+    port = ports[0] if ports else None
+    if port is not None:
+        name, sep, after = port.partition("=")
+        port = after if sep and "://" not in name else port  # one printer given as NAME=PORT: its name is not used
     options = ConnectOptions(
         port=port,
         baud=baud,
-        sim=sim,
+        sim=sim or sims == 1,
         sim_speed=sim_speed,
         timeout_s=timeout,
         max_hotend_celsius=max_hotend,
@@ -245,7 +297,7 @@ def watch(
     if duration is not None and not duration > 0:
         fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
     settings = WatchSettings(
-        interval_s=interval,
+        interval_s=interval or (0.1 if farm_specs else 0.01),
         refresh_s=refresh,
         window_s=window,
         tolerance_c=tolerance,
@@ -254,7 +306,12 @@ def watch(
         duration_s=duration,
         reconnect=reconnect,
     )
-    code = run(watch_printer(options, settings, Console(highlight=False), _stderr()))
+    if farm_specs:
+        if log is not None:
+            fail("--log records one printer: watch it alone (one --port or --sim) to log it", Exit.USAGE)
+        code = run(watch_farm(farm_specs, settings, Console(highlight=False), _stderr()))
+    else:
+        code = run(watch_printer(options, settings, Console(highlight=False), _stderr()))
     raise typer.Exit(int(code))
 
 

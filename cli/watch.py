@@ -16,6 +16,7 @@ import asyncio
 import contextlib
 import json
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,8 @@ from rich.text import Text
 import marlin_aio
 
 from .connect import ConnectOptions, Exit, open_printer
+from .farm import Farm, FarmEvent, PrinterSpec
+from .farmview import FarmKeys, detail_view, farm_row, farm_view, json_lines, plain_lines
 from .logfile import TemperatureLog
 from .model import (
     Action,
@@ -42,7 +45,7 @@ from .model import (
 from .render import plain_line, watch_view
 from .terminal import key_presses, on_stop_signals
 
-__all__ = ["WatchSettings", "watch_printer"]
+__all__ = ["WatchSettings", "watch_farm", "watch_printer"]
 
 
 @dataclass(frozen=True)
@@ -319,4 +322,112 @@ async def watch_printer(options: ConnectOptions, settings: WatchSettings, consol
     if log is not None:
         summary += f"; {log.summary.line()}"
     errors.print(summary, style="dim")
+    return Exit.OK
+
+
+_FARM_EVENTS = 3  # the latest events shown under the farm table
+
+
+async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console: Console, errors: Console) -> Exit:
+    """Watch several printers until q, Ctrl-C or --duration: the farm view (one row per printer; a digit, or the
+    arrows and Enter, open one printer's detail); piped, one line per printer per refresh. Return the exit code.
+
+    Each printer is kept connected by its own supervisor (`cli.farm`): one that goes away shows down and
+    reconnecting while the others go on, so nothing here ends on a printer's error.
+    """
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    wake = asyncio.Event()  # a key or an event: redraw now, not at the next refresh
+    live_view = console.is_terminal and not settings.json_lines
+    events: deque[str] = deque(maxlen=_FARM_EVENTS)
+
+    def on_event(event: FarmEvent) -> None:
+        # The kind first, as `marlin-temp farm` says it ("p2: connection lost: ..."), but "connected: connected".
+        kind = "" if event.kind == "connected" else event.kind.replace("_", " ") + ": "
+        line = f"{time.strftime('%H:%M:%S', time.localtime(event.time_s))} {event.printer}: {kind}{event.message}"
+        if live_view:
+            events.append(line)
+            wake.set()
+        else:
+            errors.print(line, style="dim", markup=False)
+
+    farm = Farm(specs, on_event)
+    printers = list(farm.printers.values())
+    models = {name: WatchModel(settings.window_s, settings.tolerance_c) for name in farm.printers}
+    for farm_printer in printers:
+        farm_printer.reading_listeners.append(models[farm_printer.name].add)
+    keys = FarmKeys(len(printers))
+
+    def on_key(key: str) -> None:
+        if keys.press(key if live_view else key.lower()):
+            stop.set()
+        wake.set()
+
+    answered_since = dict.fromkeys(farm.printers, 0.0)
+
+    def copy_round_trips() -> None:
+        # For the detail view's latency figures: the replies each open printer got since the last redraw.
+        for farm_printer in printers:
+            if farm_printer.printer is not None:
+                model, since = models[farm_printer.name], answered_since[farm_printer.name]
+                for answered_s, latency_s in farm_printer.printer.round_trips:
+                    if answered_s > since:
+                        model.add_latency(answered_s, latency_s)
+                        answered_since[farm_printer.name] = answered_s
+
+    def view(keys_enabled: bool) -> object:
+        copy_round_trips()
+        rows = [farm_row(index + 1, p, models[p.name]) for index, p in enumerate(printers)]
+        if keys.detail is not None:
+            shown = printers[keys.detail]
+            return detail_view(rows[keys.detail], models[shown.name], shown, width=console.width, height=console.height)
+        return farm_view(rows, console.width, selected=keys.selected, events=list(events), keys_enabled=keys_enabled)
+
+    deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
+    started = loop.time()
+    with on_stop_signals(stop.set):
+        runner = asyncio.create_task(farm.run(), name="marlin-temp farm")
+        stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
+        waker = asyncio.create_task(wake.wait(), name="marlin-temp redraw")
+        live = Live(console=console, screen=True, auto_refresh=False, transient=True) if live_view else None
+        try:
+            with (
+                live if live is not None else contextlib.nullcontext(),
+                key_presses(on_key, raw=live_view) as keys_enabled,
+            ):
+                next_refresh = loop.time() + settings.refresh_s
+                if live is not None:
+                    live.update(view(keys_enabled), refresh=True)  # type: ignore[arg-type]
+                while True:
+                    timeout = max(next_refresh - loop.time(), 0.0)
+                    if deadline is not None:
+                        timeout = min(timeout, max(deadline - loop.time(), 0.0))
+                    done, _ = await asyncio.wait(
+                        {runner, stopper, waker}, timeout=timeout, return_when="FIRST_COMPLETED"
+                    )
+                    if runner in done:
+                        runner.result()  # the farm only ends by a bug: let it show
+                    if waker in done:
+                        wake.clear()
+                        waker = asyncio.create_task(wake.wait(), name="marlin-temp redraw")
+                    ending = stopper in done or (deadline is not None and loop.time() >= deadline)
+                    scheduled = loop.time() >= next_refresh or ending
+                    if scheduled:
+                        next_refresh = loop.time() + settings.refresh_s
+                    if live is not None:
+                        live.update(view(keys_enabled), refresh=True)  # type: ignore[arg-type]
+                    elif scheduled:
+                        rows = [farm_row(index + 1, p, models[p.name]) for index, p in enumerate(printers)]
+                        lines = json_lines(rows) if settings.json_lines else plain_lines(rows)
+                        print("\n".join(lines), flush=True)
+                    if ending:
+                        break
+        finally:
+            for task in (runner, stopper, waker):
+                task.cancel()
+            await asyncio.gather(runner, stopper, waker, return_exceptions=True)
+    readings = sum(p.readings for p in printers)
+    errors.print(
+        f"watched {len(printers)} printers for {loop.time() - started:.1f} s: {readings} readings", style="dim"
+    )
     return Exit.OK
