@@ -205,8 +205,8 @@ _WATCH_HELP = "\n\n".join(
         "established: a board that resets when the port opens, printing 'start' and its banner during the "
         "handshake, is starting up, not failing.",
         "Several printers (--port given more than once, as NAME=PORT or PORT, and/or --sims N simulated ones) "
-        "get the farm view: one row per printer with each heater's actual/target, its state, print progress and "
-        "link (up, or down and when it reconnects, with the last error). Each printer reconnects by itself, so one "
+        "get the farm view: one row per printer with each heater's actual/target, its state and its link (up, or "
+        "down and when it reconnects, with the last error). Each printer reconnects by itself, so one "
         "unplugged shows down while the others go on. 1-9, or the arrows and Enter, open one printer's detail "
         "(the single-printer view, without the keys that set targets); Esc or Backspace goes back; q quits. "
         "Piped, it prints one line per printer per refresh.",
