@@ -8,11 +8,15 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import re
 import selectors
+import shutil
+import socket
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +24,16 @@ from typing import Any
 
 from benchmarks._worker import RESULT_MARKER
 
-__all__ = ["BenchmarkRunError", "Simulator", "run_worker", "simulator"]
+__all__ = [
+    "BenchmarkRunError",
+    "Broker",
+    "Simulator",
+    "mosquitto",
+    "mosquitto_path",
+    "run_worker",
+    "simulator",
+    "subscriber",
+]
 
 _START_TIMEOUT_S = 15.0
 _STOP_TIMEOUT_S = 5.0
@@ -119,3 +132,86 @@ def run_worker(spec: dict[str, Any], timeout_s: float, prefix: Sequence[str] = (
         f"{spec['scenario']}/{spec['label']}: worker exited {completed.returncode} without a result:\n  "
         + "\n  ".join(tail)
     )
+
+
+def mosquitto_path() -> str | None:
+    """The Mosquitto broker's executable (Debian installs it in /usr/sbin), or None."""
+    found = shutil.which("mosquitto")
+    if found is None and os.path.exists("/usr/sbin/mosquitto"):
+        found = "/usr/sbin/mosquitto"
+    return found
+
+
+@dataclass
+class Broker:
+    """A running Mosquitto on 127.0.0.1:`port`."""
+
+    port: int
+
+
+@contextlib.contextmanager
+def mosquitto(workdir: Path) -> Iterator[Broker]:
+    """Start Mosquitto on 127.0.0.1 and a free port (no persistence); always stop it.
+
+    Raises:
+        BenchmarkRunError: it is not installed, or did not listen within 10 s.
+    """
+    executable = mosquitto_path()
+    if executable is None:
+        raise BenchmarkRunError("mosquitto is not installed (apt install mosquitto)")
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    config = workdir / f"mosquitto-{port}.conf"
+    config.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+    process = subprocess.Popen([executable, "-c", str(config)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                break
+            except OSError:
+                if time.monotonic() > deadline or process.poll() is not None:
+                    raise BenchmarkRunError("mosquitto did not start listening within 10 s") from None
+                time.sleep(0.05)  # polling a condition (the port accepts), bounded
+        yield Broker(port)
+    finally:
+        process.terminate()
+        try:
+            process.wait(_STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+@contextlib.contextmanager
+def subscriber(port: int, output: Path) -> Iterator[Path]:
+    """Run `benchmarks._subscriber` against the broker until the block ends; then its samples are in `output`.
+
+    Raises:
+        BenchmarkRunError: it did not subscribe within 15 s.
+    """
+    process = subprocess.Popen(
+        [sys.executable, "-m", "benchmarks._subscriber", str(port), str(output)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        cwd=Path(__file__).resolve().parent.parent,
+    )
+    try:
+        assert process.stdout is not None
+        with selectors.DefaultSelector() as selector:
+            selector.register(process.stdout, selectors.EVENT_READ)
+            if not selector.select(_START_TIMEOUT_S) or process.stdout.readline().strip() != "ready":
+                raise BenchmarkRunError("the benchmark's MQTT subscriber did not subscribe within 15 s")
+        yield output
+    finally:
+        process.terminate()
+        try:
+            process.wait(_STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+        if process.stdout is not None:
+            process.stdout.close()

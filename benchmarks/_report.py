@@ -273,12 +273,53 @@ def _many(entry: Json) -> list[str]:
     ]
 
 
+def _farm(entry: Json) -> list[str]:
+    if "skipped" in entry:
+        return ["### A farm of printers through Mosquitto", "", f"Skipped: {entry['skipped']}."]
+    labels, settings = entry["labels"], entry["settings"]
+    rows = []
+    for key, v in entry["summary"].items():
+        bridged = key == "bridge"
+        rows.append(
+            [
+                labels[key],
+                f"{v['cpu_share'] * 100:.1f}%",
+                f"{v['cpu_share_per_printer'] * 100:.2f}%",
+                _n(v["readings_per_s"], 0),
+                _n(v["received_per_s"], 0) if bridged else "-",
+                f"{_n(v['latency_p50_ms'], 1)} / {_n(v['latency_p99_ms'], 1)}" if bridged else "-",
+                str(v["telemetry_dropped"]) if bridged else "-",
+            ]
+        )
+    return [
+        f"### A farm of {settings['printers']} printers polled every {settings['interval_s'] * 1000:g} ms, telemetry "
+        f"through Mosquitto ({settings['seconds_per_run']:g} s per run)",
+        "",
+        *_table(
+            [
+                "client",
+                "client CPU (share of a core)",
+                "CPU per printer",
+                "readings/s (all printers)",
+                "telemetry messages/s at the subscriber",
+                "reading to subscriber ms (p50 / p99)",
+                "readings dropped",
+            ],
+            rows,
+        ),
+        "",
+        f"The bridge costs {_x(entry['ratios'].get('bridge_cpu_over_plain'))} the CPU of the same farm without it. "
+        "Latency runs from the reading's time (in the payload) to its arrival at a subscriber in another process.",
+    ]
+
+
 _RENDERERS = {
     "roundtrips": _roundtrips,
     "polling": _polling,
     "streaming": _streaming,
     "memory": _memory,
     "many": _many,
+    "farm": _farm,
 }
 
 

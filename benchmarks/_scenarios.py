@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks._files import write_moves, write_moves_of_size
-from benchmarks._procs import run_worker, simulator
+from benchmarks._procs import mosquitto, mosquitto_path, run_worker, simulator, subscriber
 from benchmarks._profile import py_spy, summarise, wrapper
 
 __all__ = ["SCENARIOS", "Contender", "Settings", "run_scenario"]
@@ -595,6 +595,117 @@ def run_many(settings: Settings) -> Json:
     }
 
 
+# ------------------------------------------------------------------------------------------------ 6. farm over MQTT
+
+FARM_PRINTERS = 50
+FARM_INTERVAL_S = 0.1
+
+
+def run_farm(settings: Settings) -> Json:
+    """`marlin-temp farm`'s code with 50 printers at 10 Hz (one `marlin-sim --printers 50`), publishing telemetry at
+    10 Hz a printer through a real Mosquitto to a subscriber in a third process; against the same farm without
+    the bridge. Latency is from the reading (its wall-clock time, in the payload) to the subscriber."""
+    if mosquitto_path() is None:
+        settings.log("  farm: skipped, mosquitto is not installed (apt install mosquitto)")
+        return {"skipped": "mosquitto is not installed (apt install mosquitto)", "targets": []}
+    contenders = [
+        Contender("bridge", "farm with the MQTT bridge (telemetry at 10 Hz a printer)", "bridge"),
+        Contender("plain", "the same farm, no bridge", "plain"),
+    ]
+    seconds = settings.many_s
+    runs: dict[str, list[Json]] = {c.key: [] for c in contenders}
+    for index in range(settings.runs):
+        shift = index % len(contenders)
+        for contender in contenders[shift:] + contenders[:shift]:
+            load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+            samples_path = settings.workdir / f"farm-{contender.key}-{index}.json"
+            with (
+                simulator([], FARM_PRINTERS) as sim,
+                mosquitto(settings.workdir) as broker,
+                subscriber(broker.port, samples_path),
+            ):
+                spec: Json = {
+                    "scenario": "farm",
+                    "label": contender.key,
+                    "client": contender.client,
+                    "urls": sim.urls,
+                    "interval_s": FARM_INTERVAL_S,
+                    "rate_hz": 1 / FARM_INTERVAL_S,
+                    "broker_port": broker.port,
+                    "seconds": seconds,
+                }
+                result = run_worker(spec, seconds + 120)
+            result["load_average"] = load
+            result["cpu_share"] = result["cpu_s"] / result["wall_s"]
+            result["cpu_share_per_printer"] = result["cpu_share"] / FARM_PRINTERS
+            result["readings_per_s"] = result["readings"] / result["wall_s"]
+            if contender.key == "bridge":
+                result |= _latencies(samples_path, result["window_start"], result["window_end"])
+            runs[contender.key].append(result)
+            settings.log(
+                f"  farm run {index + 1}/{settings.runs} {contender.label}: CPU {result['cpu_share'] * 100:.1f}% of a "
+                f"core, {result['readings'] / result['wall_s']:.0f} readings/s"
+                + (
+                    f", {result['received_per_s']:.0f} messages/s received, latency p50 "
+                    f"{result['latency_p50_ms']:.1f} ms p99 {result['latency_p99_ms']:.1f} ms, "
+                    f"{result['telemetry_dropped']} dropped"
+                    if contender.key == "bridge"
+                    else ""
+                )
+                + f" (load {load:.2f})"
+            )
+    names = (
+        "cpu_share",
+        "cpu_share_per_printer",
+        "readings_per_s",
+        "latency_p50_ms",
+        "latency_p99_ms",
+        "received_per_s",
+    )
+    summary: Json = {key: {n: _median(results, n) for n in names} for key, results in runs.items()}
+    for key, results in runs.items():
+        summary[key]["telemetry_dropped"] = sum(r["telemetry_dropped"] for r in results)
+        summary[key]["reconnects"] = sum(r["reconnects"] for r in results)
+    bridge = summary["bridge"]
+    ratio = _ratio(bridge["cpu_share"], summary["plain"]["cpu_share"])
+    targets = [
+        _target(
+            "farm: dropped readings with a healthy broker",
+            "0",
+            bridge["telemetry_dropped"],
+            bridge["telemetry_dropped"] == 0,
+        ),
+    ]
+    return {
+        "settings": {
+            "printers": FARM_PRINTERS,
+            "interval_s": FARM_INTERVAL_S,
+            "seconds_per_run": seconds,
+            "simulator": f"marlin-sim --printers {FARM_PRINTERS}; mosquitto on 127.0.0.1; a subscriber process",
+        },
+        "labels": {c.key: c.label for c in contenders},
+        "runs": runs,
+        "summary": summary,
+        "ratios": {"bridge_cpu_over_plain": ratio},
+        "targets": targets,
+    }
+
+
+def _latencies(samples_path: Path, start: float, end: float) -> Json:
+    """Latency from reading to subscriber (p50, p99) and messages received per second, in the worker's window."""
+    import json
+
+    samples = json.loads(samples_path.read_text()) if samples_path.exists() else []
+    inside = sorted((arrived - read) * 1000 for arrived, read in samples if start <= read <= end)
+    if not inside:
+        return {"latency_p50_ms": math.nan, "latency_p99_ms": math.nan, "received_per_s": 0.0}
+    return {
+        "latency_p50_ms": statistics.median(inside),
+        "latency_p99_ms": inside[max(0, math.ceil(0.99 * len(inside)) - 1)],
+        "received_per_s": len(inside) / (end - start),
+    }
+
+
 SCENARIOS = {
     scenario.name: scenario
     for scenario in (
@@ -603,6 +714,7 @@ SCENARIOS = {
         Scenario("streaming", "Streaming the 17,000-line file at 250000 baud", run_streaming),
         Scenario("memory", "Memory while streaming a 1 MB and a 200 MB file", run_memory),
         Scenario("many", "Many printers in one process: 10 x 100 Hz, 50 x 10 Hz, 50 x 100 Hz", run_many),
+        Scenario("farm", "A farm of 50 printers at 10 Hz through Mosquitto", run_farm),
     )
 }
 

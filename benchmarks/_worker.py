@@ -717,6 +717,79 @@ async def lean_floor_many(spec: Result) -> Result:
     }
 
 
+# ------------------------------------------------------------------------------------------------ farm over MQTT
+
+
+async def farm_run(spec: Result) -> Result:
+    """`marlin-temp farm`'s own code, N printers polled at `interval_s`: with the MQTT bridge publishing each
+    printer's telemetry at `rate_hz` to the broker on `broker_port` (client "bridge"), or without it ("plain")."""
+    from marlin_temp.farm import Farm, FarmEvent, PrinterSpec
+    from marlin_temp.farmbridge import Bridge, BridgeSettings, BrokerSettings
+
+    specs = [PrinterSpec(f"p{i + 1}", url, poll_interval_s=spec["interval_s"]) for i, url in enumerate(spec["urls"])]
+    bridge: Bridge | None = None
+
+    def on_event(event: FarmEvent) -> None:
+        if bridge is not None:
+            bridge.on_event(event)
+
+    farm = Farm(specs, on_event)
+    if spec["client"] == "bridge":
+        bridge = Bridge(
+            farm,
+            BrokerSettings(port=spec["broker_port"]),
+            BridgeSettings(rate_hz=spec["rate_hz"], discovery=False),
+        )
+    tasks = [asyncio.create_task(farm.run())]
+    if bridge is not None:
+        tasks.append(asyncio.create_task(bridge.run()))
+    try:
+        deadline = time.perf_counter() + 60
+        while not all(p.link_up for p in farm.printers.values()) or (bridge is not None and not bridge.connected):
+            if time.perf_counter() > deadline:
+                down = [p.name for p in farm.printers.values() if not p.link_up]
+                errors = {p.last_error for p in farm.printers.values() if p.last_error}
+                raise RunFailedError(
+                    f"not connected within 60 s: printers {down}, broker {bridge.connected if bridge else '-'}; "
+                    f"errors {sorted(errors)[:3]}"
+                )
+            await asyncio.sleep(0.05)  # polling a condition (all connected), bounded
+        await asyncio.sleep(WARMUP_S)
+        readings_before = sum(p.readings for p in farm.printers.values())
+        published_before = bridge.published if bridge is not None else 0
+        window_start = time.time()
+        meter = Meter()
+        await asyncio.sleep(spec["seconds"])
+        wall, cpu = meter.stop()
+        window_end = time.time()
+        readings = sum(p.readings for p in farm.printers.values()) - readings_before
+        published = (bridge.published if bridge is not None else 0) - published_before
+        reconnects = sum(p.connections - 1 for p in farm.printers.values())
+    finally:
+        for task in tasks:
+            task.cancel()
+        # Bounded: a cleanup that hangs must fail the run with a reason, not the orchestrator's timeout.
+        _, pending = await asyncio.wait(tasks, timeout=15)
+        if pending:
+            for task in pending:
+                task.print_stack(file=sys.stderr)
+            print("farm cleanup did not end within 15 s (stacks above)", file=sys.stderr, flush=True)
+            os._exit(3)  # the loop cannot be closed with these tasks in it: end the process, not the run's patience
+    return {
+        "printers": len(specs),
+        "wall_s": wall,
+        "cpu_s": cpu,
+        **meter.split(),
+        "readings": readings,
+        "published": published,
+        "telemetry_dropped": bridge.telemetry_dropped if bridge is not None else 0,
+        "events_lost": bridge.events_lost if bridge is not None else 0,
+        "reconnects": reconnects,
+        "window_start": window_start,
+        "window_end": window_end,
+    }
+
+
 # ------------------------------------------------------------------------------------------------ entry point
 
 ASYNC_TASKS = {
@@ -730,6 +803,8 @@ ASYNC_TASKS = {
     ("memory", "marlin_aio"): marlin_memory,
     ("many", "marlin_aio"): marlin_many,
     ("many", "lean_floor"): lean_floor_many,
+    ("farm", "bridge"): farm_run,
+    ("farm", "plain"): farm_run,
 }
 THREAD_TASKS = {
     ("roundtrips", "pyserial"): pyserial_round_trips,

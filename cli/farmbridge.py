@@ -13,8 +13,8 @@ Topics, for a printer named `NAME` under the prefix `P` (default `marlin`):
 - `P/bridge/availability` (retained): `online`, and `offline` as the bridge's Last Will, so a crashed bridge shows.
 - `homeassistant/sensor/marlin_NAME/.../config` (retained): Home Assistant discovery.
 
-Backpressure: a sampler takes each printer's newest reading at the rate into a bounded buffer whatever the
-broker does, dropping (and counting) the oldest when the broker cannot keep up; the serial loops never wait for the
+Backpressure: each reading goes, as it is read (at most at the rate), into a bounded buffer whatever the broker
+does, which drops (and counts) the oldest when the broker cannot keep up; the serial loops never wait for the
 broker. Events wait in a queue of their own (bounded too: past the bound the oldest is dropped, counted, and
 logged). When the broker goes away the bridge reconnects with backoff and publishes availability, state and
 discovery again.
@@ -145,7 +145,10 @@ class Bridge:
         self._reliable: deque[tuple[str, str]] = deque()
         self._group: asyncio.TaskGroup | None = None
         self._wake = asyncio.Event()
-        self._last_sampled: dict[str, int] = {}
+        self._last_sent_s: dict[str, float] = {}
+        self._min_gap_s = 0.9 / settings.rate_hz
+        for farm_printer in farm.printers.values():
+            farm_printer.reading_listeners.append(self._listener(farm_printer.name))
         self._states: dict[str, str] = {}
         self._published_states: dict[str, str] = {}
         self._heaters: dict[str, tuple[str, ...]] = {}
@@ -183,21 +186,29 @@ class Bridge:
         self._reliable.append((topic, json.dumps(payload)))
         self._wake.set()
 
+    def _listener(self, name: str) -> Callable[[marlin_aio.TemperatureReading], None]:
+        return lambda reading: self._on_reading(name, reading)
+
+    def _on_reading(self, name: str, reading: marlin_aio.TemperatureReading) -> None:
+        """A printer's reading, as it is read: into the telemetry buffer unless one went out less than a rate's
+        period ago (a tenth of it is allowed for jitter, so polls at the rate itself are all sent)."""
+        last = self._last_sent_s.get(name)
+        if last is not None and reading.monotonic_s - last < self._min_gap_s:
+            return
+        self._last_sent_s[name] = reading.monotonic_s
+        payload = telemetry_payload(reading)
+        if len(self._telemetry) == self._telemetry.maxlen:
+            self.telemetry_dropped += 1  # the oldest goes: a slow broker never slows a printer
+        self._telemetry.append((name, json.dumps(payload, separators=(",", ":"))))
+        heaters = tuple(payload["heaters"])
+        if heaters and heaters != self._heaters.get(name):
+            self._heaters[name] = heaters
+        self._wake.set()
+
     def _sample(self) -> None:
-        """Take each printer's newest reading, if new, into the telemetry buffer; note state changes."""
+        """Note each printer's state (published when it changed)."""
         for farm_printer in self.farm.printers.values():
-            name = farm_printer.name
-            reading = farm_printer.latest
-            if reading is not None and self._last_sampled.get(name) != farm_printer.readings:
-                self._last_sampled[name] = farm_printer.readings
-                payload = telemetry_payload(reading)
-                if len(self._telemetry) == self._telemetry.maxlen:
-                    self.telemetry_dropped += 1  # the oldest goes: a slow broker never slows a printer
-                self._telemetry.append((name, json.dumps(payload, separators=(",", ":"))))
-                heaters = tuple(payload["heaters"])
-                if heaters and heaters != self._heaters.get(name):
-                    self._heaters[name] = heaters
-            self._states[name] = json.dumps(self._state(farm_printer), separators=(",", ":"))
+            self._states[farm_printer.name] = json.dumps(self._state(farm_printer), separators=(",", ":"))
         self._wake.set()
 
     def _state(self, farm_printer: FarmPrinter) -> dict[str, Any]:
@@ -247,8 +258,9 @@ class Bridge:
                     try:
                         async with asyncio.TaskGroup() as session:
                             session.create_task(self._publish_forever(client), name="publisher")
-                            if self.settings.allow_commands:
-                                session.create_task(self._listen(client), name="command listener")
+                            # The message stream ends with an MqttError as soon as the broker goes away, even with
+                            # nothing subscribed: the session ends then, not at the next publish's timeout.
+                            session.create_task(self._listen(client), name="listener")
                     except asyncio.CancelledError:
                         await self._say_goodbye(client)
                         raise
@@ -266,9 +278,13 @@ class Bridge:
             delay = min(delay * 2, self.settings.backoff_max_s)
 
     async def _listen(self, client: aiomqtt.Client) -> None:
-        """Take commands from `PREFIX/+/command`; each is checked here and run in a task of its own."""
-        await client.subscribe(f"{self.settings.prefix}/+/command", qos=1)
+        """With commands allowed, take them from `PREFIX/+/command`: each is checked here and run in a task of its
+        own. Either way, return only by raising when the broker is lost."""
+        if self.settings.allow_commands:
+            await client.subscribe(f"{self.settings.prefix}/+/command", qos=1)
         async for message in client.messages:
+            if not self.settings.allow_commands:
+                continue
             parts = message.topic.value.split("/")
             if len(parts) < 3 or parts[-1] != "command":
                 continue

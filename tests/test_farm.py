@@ -274,6 +274,10 @@ async def test_events_while_the_broker_is_down_are_delivered_after_it_restarts(b
                     break
                 await asyncio.sleep(0.05)  # polling a condition (the farm's own events), bounded
             assert sum(event.kind == "connected" for event in events) >= 2
+            for _ in range(200):
+                if not bridge.connected:
+                    break
+                await asyncio.sleep(0.05)  # polling a condition (the bridge saw the broker go), bounded
             assert not bridge.connected
             broker.start()
             async with subscribed(broker.port, identifier="event-keeper", clean=False) as sub:
