@@ -25,6 +25,7 @@ CORE = (
     "heaters",
     "linkstate",
     "matching",
+    "motion",
     "parsing",
     "printjob",
     "receiving",
