@@ -145,6 +145,8 @@ class Bridge:
         self._reliable: deque[tuple[str, str]] = deque()
         self._group: asyncio.TaskGroup | None = None
         self._wake = asyncio.Event()
+        self._states_dirty = True
+        self._discovery_dirty = True
         self._last_sent_s: dict[str, float] = {}
         self._min_gap_s = 0.9 / settings.rate_hz
         for farm_printer in farm.printers.values():
@@ -203,13 +205,20 @@ class Bridge:
         heaters = tuple(payload["heaters"])
         if heaters and heaters != self._heaters.get(name):
             self._heaters[name] = heaters
+            self._discovery_dirty = True
         self._wake.set()
 
     def _sample(self) -> None:
-        """Note each printer's state (published when it changed)."""
+        """Note each printer's state; wake the publisher only when one changed."""
+        changed = False
         for farm_printer in self.farm.printers.values():
-            self._states[farm_printer.name] = json.dumps(self._state(farm_printer), separators=(",", ":"))
-        self._wake.set()
+            state = json.dumps(self._state(farm_printer), separators=(",", ":"))
+            if self._states.get(farm_printer.name) != state:
+                self._states[farm_printer.name] = state
+                changed = True
+        if changed or len(self._published_states) < len(self._states):
+            self._states_dirty = True
+            self._wake.set()
 
     def _state(self, farm_printer: FarmPrinter) -> dict[str, Any]:
         return {
@@ -352,10 +361,16 @@ class Bridge:
                 await client.publish(self.bridge_availability_topic, "offline", qos=1, retain=True)
 
     async def _publish_forever(self, client: aiomqtt.Client) -> None:
+        self._states_dirty = self._discovery_dirty = True  # a new session publishes both in full
         while True:
             self._wake.clear()
-            await self._publish_states(client)
-            await self._publish_discovery(client)
+            # Checked only when something changed: a wake per reading must not walk every printer.
+            if self._states_dirty:
+                self._states_dirty = False
+                await self._publish_states(client)
+            if self._discovery_dirty:
+                self._discovery_dirty = False
+                await self._publish_discovery(client)
             while self._reliable:
                 topic, payload_text = self._reliable[0]
                 await client.publish(topic, payload_text, qos=1)
