@@ -224,12 +224,16 @@ def watch(
             help="Device path (/dev/ttyUSB0) or pyserial URL (socket://host:port); give it again for each printer "
             "of a farm, as NAME=PORT. Default: the one printer-like port.",
             show_default=False,
+            metavar="[NAME=]PORT",
         ),
     ] = None,
     baud: BaudOption = None,
     sim: SimOption = False,
     sims: Annotated[
-        int, typer.Option("--sims", help="Watch N simulated printers (sim1, sim2, ...) in the farm view.", min=0)
+        int,
+        typer.Option(
+            "--sims", help="Watch N simulated printers (sim1, sim2, ...) in the farm view.", min=0, metavar="N"
+        ),
     ] = 0,
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
