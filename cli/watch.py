@@ -20,7 +20,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from rich.console import Console
+from rich.console import Console, Group
 from rich.live import Live
 from rich.text import Text
 
@@ -375,7 +375,7 @@ async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console:
                         model.add_latency(answered_s, latency_s)
                         answered_since[farm_printer.name] = answered_s
 
-    def view(keys_enabled: bool) -> object:
+    def view(keys_enabled: bool) -> Group:
         copy_round_trips()
         rows = [farm_row(index + 1, p, models[p.name]) for index, p in enumerate(printers)]
         if keys.detail is not None:
@@ -397,7 +397,7 @@ async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console:
             ):
                 next_refresh = loop.time() + settings.refresh_s
                 if live is not None:
-                    live.update(view(keys_enabled), refresh=True)  # type: ignore[arg-type]
+                    live.update(view(keys_enabled), refresh=True)
                 while True:
                     timeout = max(next_refresh - loop.time(), 0.0)
                     if deadline is not None:
@@ -415,7 +415,7 @@ async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console:
                     if scheduled:
                         next_refresh = loop.time() + settings.refresh_s
                     if live is not None:
-                        live.update(view(keys_enabled), refresh=True)  # type: ignore[arg-type]
+                        live.update(view(keys_enabled), refresh=True)
                     elif scheduled:
                         rows = [farm_row(index + 1, p, models[p.name]) for index, p in enumerate(printers)]
                         lines = json_lines(rows) if settings.json_lines else plain_lines(rows)

@@ -34,6 +34,7 @@ from marlin_temp.farmview import (
     FarmKeys,
     FarmRow,
     HeaterCell,
+    detail_view,
     farm_row,
     farm_table,
     farm_view,
@@ -167,6 +168,24 @@ def test_the_farm_view_has_a_title_events_and_the_keys(width: int) -> None:
     assert "1-9 or ↑/↓ and Enter" in text and "q quits" in text
     without_keys = recorded(farm_view(rows_of_a_farm(), width, keys_enabled=False), width)
     assert "Ctrl-C quits (keys need a terminal on stdin)" in without_keys and "1-9" not in without_keys
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_the_detail_view_is_the_single_printer_view_under_the_printers_link(width: int) -> None:
+    model = model_with("T:150.00 /210.00 B:50.00 /60.00 @:127 B@:127", "T:180.00 /210.00 B:58.00 /60.00 @:127 B@:90")
+    farm_printer = printer("sim2")
+    text = recorded(detail_view(farm_row(2, farm_printer, model), model, farm_printer, width, height=30), width)
+    lines = text.rstrip("\n").split("\n")
+    assert lines[0].startswith("sim2 (2)  up")
+    assert all(len(line.rstrip()) <= width for line in lines)
+    assert "hotend" in text and "now" in text and "polls/s" in text  # the table, the chart, the footer
+    assert "Esc or Backspace: back to the farm" in lines[-1]
+
+    down = printer("sim2", up=False, error=LOST)
+    down.reconnect_at_s = 10.0
+    waiting = recorded(detail_view(farm_row(2, down, WatchModel(), now_s=5.0), WatchModel(), down, width), width)
+    assert "sim2 (2) down, reconnecting in 5 s: connection lost" in " ".join(waiting.split())
+    assert "waiting for the first reading" in waiting
 
 
 def test_no_print_column_when_no_printer_prints() -> None:
