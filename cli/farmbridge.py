@@ -92,6 +92,10 @@ class BridgeSettings:
     """Take commands on `PREFIX/NAME/command` (off unless asked for)."""
     allowed_dir: Path | None = None
     """With commands: the directory prints may be started from (None: no prints over MQTT)."""
+    telemetry_buffer: int = TELEMETRY_BUFFER
+    """Telemetry messages kept while the broker is slow or away; past it the oldest is dropped (and counted)."""
+    event_queue: int = EVENT_QUEUE
+    """Events and answers kept until delivered; past it the oldest is lost (counted, and logged)."""
 
 
 def heater_slug(name: str) -> str:
@@ -112,6 +116,27 @@ def telemetry_payload(reading: marlin_aio.TemperatureReading) -> dict[str, Any]:
             "power_percent": None if fraction is None else round(fraction * 100, 1),
         }
     return {"time": round(reading.wall_time_s, 3), "heaters": heaters}
+
+
+async def _stop(tasks: list[asyncio.Task[None]]) -> None:
+    """Cancel `tasks` and wait (bounded) until they have ended."""
+    for task in tasks:
+        task.cancel()
+    _, pending = await asyncio.wait(tasks, timeout=5.0)
+    for task in pending:
+        _log.error("task %s did not end when cancelled", task.get_name())
+
+
+def _raise_if_cancelled() -> None:
+    """Raise CancelledError if this task was cancelled but the cancellation did not reach it.
+
+    On Python 3.11 `asyncio.wait_for` (which aiomqtt's publish uses) can swallow a cancellation that arrives as the
+    awaited publish completes; the task would then wait for the next wake-up forever while its TaskGroup waits for
+    it. (Python 3.12 rewrote `wait_for`.)
+    """
+    task = asyncio.current_task()
+    if task is not None and task.cancelling():
+        raise asyncio.CancelledError
 
 
 def _command_id(payload: bytes) -> object:
@@ -140,7 +165,7 @@ class Bridge:
         self.farm = farm
         self.broker = broker
         self.settings = settings
-        self._telemetry: deque[tuple[str, str]] = deque(maxlen=TELEMETRY_BUFFER)
+        self._telemetry: deque[tuple[str, str]] = deque(maxlen=settings.telemetry_buffer)
         # Events and command answers: QoS 1, each kept until the broker acknowledged it.
         self._reliable: deque[tuple[str, str]] = deque()
         self._group: asyncio.TaskGroup | None = None
@@ -181,10 +206,10 @@ class Bridge:
         self._queue_reliable(self.topic(event.printer, "events"), payload)
 
     def _queue_reliable(self, topic: str, payload: dict[str, Any]) -> None:
-        if len(self._reliable) >= EVENT_QUEUE:
+        if len(self._reliable) >= self.settings.event_queue:
             lost_topic, lost = self._reliable.popleft()
             self.events_lost += 1
-            _log.warning("event queue full (%d): lost %s on %s", EVENT_QUEUE, lost, lost_topic)
+            _log.warning("event queue full (%d): lost %s on %s", self.settings.event_queue, lost, lost_topic)
         self._reliable.append((topic, json.dumps(payload)))
         self._wake.set()
 
@@ -264,17 +289,24 @@ class Bridge:
                     await self._announce(client)
                     if self.on_connected is not None:
                         self.on_connected()
+                    # The message stream ends with an MqttError as soon as the broker goes away, even with nothing
+                    # subscribed: the session ends then, not at the next publish's timeout. (Two tasks and
+                    # asyncio.wait rather than a TaskGroup: on Python 3.11 a TaskGroup whose child fails while it
+                    # waits leaves this task marked as cancelling, which would end the reconnect loop.)
+                    session = [
+                        asyncio.create_task(self._publish_forever(client), name="publisher"),
+                        asyncio.create_task(self._listen(client), name="listener"),
+                    ]
                     try:
-                        async with asyncio.TaskGroup() as session:
-                            session.create_task(self._publish_forever(client), name="publisher")
-                            # The message stream ends with an MqttError as soon as the broker goes away, even with
-                            # nothing subscribed: the session ends then, not at the next publish's timeout.
-                            session.create_task(self._listen(client), name="listener")
+                        done, _ = await asyncio.wait(session, return_when=asyncio.FIRST_COMPLETED)
                     except asyncio.CancelledError:
+                        await _stop(session)
                         await self._say_goodbye(client)
                         raise
-            except* aiomqtt.MqttError as group:
-                exc = group.exceptions[0]
+                    await _stop(session)
+                    for task in done:
+                        task.result()  # the MqttError that ended the session
+            except aiomqtt.MqttError as exc:
                 if self.connected:
                     _log.warning("lost the broker at %s: %s; reconnecting", self.broker.address, exc)
                 else:
@@ -380,6 +412,7 @@ class Bridge:
                 name, payload_text = self._telemetry.popleft()
                 await client.publish(self.topic(name, "telemetry"), payload_text, qos=0)
                 self.published += 1
+            _raise_if_cancelled()
             await self._wake.wait()
 
     async def _publish_states(self, client: aiomqtt.Client) -> None:

@@ -34,6 +34,10 @@ pytestmark = pytest.mark.skipif(
 )
 
 
+# Started as root, Mosquitto becomes the `mosquitto` user, who cannot read or write the test's private directory.
+AS_US = "user root\n" if os.geteuid() == 0 else ""
+
+
 def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -54,7 +58,7 @@ class Broker:
         # Persistence keeps a subscriber's session across a restart (SIGTERM saves it), as a production broker would.
         config.write_text(
             f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence true\n"
-            f"persistence_location {self.directory}/\nautosave_interval 1\n"
+            f"persistence_location {self.directory}/\nautosave_interval 1\n{AS_US}"
         )
         assert MOSQUITTO is not None
         self.process = subprocess.Popen(
@@ -441,3 +445,120 @@ async def test_commands_are_off_unless_allowed(broker: Broker) -> None:
     assert "G28" not in list(sim.printer.executed)
     configs = [t for t, _, _ in sub.messages if t.startswith("homeassistant/")]
     assert not any("/number/" in t or "/button/" in t for t in configs)  # no controls that would not work
+
+
+@contextlib.contextmanager
+def secured_broker(directory: Path, extra: str) -> Iterator[int]:
+    """A Mosquitto with `extra` configuration (password file, TLS) on a free port."""
+    port = free_port()
+    config = directory / "secure.conf"
+    config.write_text(f"listener {port} 127.0.0.1\npersistence false\n{AS_US}{extra}")
+    assert MOSQUITTO is not None
+    process = subprocess.Popen([MOSQUITTO, "-c", str(config)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        for _ in range(200):
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.1):
+                break
+            assert process.poll() is None, process.stderr.read() if process.stderr else ""
+            time.sleep(0.05)  # polling a condition (the port accepts), bounded
+        yield port
+    finally:
+        process.terminate()
+        process.wait(10)
+
+
+@pytest.mark.skipif(shutil.which("mosquitto_passwd") is None, reason="mosquitto_passwd comes with Debian's mosquitto")
+async def test_a_broker_that_wants_a_password_gets_it_and_a_wrong_one_is_retried_not_fatal(tmp_path: Path) -> None:
+    passwords = tmp_path / "passwords"
+    command = ["mosquitto_passwd", "-b", "-c", str(passwords), "farm", "s3cret"]
+    await asyncio.to_thread(subprocess.run, command, check=True)
+    passwords.chmod(0o600)
+    extra = f"allow_anonymous false\npassword_file {passwords}\n"
+    with secured_broker(tmp_path, extra) as port:
+        async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+            spec = [PrinterSpec("a", sim.url, poll_interval_s=0.05)]
+            farm, wrong, _ = farm_and_bridge(spec, port)
+            wrong = Bridge(farm, BrokerSettings(port=port, username="farm", password="nope"), wrong.settings)
+            async with running(farm, wrong):
+                for _ in range(100):
+                    if farm.printers["a"].readings > 20:
+                        break
+                    await asyncio.sleep(0.05)  # polling a condition (readings flow), bounded
+                assert farm.printers["a"].readings > 20  # the printers do not care that the broker said no
+                assert wrong.connections == 0 and wrong.published == 0
+            assert "nope" not in repr(wrong.broker)  # never printed
+        async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+            farm, _, _ = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], port)
+            right = Bridge(farm, BrokerSettings(port=port, username="farm", password="s3cret"), BridgeSettings())
+            async with running(farm, right):
+                for _ in range(200):
+                    if right.published > 5:
+                        break
+                    await asyncio.sleep(0.05)  # polling a condition (messages published), bounded
+            assert right.connections >= 1 and right.published > 5
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl makes the test's certificates")
+async def test_tls_with_our_own_certificate_authority(tmp_path: Path) -> None:
+    def openssl(*args: str) -> None:
+        subprocess.run(["openssl", *args], check=True, capture_output=True)
+
+    ca_key, ca, key, request, cert = (
+        tmp_path / n for n in ("ca.key", "ca.pem", "server.key", "server.csr", "server.pem")
+    )
+    openssl(
+        "req",
+        "-x509",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-days",
+        "2",
+        "-subj",
+        "/CN=test CA",
+        "-keyout",
+        str(ca_key),
+        "-out",
+        str(ca),
+    )
+    openssl("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1", "-keyout", str(key), "-out", str(request))
+    names = tmp_path / "names.ext"
+    names.write_text("subjectAltName=IP:127.0.0.1\n")
+    openssl(
+        "x509", "-req", "-in", str(request), "-CA", str(ca), "-CAkey", str(ca_key), "-CAcreateserial",
+        "-days", "2", "-extfile", str(names), "-out", str(cert),
+    )  # fmt: skip
+    extra = f"allow_anonymous true\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n"
+    with secured_broker(tmp_path, extra) as port:
+        async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+            farm, _, _ = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], port)
+            plain = Bridge(farm, BrokerSettings(port=port), BridgeSettings())
+            secure = Bridge(farm, BrokerSettings(port=port, tls_ca=str(ca)), BridgeSettings())
+            async with running(farm, secure):
+                for _ in range(200):
+                    if secure.published > 5:
+                        break
+                    await asyncio.sleep(0.05)  # polling a condition (messages published), bounded
+            assert secure.connections >= 1 and secure.published > 5
+            async with running(farm, plain):
+                for _ in range(40):
+                    await asyncio.sleep(0.05)  # polling a condition (it never connects), bounded
+                    if plain.connections:
+                        break
+            assert plain.connections == 0  # a TLS listener refuses a plain client
+
+
+async def test_an_absent_broker_never_slows_the_printers_and_drops_the_oldest_telemetry(tmp_path: Path) -> None:
+    nobody = free_port()  # nothing listens here
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+        spec = [PrinterSpec("a", sim.url, poll_interval_s=0.02)]
+        farm, bridge, _ = farm_and_bridge(spec, nobody, telemetry_buffer=10, rate_hz=50.0)
+        async with running(farm, bridge):
+            for _ in range(400):
+                if farm.printers["a"].readings > 100:
+                    break
+                await asyncio.sleep(0.05)  # polling a condition (readings flow), bounded
+        assert farm.printers["a"].readings > 100  # polls went on at their rate
+        assert bridge.telemetry_dropped > 50  # the buffer kept the newest 10 and counted the rest
+        assert len(bridge._telemetry) == 10
+        assert bridge.connections == 0
