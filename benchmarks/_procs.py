@@ -91,12 +91,7 @@ def simulator(arguments: Sequence[str], printers: int = 1) -> Iterator[Simulator
             sim = Simulator(urls[0], list(arguments), urls=urls)
             yield sim
         finally:
-            process.terminate()
-            try:
-                process.wait(_STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+            _stop(process)
             if process.stdout is not None:
                 process.stdout.close()
             stderr.seek(0)
@@ -132,6 +127,16 @@ def run_worker(spec: dict[str, Any], timeout_s: float, prefix: Sequence[str] = (
         f"{spec['scenario']}/{spec['label']}: worker exited {completed.returncode} without a result:\n  "
         + "\n  ".join(tail)
     )
+
+
+def _stop(process: subprocess.Popen[Any]) -> None:
+    """SIGTERM, then SIGKILL if it has not gone within a few seconds."""
+    process.terminate()
+    try:
+        process.wait(_STOP_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
 
 
 def mosquitto_path() -> str | None:
@@ -177,12 +182,7 @@ def mosquitto(workdir: Path) -> Iterator[Broker]:
                 time.sleep(0.05)  # polling a condition (the port accepts), bounded
         yield Broker(port)
     finally:
-        process.terminate()
-        try:
-            process.wait(_STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
+        _stop(process)
 
 
 @contextlib.contextmanager
@@ -207,11 +207,6 @@ def subscriber(port: int, output: Path) -> Iterator[Path]:
                 raise BenchmarkRunError("the benchmark's MQTT subscriber did not subscribe within 15 s")
         yield output
     finally:
-        process.terminate()
-        try:
-            process.wait(_STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
+        _stop(process)
         if process.stdout is not None:
             process.stdout.close()

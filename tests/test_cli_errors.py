@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import io
 import os
 import shutil
@@ -10,6 +11,7 @@ import signal
 import subprocess
 import sys
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -46,10 +48,10 @@ def test_a_silent_port_exits_6(dead_pty: tuple[int, str]) -> None:
     assert "nothing was received" in one_line(result.output)
 
 
-def test_garbage_suggests_the_other_baud_rate(dead_pty: tuple[int, str]) -> None:
-    master, path = dead_pty
-    # A board talking at another rate looks like this: a steady stream of bytes, no line that makes sense. It must
-    # keep coming, as pyserial throws away what arrived before the port was opened.
+@contextlib.contextmanager
+def babbling(master: int) -> Iterator[None]:
+    """A board talking at another rate: a steady stream of bytes, no line that makes sense. It must keep coming while
+    the block runs, as pyserial throws away what arrived before the port was opened."""
     stop = threading.Event()
 
     def babble() -> None:
@@ -59,30 +61,24 @@ def test_garbage_suggests_the_other_baud_rate(dead_pty: tuple[int, str]) -> None
     noise = threading.Thread(target=babble, daemon=True)
     noise.start()
     try:
-        result = runner.invoke(app, ["set", "--port", path, "--baud", "250000", "--timeout", "0.5", "--bed", "50"])
+        yield
     finally:
         stop.set()
         noise.join()
+
+
+def test_garbage_suggests_the_other_baud_rate(dead_pty: tuple[int, str]) -> None:
+    master, path = dead_pty
+    with babbling(master):
+        result = runner.invoke(app, ["set", "--port", path, "--baud", "250000", "--timeout", "0.5", "--bed", "50"])
     assert result.exit_code == Exit.NO_ANSWER
     assert "wrong baud rate? 250000 is set (Marlin boards use 115200)" in one_line(result.output)
 
 
 def test_after_trying_both_rates_the_hint_names_both_and_suggests_neither_again(dead_pty: tuple[int, str]) -> None:
     master, path = dead_pty
-    stop = threading.Event()
-
-    def babble() -> None:
-        while not stop.wait(0.02):
-            os.write(master, b"\xf0\x80\x13\xfe\xff garbage \xc3\x00\n")
-
-    noise = threading.Thread(target=babble, daemon=True)
-    noise.start()
-    try:
-        # No --baud: 250000 is tried, then 115200.
+    with babbling(master):  # no --baud: 250000 is tried, then 115200
         result = runner.invoke(app, ["set", "--port", path, "--timeout", "0.5", "--bed", "50"])
-    finally:
-        stop.set()
-        noise.join()
     assert result.exit_code == Exit.NO_ANSWER
     # The progress note ("no answer at 250000 baud, trying 115200"), then the one error line.
     lines = [line for line in result.output.splitlines() if line.strip()]

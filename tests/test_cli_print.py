@@ -11,13 +11,12 @@ import signal
 import subprocess
 import sys
 import threading
-import time
-import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from rich.console import Console
+from test_cli_terminal import Tmux
 from typer.testing import CliRunner
 
 from marlin_aio import PrintProgress, PrintState
@@ -276,29 +275,6 @@ async def test_a_heater_wait_in_the_file_shows_heating_not_zero_lines_per_s(tmp_
 # ------------------------------------------------------------------------------------------- keys, in a terminal
 
 needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
-
-
-class Tmux:
-    """One tmux server of our own (its own socket), as in test_cli_terminal.py."""
-
-    def __init__(self) -> None:
-        self.socket = f"marlin-test-{uuid.uuid4().hex[:8]}"
-
-    def run(self, *args: str) -> str:
-        return subprocess.run(["tmux", "-L", self.socket, *args], capture_output=True, text=True, check=True).stdout
-
-    def screen(self) -> str:
-        return self.run("capture-pane", "-p", "-t", "w")
-
-    def wait_for(self, condition: Callable[[str], bool], what: str, limit_s: float = 60.0) -> str:
-        """Poll the screen until `condition` holds (bounded); the screen is the only signal a terminal gives."""
-        end = time.monotonic() + limit_s
-        while time.monotonic() < end:
-            screen = self.screen()
-            if condition(screen):
-                return screen
-            time.sleep(0.1)
-        raise AssertionError(f"timed out waiting for {what}; the screen shows:\n{self.screen()}")
 
 
 @pytest.fixture
