@@ -562,3 +562,42 @@ async def test_an_absent_broker_never_slows_the_printers_and_drops_the_oldest_te
         assert bridge.telemetry_dropped > 50  # the buffer kept the newest 10 and counted the rest
         assert len(bridge._telemetry) == 10
         assert bridge.connections == 0
+
+
+async def test_a_thermal_runaway_and_a_reset_are_events_of_their_own_printer_only(broker: Broker) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=20) as hot,
+        serve_pty(SimulatorConfig(), time_scale=20) as rebooted,
+        serve_pty(SimulatorConfig(), time_scale=20) as calm,
+        subscribed(broker.port) as sub,
+    ):
+        specs = [
+            PrinterSpec("hot", hot.url, poll_interval_s=0.05),
+            PrinterSpec("rebooted", rebooted.url, poll_interval_s=0.05),
+            PrinterSpec("calm", calm.url, poll_interval_s=0.05),
+        ]
+        farm, bridge, events = farm_and_bridge(specs, broker.port)
+        async with running(farm, bridge):
+            await sub.until(lambda: all(farm.printers[n].link_up for n in ("hot", "rebooted", "calm")), "all up")
+            await sub.until(lambda: len(sub.payloads("marlin/calm/telemetry")) >= 2, "telemetry")
+            hot.printer.thermal_runaway(hot.now())
+            hot.poke()
+            rebooted.printer.reset(rebooted.now())
+            rebooted.poke()
+            await sub.until(
+                lambda: "thermal_runaway" in [e["event"] for e in sub.payloads("marlin/hot/events")], "the runaway"
+            )
+            await sub.until(
+                lambda: "reset" in [e["event"] for e in sub.payloads("marlin/rebooted/events")], "the reset"
+            )
+            await sub.until(
+                lambda: any(
+                    s["last_error"] and "Thermal Runaway" in s["last_error"] for s in sub.payloads("marlin/hot/state")
+                ),
+                "the runaway in the state",
+            )
+            calm_telemetry = len(sub.payloads("marlin/calm/telemetry"))
+            await sub.until(lambda: len(sub.payloads("marlin/calm/telemetry")) > calm_telemetry + 5, "calm goes on")
+    assert [event.kind for event in events if event.printer == "calm"] == ["connected"]
+    runaway = next(e for e in sub.payloads("marlin/hot/events") if e["event"] == "thermal_runaway")
+    assert "Thermal Runaway" in runaway["message"]
