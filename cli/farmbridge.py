@@ -169,6 +169,7 @@ class Bridge:
         # Events and command answers: QoS 1, each kept until the broker acknowledged it.
         self._reliable: deque[tuple[str, str]] = deque()
         self._group: asyncio.TaskGroup | None = None
+        self._elsewhere: set[str] = set()  # printers of other bridges on the same broker
         self._wake = asyncio.Event()
         self._states_dirty = True
         self._discovery_dirty = True
@@ -320,16 +321,29 @@ class Bridge:
 
     async def _listen(self, client: aiomqtt.Client) -> None:
         """With commands allowed, take them from `PREFIX/+/command`: each is checked here and run in a task of its
-        own. Either way, return only by raising when the broker is lost."""
+        own. Either way, return only by raising when the broker is lost.
+
+        Several bridges may share a broker, each with printers of its own: the retained availability topics say
+        which printers exist, so a command for another bridge's printer is left to that bridge, and only a name
+        no bridge has is answered with an error.
+        """
+        prefix = self.settings.prefix
         if self.settings.allow_commands:
-            await client.subscribe(f"{self.settings.prefix}/+/command", qos=1)
+            await client.subscribe(f"{prefix}/+/availability", qos=1)
+            await client.subscribe(f"{prefix}/+/command", qos=1)
         async for message in client.messages:
             if not self.settings.allow_commands:
                 continue
             parts = message.topic.value.split("/")
-            if len(parts) < 3 or parts[-1] != "command":
+            if len(parts) < 3:
                 continue
             name = parts[-2]
+            if parts[-1] == "availability":
+                if name != "bridge" and name not in self.farm.printers:
+                    self._elsewhere.add(name)
+                continue
+            if parts[-1] != "command" or (name not in self.farm.printers and name in self._elsewhere):
+                continue
             payload = message.payload if isinstance(message.payload, bytes) else str(message.payload).encode()
             try:
                 command = parse_command(name, payload, self.farm.printers, self.settings.allowed_dir)

@@ -9,7 +9,9 @@ never printed.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
+import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -112,13 +114,23 @@ async def run_farm(
             style="dim",
         )
     started = time.monotonic()
+    # SIGTERM (systemd's stop) ends the farm as the end of --duration does: every printer and the bridge say
+    # offline, the summary is printed, exit 0. Ctrl-C does the same and exits 130.
+    stopped = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):  # not the main thread, or no signals
+        loop.add_signal_handler(signal.SIGTERM, stopped.set)
     try:
         async with asyncio.timeout(options.duration_s), asyncio.TaskGroup() as group:
-            group.create_task(farm.run(), name="farm")
-            group.create_task(bridge.run(), name="bridge")
+            running = [group.create_task(farm.run(), name="farm"), group.create_task(bridge.run(), name="bridge")]
+            await stopped.wait()
+            for task in running:
+                task.cancel()
     except TimeoutError:
         pass  # --duration is up: every printer and the broker connection were closed on the way out
     finally:
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+            loop.remove_signal_handler(signal.SIGTERM)
         if not options.quiet:
             errors.print(
                 f"farm: stopped after {time.monotonic() - started:.0f} s; {bridge.published} messages published, "

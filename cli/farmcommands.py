@@ -120,9 +120,17 @@ def parse_command(
         if len(commands) > MAX_GCODE_COMMANDS:
             raise CommandError(f"at most {MAX_GCODE_COMMANDS} commands at once, got {len(commands)}")
         checked = []
+        spec = farm_printer.spec
         for text in commands:
             try:
                 checked.append(marlin_aio.validate_command(text))
+                # A target typed as G-code meets the same limits as set_temperatures.
+                marlin_aio.check_gcode_targets(
+                    text,
+                    max_hotend_celsius=spec.max_hotend_celsius,
+                    max_bed_celsius=spec.max_bed_celsius,
+                    max_chamber_celsius=spec.max_chamber_celsius,
+                )
             except ValueError as exc:
                 raise CommandError(str(exc)) from None
         return FarmCommand(printer, action, command_id, gcode=tuple(checked))
@@ -157,6 +165,27 @@ def _allowed_path(value: object, allowed_dir: Path | None) -> Path:
     return path
 
 
+def _check_heaters(targets: dict[str, float | int], farm_printer: FarmPrinter) -> None:
+    """Refuse a target for a heater the printer does not report, as `marlin-temp set` does: nothing is sent."""
+    reading = farm_printer.latest
+    if reading is None:
+        raise CommandError(f"printer {farm_printer.name!r} has not reported its heaters yet; try again")
+    keys = set(reading.temperatures.heaters)
+    hotends = sorted(int(key[1:]) for key in keys if key[:1] == "T" and key[1:].isdigit()) or (
+        [0] if "T" in keys else []
+    )
+    has = [f"{len(hotends)} hotend{'s' if len(hotends) != 1 else ''}"] + [
+        name for key, name in (("B", "bed"), ("C", "chamber")) if key in keys
+    ]
+    tool = targets.get("tool")
+    missing = []
+    if "hotend" in targets and (not hotends or (tool is not None and int(tool) not in hotends)):
+        missing.append("hotend" if tool is None else f"hotend {tool}")
+    missing += [name for key, name in (("B", "bed"), ("C", "chamber")) if name in targets and key not in keys]
+    if missing:
+        raise CommandError(f"printer {farm_printer.name!r} has no {', '.join(missing)} (it has {', '.join(has)})")
+
+
 async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
     """Run a checked command on its printer; return the result to answer with.
 
@@ -170,6 +199,7 @@ async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
         raise CommandError(f"printer {farm_printer.name!r} is not connected")
     match command.action:
         case "set_temperatures":
+            _check_heaters(command.targets, farm_printer)
             targets = dict(command.targets)
             tool = targets.pop("tool", None)
             await printer.set_temperatures(

@@ -68,6 +68,7 @@ from marlin_aio.events import (
     UnrecognisedLine,
 )
 from marlin_aio.framing import LineSplitter
+from marlin_aio.heaters import check_gcode_targets
 from marlin_aio.linkstate import LinkState
 from marlin_aio.motion import (
     LONG_COMMAND_TIMEOUT_S,
@@ -164,6 +165,7 @@ __all__ = [
     "TraceEntry",
     "UnrecognisedLine",
     "__version__",
+    "check_gcode_targets",
     "check_target",
     "checksum",
     "classify_line",

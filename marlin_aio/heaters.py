@@ -12,7 +12,18 @@ from dataclasses import dataclass
 from marlin_aio.commands import check_target, format_celsius
 from marlin_aio.temperatures import TemperatureReading
 
-__all__ = ["HeaterLimits", "check_tool", "describe_heaters", "target_commands", "targets_reached", "wanted_targets"]
+__all__ = [
+    "HeaterLimits",
+    "check_gcode_targets",
+    "check_tool",
+    "describe_heaters",
+    "target_commands",
+    "targets_reached",
+    "wanted_targets",
+]
+
+#: The commands that set a target, with the heater they set.
+_TARGET_CODES = {"M104": "hotend", "M109": "hotend", "M140": "bed", "M190": "bed", "M141": "chamber", "M191": "chamber"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -22,6 +33,27 @@ class HeaterLimits:
     hotend: float
     bed: float
     chamber: float
+
+
+def check_gcode_targets(
+    command: str, *, max_hotend_celsius: float, max_bed_celsius: float, max_chamber_celsius: float
+) -> None:
+    """Check the target a raw G-code command sets (`M104 S300`, `M190 R70`) against the same limits as
+    `set_temperatures`, so typed G-code cannot get around them; other commands pass.
+
+    Raises:
+        ValueError: the command sets a target that is not a number, negative or above its limit.
+    """
+    words = command.split(";", 1)[0].split()
+    if words and words[0][:1] in "Nn" and words[0][1:].isdigit():
+        words = words[1:]
+    heater = _TARGET_CODES.get(words[0].upper()) if words else None
+    if heater is None:
+        return
+    limit = {"hotend": max_hotend_celsius, "bed": max_bed_celsius, "chamber": max_chamber_celsius}[heater]
+    for word in words[1:]:
+        if word[:1] in "SsRr":
+            check_target(heater, word[1:], limit)
 
 
 def check_tool(tool: int | None) -> None:

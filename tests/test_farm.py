@@ -359,6 +359,9 @@ async def test_commands_run_and_bad_payloads_are_refused_with_nothing_written(br
                 6: ("a", '{"id": 6, "action": "print", "path": "../secret.gcode"}'),
                 7: ("a", '{"id": 7, "action": "launch"}'),
                 8: ("a", '{"id": 8, "action": "gcode", "commands": ["M104 S50", "G1 X\\u00e9"]}'),
+                9: ("a", '{"id": 9, "action": "gcode", "command": "M104 S300"}'),
+                15: ("a", '{"id": 15, "action": "set_temperatures", "chamber": 30}'),
+                16: ("a", '{"id": 16, "action": "set_target", "heater": "hotend 3", "celsius": 40}'),
             }
             for id_, (printer, payload) in refused.items():
                 if id_ == 1:
@@ -377,6 +380,9 @@ async def test_commands_run_and_bad_payloads_are_refused_with_nothing_written(br
             assert "outside the allowed directory" in errors[6]
             assert "unknown action" in errors[7]
             assert "non-ASCII" in errors[8]
+            assert "above the limit of 260" in errors[9]  # typed G-code meets the same limits
+            assert "has no chamber (it has 1 hotend, bed)" in errors[15]  # as marlin-temp set refuses it
+            assert "has no hotend 3" in errors[16]
             # Nothing of any refused command reached either printer (M104 S50 came before the bad line: not sent).
             assert (not_polls(list(sim_a.printer.executed)), not_polls(list(sim_b.printer.executed))) == before
 
@@ -601,3 +607,54 @@ async def test_a_thermal_runaway_and_a_reset_are_events_of_their_own_printer_onl
     assert [event.kind for event in events if event.printer == "calm"] == ["connected"]
     runaway = next(e for e in sub.payloads("marlin/hot/events") if e["event"] == "thermal_runaway")
     assert "Thermal Runaway" in runaway["message"]
+
+
+async def test_bridges_sharing_a_broker_answer_only_for_their_own_printers(broker: Broker) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_a,
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_b,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="commander") as commander,
+    ):
+        farm_a, bridge_a, _ = farm_and_bridge(
+            [PrinterSpec("a", sim_a.url, poll_interval_s=0.05)], broker.port, allow_commands=True
+        )
+        farm_b, bridge_b, _ = farm_and_bridge(
+            [PrinterSpec("b", sim_b.url, poll_interval_s=0.05)], broker.port, allow_commands=True
+        )
+        async with running(farm_a, bridge_a), running(farm_b, bridge_b):
+            await sub.until(
+                lambda: (
+                    "online" in sub.texts("marlin/a/availability") and "online" in sub.texts("marlin/b/availability")
+                ),
+                "both printers online",
+            )
+            answer = await command(sub, commander, "b", '{"id": 1, "action": "gcode", "command": "M114"}', 1)
+            assert answer["ok"] is True
+            await command(sub, commander, "nobody", '{"id": 2, "action": "gcode", "command": "M114"}', 2)
+            # The answer to the next command comes after any stray one to the first would have.
+            await command(sub, commander, "b", '{"id": 3, "action": "gcode", "command": "M105"}', 3)
+    answers_for_b = [a for a in sub.payloads("marlin/b/response") if a["id"] == 1]
+    assert answers_for_b == [answer]  # bridge a left b's command to bridge b
+    assert all(not a["ok"] for a in sub.payloads("marlin/nobody/response"))  # a name no bridge has: an error
+
+
+async def test_sigterm_stops_the_farm_as_cleanly_as_its_duration_does(broker: Broker) -> None:
+    async with subscribed(broker.port) as sub:
+        process = await asyncio.create_subprocess_exec(
+            *(sys.executable, "-m", "marlin_temp", "farm", "--sim", "1", "--sim-speed", "20"),
+            *("--broker", f"127.0.0.1:{broker.port}"),
+            stdout=asyncio.subprocess.DEVNULL,
+            stderr=asyncio.subprocess.PIPE,
+        )
+        try:
+            await sub.until(lambda: len(sub.payloads("marlin/sim1/telemetry")) >= 2, "the bridge publishing")
+            process.send_signal(signal.SIGTERM)
+            _, stderr = await asyncio.wait_for(process.communicate(), 30)
+        finally:
+            if process.returncode is None:
+                process.kill()
+                await process.wait()
+        await sub.until(lambda: sub.texts("marlin/sim1/availability")[-1:] == ["offline"], "the printer offline")
+    assert process.returncode == 0
+    assert b"farm: stopped after" in stderr
