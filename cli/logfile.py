@@ -68,6 +68,14 @@ def column_prefix(key: str) -> str:
     return heater_name(key).replace(" ", "_")
 
 
+def _logged(heaters: dict[str, HeaterReading]) -> dict[str, HeaterReading]:
+    """The heaters a row records: with several hotends each by number only (`T`, the active one, repeats one of
+    them), as the screen and `watch --json` show them."""
+    if "T" in heaters and any(key[:1] == "T" and key[1:].isdigit() for key in heaters):
+        return {key: heater for key, heater in heaters.items() if key != "T"}
+    return heaters
+
+
 def _heater_columns(keys: Iterable[str]) -> list[str]:
     return [f"{column_prefix(key)}_{part}" for key in keys for part in HEATER_FIELDS]
 
@@ -215,15 +223,18 @@ class TemperatureLog:
             with self.path.open(encoding="utf-8", newline="") as existing:
                 first = existing.readline()
         except UnicodeDecodeError:
-            raise ValueError(f"{self.path} is not a marlin-temp log (not text): choose another --output file") from None
+            raise ValueError(f"{self.path} is not a marlin-temp log (not text): choose another file") from None
         with self.path.open("rb") as raw:
             raw.seek(-1, os.SEEK_END)
             needs_newline = raw.read(1) != b"\n"
         shown = first.strip()[:60]
-        other = "choose another --output file"
+        other = "choose another file"
         if first.lstrip().startswith("{"):
             if self.format != "jsonl":
-                raise ValueError(f"{self.path} holds JSON lines: log to it with --format jsonl, or {other}")
+                raise ValueError(
+                    f"{self.path} holds JSON lines and this log writes CSV: {other} "
+                    "('marlin-temp log --format jsonl' appends to it)"
+                )
             try:
                 record = json.loads(first)
             except ValueError:
@@ -239,7 +250,9 @@ class TemperatureLog:
             raise ValueError(f"{self.path} is not a marlin-temp log (its first line is {shown!r}): {other}")
         header = next(csv.reader([first]), [])
         if self.format != "csv":
-            raise ValueError(f"{self.path} is a CSV file: log to it with --format csv, or {other}")
+            raise ValueError(
+                f"{self.path} is a CSV file and this log writes JSON lines: {other} ('--format csv' appends to it)"
+            )
         if tuple(header[: len(FIXED_COLUMNS)]) == FIXED_COLUMNS:
             self._existing_columns = header
             return needs_newline
@@ -262,6 +275,8 @@ class TemperatureLog:
         if self.format != "csv":
             return
         keys = list(keys)
+        if "T" in keys and any(key[:1] == "T" and key[1:].isdigit() for key in keys):
+            keys.remove("T")  # as `_logged`: with several hotends, each by number only
         if self._keys is not None:
             if _heater_columns(self._keys) != _heater_columns(keys):
                 raise ValueError(
@@ -306,7 +321,7 @@ class TemperatureLog:
         if self._error is not None:
             error, self._error = self._error, None
             raise error
-        heaters = reading.temperatures.heaters
+        heaters = _logged(reading.temperatures.heaters)
         if not heaters:
             return False
         if self._keys is None and self.format == "csv":
@@ -363,7 +378,7 @@ class TemperatureLog:
         if summary.first_epoch_s is None:
             summary.first_epoch_s = reading.wall_time_s
         summary.last_epoch_s = reading.wall_time_s
-        for key, heater in reading.temperatures.heaters.items():
+        for key, heater in _logged(reading.temperatures.heaters).items():
             summary.first.setdefault(heater_name(key), heater.actual)
             summary.last[heater_name(key)] = heater.actual
 

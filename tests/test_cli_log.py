@@ -277,7 +277,7 @@ async def test_files_of_another_format_are_refused_before_anything_is_sent(
         assert sim.printer.executed_count == 0
     assert result.exit_code == Exit.USAGE
     assert message in one_line(result.output)
-    assert "choose another --output file" in result.output
+    assert "choose another file" in result.output
     assert output.read_text() == content  # untouched
 
 
@@ -333,3 +333,15 @@ def test_help_says_what_happens_to_an_older_file_and_what_the_columns_mean() -> 
     assert "is refused with one line before anything is sent to the printer" in text
     assert "power_percent" in text and "session_elapsed_s" in text
     assert "not again after a reconnect" in text
+
+
+async def test_several_hotends_are_logged_by_number_only(tmp_path: Path) -> None:
+    # `T` (the active hotend) repeats one of T0, T1: a column of its own would log it twice.
+    output = tmp_path / "two.csv"
+    async with serve_pty(SimulatorConfig(extruders=2), time_scale=20) as sim:
+        args = ["log", "--port", sim.url, "--output", str(output), "--interval", "0.1", "--duration", "1"]
+        result = await asyncio.to_thread(runner.invoke, app, args)
+    assert result.exit_code == 0, result.output
+    header = output.read_text().splitlines()[0].split(",")
+    assert "hotend_0_actual_c" in header and "hotend_1_actual_c" in header
+    assert "hotend_actual_c" not in header
