@@ -1,4 +1,4 @@
-"""The farm's printers from the command line (`--port NAME=PORT`, `--sim N`) or a TOML file, checked before
+"""The farm's printers from the command line (`--port NAME=PORT`, `--sims N`) or a TOML file, checked before
 anything is opened.
 
 A TOML file lists printers under `[[printer]]`, with defaults for all of them under `[defaults]`:
@@ -102,7 +102,7 @@ def load_config(path: Path) -> list[PrinterSpec]:
 def specs_from_options(
     ports: list[str], sim: int, *, baud: int, poll_interval_s: float, sim_speed: float
 ) -> list[PrinterSpec]:
-    """The printers of repeated `--port [NAME=]PORT` options and `--sim N` (named sim1, sim2, ...).
+    """The printers of repeated `--port [NAME=]PORT` options and `--sims N` (named sim1, sim2, ...).
 
     Raises:
         ValueError: a bad name, a name or port given twice, or no printer at all.
@@ -120,7 +120,7 @@ def specs_from_options(
         for index in range(sim)
     ]
     if not specs:
-        raise ValueError("no printers: give --port [NAME=]PORT (repeatable), --config FILE or --sim N")
+        raise ValueError("no printers: give --port [NAME=]PORT (repeatable), --config FILE or --sims N")
     return check_unique(specs)
 
 

@@ -31,6 +31,13 @@ class _Commands(TyperGroup):
     """The command group, showing on/off options as bare flags in `--help` (typer lists `--sim <bool>` otherwise,
     which reads as if a value were needed)."""
 
+    def get_params(self, ctx: Any) -> Any:
+        params = super().get_params(ctx)
+        for param in params:  # the group's own (--version, --help)
+            if getattr(param, "is_flag", False) and getattr(param, "metavar", "") is None:
+                param.metavar = ""
+        return params
+
     def get_command(self, ctx: Any, cmd_name: str) -> Any:  # Any: click's types differ between typer releases
         command = super().get_command(ctx, cmd_name)
         if command is not None:
@@ -165,9 +172,13 @@ PasswordOption = Annotated[
     ),
 ]
 # In `set`, --timeout bounds the wait for the targets (as users expect there); the answer timeout moves aside.
-MaxHotendOption = Annotated[float, typer.Option("--max-hotend", help="Highest hotend target allowed (C).")]
-MaxBedOption = Annotated[float, typer.Option("--max-bed", help="Highest bed target allowed (C).")]
-MaxChamberOption = Annotated[float, typer.Option("--max-chamber", help="Highest chamber target allowed (C).")]
+MaxHotendOption = Annotated[
+    float, typer.Option("--max-hotend", help="Highest hotend target allowed (C).", min=1, max=1000)
+]
+MaxBedOption = Annotated[float, typer.Option("--max-bed", help="Highest bed target allowed (C).", min=1, max=1000)]
+MaxChamberOption = Annotated[
+    float, typer.Option("--max-chamber", help="Highest chamber target allowed (C).", min=1, max=1000)
+]
 
 
 def _version_callback(value: bool) -> None:
@@ -249,7 +260,9 @@ def watch(
     ] = None,
     refresh: Annotated[float, typer.Option("--refresh", help="Seconds between screen redraws.", min=0.05)] = 1.0,
     window: Annotated[float, typer.Option("--window", help="Seconds of history in the chart.", min=5)] = 60.0,
-    tolerance: Annotated[float, typer.Option("--tolerance", help="Within this many C a heater is holding.")] = 2.0,
+    tolerance: Annotated[
+        float, typer.Option("--tolerance", help="Within this many C a heater is holding.", min=0)
+    ] = 2.0,
     log: Annotated[
         Path | None, typer.Option("--log", help="Also record every reading to this CSV file (on disk within a second).")
     ] = None,
@@ -265,6 +278,8 @@ def watch(
 
     ports = ports or []
     farm_specs = []
+    if sim and sims:
+        fail("--sim is one simulated printer, --sims N is N of them: give one of the two", Exit.USAGE)
     if len(ports) + sims + int(sim) > 1:
         from dataclasses import replace
 
@@ -732,7 +747,7 @@ _FARM_HELP = (
     "Run many printers in one process and publish them to an MQTT broker, with Home Assistant discovery."
     "\n\n"
     "Give the printers as --port NAME=PORT (repeatable), --config FILE (TOML: a \\[defaults] table and "
-    "\\[\\[printer]] tables with name, port, baud, poll_interval_s, max_hotend_celsius, ...), or --sim N for N "
+    "\\[\\[printer]] tables with name, port, baud, poll_interval_s, max_hotend_celsius, ...), or --sims N for N "
     "simulated printers. Each printer reconnects on its own, with backoff, when it is unplugged, halts or does not "
     "answer; the others go on."
     "\n\n"
@@ -742,7 +757,7 @@ _FARM_HELP = (
     "shows offline. The broker password comes from $MARLIN_MQTT_PASSWORD or --password-file, never from the "
     "command line."
     "\n\n"
-    "Try it: install Mosquitto (apt install mosquitto mosquitto-clients), run 'marlin-temp farm --sim 5', and "
+    "Try it: install Mosquitto (apt install mosquitto mosquitto-clients), run 'marlin-temp farm --sims 5', and "
     "watch with: mosquitto_sub -v -t 'marlin/#'"
 )
 
@@ -753,11 +768,13 @@ def farm(
         list[str] | None, typer.Option("--port", "-p", help="A printer as NAME=PORT (or just PORT); repeatable.")
     ] = None,
     config: Annotated[Path | None, typer.Option("--config", help="TOML file listing the printers.")] = None,
-    sim: Annotated[int, typer.Option("--sim", help="Add N simulated printers (sim1, sim2, ...).", min=0)] = 0,
+    sims: Annotated[
+        int, typer.Option("--sims", help="Add N simulated printers (sim1, sim2, ...).", min=0, metavar="N")
+    ] = 0,
     sim_speed: SimSpeedOption = 1.0,
     baud: BaudOption = None,
-    poll_interval: Annotated[
-        float, typer.Option("--poll-interval", help="Seconds between M105 polls of each printer.", min=0.005)
+    interval: Annotated[
+        float, typer.Option("--interval", help="Seconds between M105 polls of each printer.", min=0.005)
     ] = 0.1,
     broker: Annotated[str, typer.Option("--broker", help="MQTT broker as HOST[:PORT].")] = "127.0.0.1:1883",
     username: Annotated[str | None, typer.Option("--username", help="Broker user name.")] = None,
@@ -801,19 +818,19 @@ def farm(
 
     if duration is not None and not duration > 0:
         fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
-    if not (rate > 0 and rate <= 1 / poll_interval):
-        fail(f"--rate must be above 0 and at most the poll rate ({1 / poll_interval:g}/s), got {rate:g}", Exit.USAGE)
+    if not (rate > 0 and rate <= 1 / interval):
+        fail(f"--rate must be above 0 and at most the poll rate ({1 / interval:g}/s), got {rate:g}", Exit.USAGE)
     for name, value in (("--prefix", prefix), ("--discovery-prefix", discovery_prefix)):
         if not value or any(c in value for c in "#+ ") or value.startswith("/") or value.endswith("/"):
             fail(f"{name} {value!r}: a topic prefix without '#', '+', spaces or a leading or trailing '/'", Exit.USAGE)
     try:
         specs = load_config(config) if config is not None else []
-        if ports or sim or not specs:
+        if ports or sims or not specs:
             options_specs = specs_from_options(
                 ports or [],
-                sim,
+                sims,
                 baud=baud or marlin_aio.DEFAULT_BAUDRATE,
-                poll_interval_s=poll_interval,
+                poll_interval_s=interval,
                 sim_speed=sim_speed,
             )
             specs = check_unique(specs + options_specs)

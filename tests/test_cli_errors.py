@@ -267,3 +267,28 @@ def test_watch_refuses_a_duration_that_is_not_positive(duration: str) -> None:
     result = runner.invoke(app, ["watch", "--sim", "--duration", duration])
     assert result.exit_code == Exit.USAGE
     assert "--duration must be a positive number" in one_line(result.output)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["set", "--sim", "--hotend", "100", "--max-hotend", "-10"], "--max-hotend"),
+        (["watch", "--sim", "--tolerance", "-5"], "--tolerance"),
+        (["watch", "--sim", "--sims", "2"], "give one of the two"),
+    ],
+)
+def test_limits_and_counts_that_make_no_sense_are_refused(args: list[str], message: str) -> None:
+    result = runner.invoke(app, args)
+    assert result.exit_code == Exit.USAGE
+    assert message in one_line(result.output)
+
+
+def test_n_simulated_printers_is_sims_everywhere_and_polling_is_interval() -> None:
+    from marlin_aio.simulator._options import build_parser
+
+    for command in ("watch", "farm"):
+        shown = " ".join(runner.invoke(app, [command, "--help"], env={"COLUMNS": "200"}).output.split())
+        assert "--sims" in shown and "--interval" in shown and "--poll-interval" not in shown, command
+    assert build_parser().parse_args(["--sims", "3"]).printers == 3
+    shown = runner.invoke(app, ["--help"], env={"COLUMNS": "200"}).output
+    assert "<bool>" not in shown  # --version and --help too

@@ -75,13 +75,13 @@ def test_a_bad_toml_file_is_one_line_and_exit_2(tmp_path: Path, toml: str, messa
     [
         ([], "no printers"),
         (["--port", "a b=/dev/x"], "must be letters, digits"),
-        (["--sim", "1", "--rate", "0"], "--rate must be above 0"),
-        (["--sim", "1", "--poll-interval", "1", "--rate", "5"], "at most the poll rate"),
-        (["--sim", "1", "--broker", "host:99999"], "port must be a number from 1 to 65535"),
-        (["--sim", "1", "--prefix", "a/#"], "topic prefix"),
-        (["--sim", "1", "--tls-key", "k.pem"], "--tls-key needs --tls-cert"),
-        (["--sim", "1", "--allowed-dir", "."], "needs --allow-commands"),
-        (["--sim", "1", "--duration", "0"], "--duration must be a positive"),
+        (["--sims", "1", "--rate", "0"], "--rate must be above 0"),
+        (["--sims", "1", "--interval", "1", "--rate", "5"], "at most the poll rate"),
+        (["--sims", "1", "--broker", "host:99999"], "port must be a number from 1 to 65535"),
+        (["--sims", "1", "--prefix", "a/#"], "topic prefix"),
+        (["--sims", "1", "--tls-key", "k.pem"], "--tls-key needs --tls-cert"),
+        (["--sims", "1", "--allowed-dir", "."], "needs --allow-commands"),
+        (["--sims", "1", "--duration", "0"], "--duration must be a positive"),
         (["--config", "/nonexistent/farm.toml"], "No such file"),
     ],
 )
@@ -94,7 +94,7 @@ def test_bad_farm_options_are_one_line_and_exit_2(args: list[str], message: str)
 def test_a_password_is_never_on_the_command_line_and_needs_a_user(tmp_path: Path) -> None:
     secret = tmp_path / "password"
     secret.write_text("hunter2\n")
-    result = runner.invoke(app, ["farm", "--sim", "1", "--password-file", str(secret)])
+    result = runner.invoke(app, ["farm", "--sims", "1", "--password-file", str(secret)])
     assert result.exit_code == Exit.USAGE
     assert "no --username" in one_line(result.output) and "hunter2" not in result.output
     result = runner.invoke(app, ["farm", "--password", "x"])

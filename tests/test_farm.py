@@ -303,7 +303,7 @@ async def test_a_killed_bridge_shows_offline_through_its_last_will(broker: Broke
             "-m",
             "marlin_temp",
             "farm",
-            "--sim",
+            "--sims",
             "1",
             "--sim-speed",
             "20",
@@ -642,7 +642,7 @@ async def test_bridges_sharing_a_broker_answer_only_for_their_own_printers(broke
 async def test_sigterm_stops_the_farm_as_cleanly_as_its_duration_does(broker: Broker) -> None:
     async with subscribed(broker.port) as sub:
         process = await asyncio.create_subprocess_exec(
-            *(sys.executable, "-m", "marlin_temp", "farm", "--sim", "1", "--sim-speed", "20"),
+            *(sys.executable, "-m", "marlin_temp", "farm", "--sims", "1", "--sim-speed", "20"),
             *("--broker", f"127.0.0.1:{broker.port}"),
             stdout=asyncio.subprocess.DEVNULL,
             stderr=asyncio.subprocess.PIPE,

@@ -165,6 +165,7 @@ SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
         parse=_positive_int,
         metavar="N",
         default=1,
+        aliases=("--sims",),  # the name marlin-temp watch and farm give N simulated printers
     ),
     SimulatorOption(
         "--reset-on-open",
