@@ -16,12 +16,16 @@ from dataclasses import dataclass
 
 from marlin_aio import (
     DEFAULT_MAX_BED_CELSIUS,
+    DEFAULT_MAX_CHAMBER_CELSIUS,
     DEFAULT_MAX_HOTEND_CELSIUS,
     HEATER_NAMES,
     TemperatureReading,
+    check_gcode_targets,
     check_target,
     heater_name,
 )
+
+from .terminal import PASTE
 
 __all__ = [
     "HEATER_NAMES",
@@ -319,7 +323,10 @@ class WatchControls:
     # ------------------------------------------------------------------ keys in
 
     def press(self, key: str, model: WatchModel) -> Action | None:
-        """Handle one key (a character, or a whole escape sequence); return the action it asks for, if any."""
+        """Handle one key (a character, or a whole escape sequence) or a paste (`PASTE` and its text); return the
+        action it asks for, if any."""
+        if key.startswith(PASTE):
+            return self._paste(key[len(PASTE) :])
         if self._prompt is not None:
             return self._edit(key)
         if key == _ESCAPE:
@@ -331,11 +338,7 @@ class WatchControls:
         if key == "q":
             return Quit()
         if key in _PROMPTS:
-            self._prompt = _PROMPTS[key]
-            self.prompt = self._prompt.label
-            self.buffer = ""
-            if key in "hb":
-                self.stepped = self._prompt.what
+            self._open(key)
             return None
         if key == "o":
             self._wanted.clear()
@@ -367,6 +370,35 @@ class WatchControls:
             self.buffer += key  # a number only: letters typed by mistake must not become a target
         return None
 
+    def _open(self, key: str) -> None:
+        """Open the input line of `key` (h, b, f or :)."""
+        self._prompt = _PROMPTS[key]
+        self.prompt = self._prompt.label
+        self.buffer = ""
+        if key in "hb":
+            self.stepped = self._prompt.what
+
+    def _paste(self, text: str) -> Action | None:
+        """Pasted text goes into an open input line, one line of it only; anywhere else it is ignored whole."""
+        if self._prompt is None:
+            # Only a key that opens an input line may start it (`:M114` typed fast); no key command comes of a paste.
+            if text[:1].lower() not in _PROMPTS:
+                self.notice = Notice("pasted text is ignored here", ("press : and paste one G-code line",), error=True)
+                return None
+            self._open(text[0].lower())
+            text = text[1:]
+        lines = [line for line in text.replace("\r\n", "\n").replace("\r", "\n").split("\n")]
+        if len([line for line in lines[:-1] if line.strip()]) > 1 or (len(lines) > 1 and lines[-1].strip()):
+            self._close()
+            self.notice = Notice("several lines pasted", ("nothing sent: one line at a time",), error=True)
+            return None
+        action = None
+        for key in lines[0]:
+            action = self._edit(key) or action
+        if len(lines) > 1:  # the pasted line ended with Enter
+            action = self._edit("\r")
+        return action
+
     def _close(self) -> None:
         self._prompt = None
         self.prompt = None
@@ -376,6 +408,17 @@ class WatchControls:
         if not text:
             return None  # Enter on an empty line closes it, like Esc
         if prompt.what == "command":
+            try:
+                # A target typed as G-code meets the same limits as the keys' (M104 S999 is not sent).
+                check_gcode_targets(
+                    text,
+                    max_hotend_celsius=self.limits.hotend_celsius,
+                    max_bed_celsius=self.limits.bed_celsius,
+                    max_chamber_celsius=DEFAULT_MAX_CHAMBER_CELSIUS,
+                )
+            except ValueError as exc:
+                self.notice = Notice(str(exc), ("nothing sent",), error=True)
+                return None
             self._wanted.clear()  # the line may set targets itself: the readings say what they are now
             return SendCommand(text)
         if prompt.what == "fan":

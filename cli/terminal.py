@@ -16,7 +16,10 @@ import termios
 import tty
 from collections.abc import Callable, Iterator
 
-__all__ = ["key_presses", "on_stop_signals", "split_keys"]
+__all__ = ["PASTE", "key_presses", "on_stop_signals", "split_keys"]
+
+#: With `key_presses(raw=True)`, a paste (more than two keys in one read) arrives as PASTE followed by the text.
+PASTE = "\x00paste:"
 
 _ESCAPE = "\x1b"
 
@@ -73,8 +76,9 @@ def key_presses(callback: Callable[[str], None], *, raw: bool = False) -> Iterat
     """While active, call `callback` with each key pressed; yield whether stdin is a terminal at all.
 
     Keys are lower case, one character each; with `raw`, as typed (case kept, escape sequences whole, see
-    `split_keys`). The terminal is put in cbreak mode (keys arrive one at a time, unechoed; Ctrl-C still raises
-    SIGINT) and its mode is restored afterwards, however the block ends.
+    `split_keys`), and a paste arrives whole, as `PASTE` followed by its text. The terminal is put in cbreak mode
+    (keys arrive one at a time, unechoed; Ctrl-C still raises SIGINT) and its mode is restored afterwards, however
+    the block ends.
     """
     if not sys.stdin.isatty():
         yield False
@@ -88,7 +92,13 @@ def key_presses(callback: Callable[[str], None], *, raw: bool = False) -> Iterat
     def on_readable() -> None:
         with contextlib.suppress(OSError):
             text = decoder.decode(os.read(fd, 64))
-            for key in split_keys(text) if raw else text.lower():
+            keys = split_keys(text) if raw else list(text.lower())
+            if raw and len(keys) > 2:
+                # More keys than a person types between two reads: a paste. It is handed over whole, so pasted
+                # text is never taken for key commands (an `o` in it turning the heaters off).
+                callback(PASTE + text)
+                return
+            for key in keys:
                 callback(key)
 
     try:

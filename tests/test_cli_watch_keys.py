@@ -388,3 +388,27 @@ def test_without_a_terminal_on_stdin_the_live_view_has_no_keys(tmux: Tmux) -> No
     assert "Ctrl-C quits (keys need a terminal on stdin)" in screen and "h hotend" not in screen
     after = tmux.wait_for(lambda s: "MARLIN-EXIT=" in s, "watch to end after --duration")
     assert "MARLIN-EXIT=0" in after
+
+
+def test_a_paste_is_never_taken_for_keys() -> None:
+    from marlin_temp.terminal import PASTE
+
+    controls = WatchControls()
+    # Two lines pasted into the : line: nothing is sent, and the "o" and "1" in them turn nothing off or on.
+    assert press(controls, [":", PASTE + "M117 hello\r\nM117 world 1\r\n"]) == []
+    assert controls.notice is not None and controls.notice.error and "several lines" in controls.notice.title
+    assert controls.prompt is None
+    # Outside an input line a paste does nothing at all, unless it starts with the key of one (typed fast).
+    assert press(controls, [PASTE + "o1q2"]) == []
+    assert controls.notice is not None and "ignored" in controls.notice.title
+    assert press(controls, [PASTE + "h215\r"]) == [SetTargets(hotend=215.0)]
+    # One line pasted into the : line is taken whole, and sent with the Enter that ends it.
+    assert press(controls, [":", PASTE + "M117 hi there\r"]) == [SendCommand("M117 hi there")]
+
+
+def test_a_target_typed_as_gcode_meets_the_limits_of_the_keys() -> None:
+    controls = WatchControls(TargetLimits(hotend_celsius=220))
+    assert press(controls, ":M104 S230\r") == []
+    assert controls.notice is not None and "above the limit of 220" in controls.notice.title
+    assert controls.notice.lines == ("nothing sent",)
+    assert press(controls, ":M104 S210\r") == [SendCommand("M104 S210")]
