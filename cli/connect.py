@@ -128,6 +128,8 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
         ):
             yield printer, f"{server.url} (simulated)"
         return
+    if options.port is not None and not options.port.strip():
+        raise UsageProblem("--port is empty: give a device path or URL, or leave --port out to find the printer")
     port = options.port or _choose_port(console)
     rates = [options.baud] if options.baud else list(marlin_aio.BAUD_RATES)
     for index, baud in enumerate(rates):

@@ -237,7 +237,7 @@ class Farm:
         self.emit(
             farm_printer,
             "connected",
-            f"connected to {farm_printer.url} ({farm_printer.firmware or 'firmware unknown'})",
+            f"{farm_printer.url} ({farm_printer.firmware or 'firmware unknown'})",
         )
         if printer.reset_on_open:
             self.emit(

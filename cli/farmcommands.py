@@ -104,6 +104,8 @@ def parse_command(
     if action == "set_target":
         heater = body.get("heater")
         tool: int | None = None
+        if isinstance(heater, str):
+            heater = heater.replace("_", " ")  # "hotend_1", as Home Assistant's entity ids spell it
         if isinstance(heater, str) and heater.startswith("hotend ") and heater[7:].isdigit():
             heater, tool = "hotend", int(heater[7:])
         if heater not in ("hotend", "bed", "chamber"):

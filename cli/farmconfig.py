@@ -112,6 +112,8 @@ def specs_from_options(
         name, sep, port = text.partition("=")
         if not sep or "://" in name:
             name, port = f"printer{index + 1}", text
+        if not port.strip():
+            raise ValueError(f"--port {text}: no port after the name (give NAME=PORT)")
         specs.append(
             PrinterSpec(name=_check_name(name, f"--port {text}"), port=port, baud=baud, poll_interval_s=poll_interval_s)
         )

@@ -67,7 +67,8 @@ class _Commands(TyperGroup):
                 exc.show()  # type: ignore[attr-defined]  # `marlin-temp` alone shows the help
             else:
                 ctx = getattr(exc, "ctx", None)
-                where = f" ({ctx.command_path} --help lists the options)" if ctx is not None else ""
+                listed = "commands" if "No such command" in str(exc) else "options"
+                where = f" ({ctx.command_path} --help lists the {listed})" if ctx is not None else ""
                 message = exc.format_message()  # type: ignore[attr-defined]
                 _stderr().print(f"[bold red]error:[/] {escape(message)}{escape(where)}", markup=True)
             sys.exit(getattr(exc, "exit_code", 2))
@@ -849,8 +850,10 @@ def farm(
         fail(str(exc), Exit.USAGE)
     except OSError as exc:
         fail(f"{config}: {exc.strerror or exc}", Exit.USAGE)
-    if allowed_dir is not None and (not allow_commands or not allowed_dir.is_dir()):
-        fail(f"--allowed-dir {allowed_dir}: needs --allow-commands and an existing folder", Exit.USAGE)
+    if allowed_dir is not None and not allow_commands:
+        fail(f"--allowed-dir {allowed_dir} is for prints over MQTT: give --allow-commands too", Exit.USAGE)
+    if allowed_dir is not None and not allowed_dir.is_dir():
+        fail(f"--allowed-dir {allowed_dir}: no such folder", Exit.USAGE)
     settings = BridgeSettings(
         prefix=prefix,
         rate_hz=rate,
@@ -859,7 +862,9 @@ def farm(
         allow_commands=allow_commands,
         allowed_dir=allowed_dir,
     )
-    run(run_farm(specs, broker_at, settings, FarmOptions(duration_s=duration), _stderr()))
+    bridge = run(run_farm(specs, broker_at, settings, FarmOptions(duration_s=duration), _stderr()))
+    if bridge.connections == 0:
+        fail(f"never reached the MQTT broker at {broker_at.address}: is it running (and the address right)?")
 
 
 @app.command("bench", help=_BENCH_HELP, epilog=EXIT_CODES_HELP)

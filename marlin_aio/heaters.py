@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 
 from marlin_aio.commands import check_target, format_celsius
-from marlin_aio.temperatures import TemperatureReading
+from marlin_aio.temperatures import TemperatureReading, heater_name
 
 __all__ = [
     "HeaterLimits",
@@ -119,12 +119,12 @@ def targets_reached(
 
 
 def describe_heaters(reading: TemperatureReading) -> str:
-    """The heaters of `reading` as "T 198.2/200 C, B 60.0/60 C", for messages."""
+    """The heaters of `reading` as "hotend 198.2/200 C, bed 60.0/60 C", for messages (named as everywhere else)."""
     parts = []
     heaters = reading.temperatures.heaters
     for key, heater in heaters.items():
         if key == "T" and "T0" in heaters:
             continue  # the active hotend appears again under its number
         if key[:1] in ("T", "B", "C") and heater.target is not None and not math.isnan(heater.actual):
-            parts.append(f"{key} {heater.actual:.1f}/{heater.target:.0f} C")
+            parts.append(f"{heater_name(key)} {heater.actual:.1f}/{heater.target:.0f} C")
     return ", ".join(parts) or "no heaters reported"

@@ -292,3 +292,14 @@ def test_n_simulated_printers_is_sims_everywhere_and_polling_is_interval() -> No
     assert build_parser().parse_args(["--sims", "3"]).printers == 3
     shown = runner.invoke(app, ["--help"], env={"COLUMNS": "200"}).output
     assert "<bool>" not in shown  # --version and --help too
+
+
+def test_an_empty_port_is_refused_not_taken_for_auto_detection() -> None:
+    result = runner.invoke(app, ["set", "--port", "", "--hotend", "20"])
+    assert result.exit_code == Exit.USAGE
+    assert "--port is empty" in one_line(result.output)
+
+
+def test_an_unknown_command_points_to_the_list_of_commands() -> None:
+    result = runner.invoke(app, ["bogus"])
+    assert "lists the commands" in one_line(result.output)

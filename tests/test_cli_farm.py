@@ -80,7 +80,7 @@ def test_a_bad_toml_file_is_one_line_and_exit_2(tmp_path: Path, toml: str, messa
         (["--sims", "1", "--broker", "host:99999"], "port must be a number from 1 to 65535"),
         (["--sims", "1", "--prefix", "a/#"], "topic prefix"),
         (["--sims", "1", "--tls-key", "k.pem"], "--tls-key needs --tls-cert"),
-        (["--sims", "1", "--allowed-dir", "."], "needs --allow-commands"),
+        (["--sims", "1", "--allowed-dir", "."], "give --allow-commands too"),
         (["--sims", "1", "--duration", "0"], "--duration must be a positive"),
         (["--config", "/nonexistent/farm.toml"], "No such file"),
     ],
@@ -99,3 +99,22 @@ def test_a_password_is_never_on_the_command_line_and_needs_a_user(tmp_path: Path
     assert "no --username" in one_line(result.output) and "hunter2" not in result.output
     result = runner.invoke(app, ["farm", "--password", "x"])
     assert result.exit_code == Exit.USAGE  # no such option: secrets do not go in argv
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--port", "a="], "no port after the name"),
+        (["--sims", "1", "--allowed-dir", "/nonexistent", "--allow-commands"], "no such folder"),
+    ],
+)
+def test_more_bad_farm_options(args: list[str], message: str) -> None:
+    result = runner.invoke(app, ["farm", *args])
+    assert result.exit_code == Exit.USAGE, result.output
+    assert message in one_line(result.output)
+
+
+def test_a_farm_that_never_reached_its_broker_does_not_exit_0() -> None:
+    result = runner.invoke(app, ["farm", "--sims", "1", "--broker", "127.0.0.1:9", "--duration", "1.5"])
+    assert result.exit_code == Exit.ERROR
+    assert "never reached the MQTT broker at 127.0.0.1:9" in result.output
