@@ -331,7 +331,7 @@ def watch_view(
     """The whole live view: heater table, chart, footer, and (with `controls`) the reply area and the key help.
 
     Everything is laid out for `width` columns (40 and up). Given the terminal's `height`, the chart takes what
-    the other parts leave (6 to 30 rows) instead of `chart_height`.
+    the other parts leave (up to 30 rows) instead of `chart_height`, and none at all when fewer than 4 are left.
     """
     statuses = [model.status(key) for key in model.heater_keys()]
     quit_hint = "q quits" if controls is None else ""
@@ -343,9 +343,14 @@ def watch_view(
         used += 1 + _lines(bottom, width)
         if under is not None:
             used += _lines(under, width)
-        chart_height = min(max(height - used - 1, 6), 30)  # one line spare: the cursor's line after the view
+        # One line spare: the cursor's line after the view. The chart gives way first: on a short terminal the
+        # footer, a reply and the key help (how to quit) stay on screen and the chart goes.
+        room = height - used - 1
+        chart_height = min(room, 30) if room >= 4 else 0
     parts: list[RenderableType] = [heater_table(statuses, width), Text("")]
-    parts += [chart(model, width=width, height=chart_height), Text(""), bottom]
+    if chart_height:
+        parts += [chart(model, width=width, height=chart_height), Text("")]
+    parts.append(bottom)
     if under is not None:
         parts.append(under)
     return Group(*parts)

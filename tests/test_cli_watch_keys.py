@@ -232,6 +232,10 @@ def test_the_chart_takes_the_rows_the_other_parts_leave(width: int) -> None:
     assert len(rendered(40)) == 39  # one line spare, for the cursor
     tall = rendered(80)
     assert chart_rows(tall) == 30 and len(tall) < 79  # the chart stops at 30 rows
+    # A short terminal: the chart gives way, and the reply's last line and how to quit stay on screen.
+    short = rendered(26)
+    assert len(short) <= 25
+    assert any("echo: line 7" in line for line in short) and any("q quit" in line for line in short)
 
 
 # ------------------------------------------------------------------------------------------- actions on a printer
