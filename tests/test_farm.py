@@ -504,54 +504,56 @@ async def test_a_broker_that_wants_a_password_gets_it_and_a_wrong_one_is_retried
             assert right.connections >= 1 and right.published > 5
 
 
-@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl makes the test's certificates")
-async def test_tls_with_our_own_certificate_authority(tmp_path: Path) -> None:
-    def openssl(*args: str) -> None:
-        subprocess.run(["openssl", *args], check=True, capture_output=True)
+def openssl(*args: str) -> None:
+    subprocess.run(["openssl", *args], check=True, capture_output=True)
 
-    ca_key, ca, key, request, cert = (
-        tmp_path / n for n in ("ca.key", "ca.pem", "server.key", "server.csr", "server.pem")
-    )
-    openssl(
-        "req",
-        "-x509",
-        "-newkey",
-        "rsa:2048",
-        "-nodes",
-        "-days",
-        "2",
-        "-subj",
-        "/CN=test CA",
-        "-keyout",
-        str(ca_key),
-        "-out",
-        str(ca),
-    )
-    openssl("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1", "-keyout", str(key), "-out", str(request))
-    names = tmp_path / "names.ext"
-    names.write_text("subjectAltName=IP:127.0.0.1\n")
-    openssl(
-        "x509", "-req", "-in", str(request), "-CA", str(ca), "-CAkey", str(ca_key), "-CAcreateserial",
-        "-days", "2", "-extfile", str(names), "-out", str(cert),
-    )  # fmt: skip
-    extra = f"allow_anonymous true\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n"
-    with secured_broker(tmp_path, extra) as port:
-        async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
-            farm, _, _ = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], port)
-            plain = Bridge(farm, BrokerSettings(port=port), BridgeSettings())
-            secure = Bridge(farm, BrokerSettings(port=port, tls_ca=str(ca)), BridgeSettings())
-            async with running(farm, secure):
-                for _ in range(200):
-                    if secure.published > 5:
-                        break
-                    await asyncio.sleep(0.05)  # polling a condition (messages published), bounded
-            assert secure.connections >= 1 and secure.published > 5
-            async with running(farm, plain):
-                for _ in range(40):
-                    await asyncio.sleep(0.05)  # polling a condition (it never connects), bounded
-                    if plain.connections:
-                        break
-            assert plain.connections == 0  # a TLS listener refuses a plain client
+
+def certificate_authority(directory: Path) -> tuple[Path, Path]:
+    """A CA of the test's own: (its certificate, its key)."""
+    ca, ca_key = directory / "ca.pem", directory / "ca.key"
+    openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj", "/CN=test CA",
+            "-keyout", str(ca_key), "-out", str(ca))  # fmt: skip
+    return ca, ca_key
+
+
+def issue(directory: Path, name: str, ca: tuple[Path, Path], *, ip: str | None = None) -> tuple[Path, Path]:
+    """A certificate for `name` signed by `ca`: (the certificate, its key)."""
+    key, request, cert = (directory / f"{name}.{ext}" for ext in ("key", "csr", "pem"))
+    openssl("req", "-newkey", "rsa:2048", "-nodes", "-subj", f"/CN={ip or name}", "-keyout", str(key),
+            "-out", str(request))  # fmt: skip
+    extensions = directory / f"{name}.ext"
+    extensions.write_text(f"subjectAltName=IP:{ip}\n" if ip else "extendedKeyUsage=clientAuth\n")
+    openssl("x509", "-req", "-in", str(request), "-CA", str(ca[0]), "-CAkey", str(ca[1]), "-CAcreateserial",
+            "-days", "2", "-extfile", str(extensions), "-out", str(cert))  # fmt: skip
+    return cert, key
+
+
+async def publishes(farm: Farm, bridge: Bridge) -> bool:
+    """Whether `bridge` connects and publishes within a bounded wait (5 s)."""
+    async with running(farm, bridge):
+        for _ in range(100):
+            if bridge.published > 5:
+                break
+            await asyncio.sleep(0.05)  # polling a condition (messages published), bounded
+    return bool(bridge.connections >= 1 and bridge.published > 5)
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl makes the test's certificates")
+async def test_tls_with_our_own_certificate_authority_and_a_client_certificate(tmp_path: Path) -> None:
+    ca = await asyncio.to_thread(certificate_authority, tmp_path)
+    server = await asyncio.to_thread(issue, tmp_path, "server", ca, ip="127.0.0.1")
+    client = await asyncio.to_thread(issue, tmp_path, "bridge", ca)
+    tls = f"allow_anonymous true\ncafile {ca[0]}\ncertfile {server[0]}\nkeyfile {server[1]}\n"
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+        farm, _, _ = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], 1)
+        with secured_broker(tmp_path, tls) as port:
+            assert await publishes(farm, Bridge(farm, BrokerSettings(port=port, tls_ca=str(ca[0])), BridgeSettings()))
+            assert not await publishes(farm, Bridge(farm, BrokerSettings(port=port), BridgeSettings()))  # plain
+        with secured_broker(tmp_path, tls + "require_certificate true\n") as port:
+            anonymous = BrokerSettings(port=port, tls_ca=str(ca[0]))
+            assert not await publishes(farm, Bridge(farm, anonymous, BridgeSettings()))
+            signed = BrokerSettings(port=port, tls_ca=str(ca[0]), tls_cert=str(client[0]), tls_key=str(client[1]))
+            assert await publishes(farm, Bridge(farm, signed, BridgeSettings()))
 
 
 async def test_an_absent_broker_never_slows_the_printers_and_drops_the_oldest_telemetry(tmp_path: Path) -> None:
