@@ -928,8 +928,11 @@ def plot(
         message = plot_log(logfile, output, show, Console(highlight=False), session)
     except UsageProblem as exc:
         fail(str(exc), exc.code)
-    except (ValueError, OSError) as exc:
+    except ValueError as exc:
         fail(str(exc))
+    except OSError as exc:
+        # In words, with the file: "No such file or directory: temps.csv", not "[Errno 2] ...".
+        fail(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc), Exit.USAGE)
     if message:
         _stderr().print(message)
 

@@ -194,3 +194,11 @@ def test_a_png_has_the_sessions_on_a_time_axis(two_sessions: tuple[Path, str, st
     assert result.exit_code == 0, result.output
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "90 readings in 2 sessions" in result.stderr and "(5 min 29 s)" in result.stderr
+
+
+@pytest.mark.parametrize(("name", "message"), [("nofile.csv", "No such file or directory"), (".", "Is a directory")])
+def test_a_log_that_cannot_be_read_is_said_in_words_with_its_name(tmp_path: Path, name: str, message: str) -> None:
+    result = runner.invoke(app, ["plot", str(tmp_path / name), "--show"])
+    assert result.exit_code == Exit.USAGE
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and message in lines[0] and "Errno" not in lines[0]
