@@ -337,52 +337,63 @@ async def lean_floor_round_trips(spec: Result) -> Result:
         await asyncio.sleep(0.05)  # the port closes in an executor
 
 
-async def lean_floor_polling(spec: Result) -> Result:
-    """Polling driven by one timer callback, as marlin_aio's poller is, reading the hotend's temperature from each
-    answer; a slot whose answer is still out is skipped (the same schedule as marlin_aio's)."""
-    loop = asyncio.get_running_loop()
-    transport, protocol = await _lean_link(spec["url"])
-    times: list[float] = []
-    interval = spec["interval_s"]
-    state = {"pending": False, "next": 0.0, "sent": 0.0}
+class _LeanPoller:
+    """The lean floor's poller for one link: one timer callback on the 10 ms schedule, as marlin_aio's poller is,
+    reading the hotend's temperature from each answer. A slot whose answer is still out is skipped (the same
+    schedule as marlin_aio's); an answer out for longer than a correct client would wait for is given up."""
 
-    def on_line(line: bytes) -> None:
+    def __init__(self, transport: Any, protocol: _LeanProtocol, interval_s: float) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._transport = transport
+        self._interval = interval_s
+        self._pending = False
+        self._sent = 0.0
+        self._next = self._loop.time()
+        self.times: list[float] = []
+        protocol.on_line = self._on_line
+        self._timer: asyncio.TimerHandle | asyncio.Handle = self._loop.call_soon(self._tick)
+
+    def _on_line(self, line: bytes) -> None:
         if line.startswith(b"ok T:"):
             float(line[5:].split(b" ", 1)[0])  # the hotend's temperature, read
-            times.append(loop.time())
-            state["pending"] = False
+            self.times.append(self._loop.time())
+            self._pending = False
 
-    def tick() -> None:
-        now = loop.time()
-        # An answer still out is waited for up to the timeout a correct client needs, then given up.
-        if not state["pending"] or now - state["sent"] > ANSWER_TIMEOUT_S:
-            transport.write(b"M105\n")  # type: ignore[attr-defined]
-            state["pending"] = True
-            state["sent"] = now
-        state["next"] += interval
-        if state["next"] <= now:
-            state["next"] = now + interval
-        timer[0] = loop.call_at(state["next"], tick)
+    def _tick(self) -> None:
+        now = self._loop.time()
+        if not self._pending or now - self._sent > ANSWER_TIMEOUT_S:
+            self._transport.write(b"M105\n")
+            self._pending = True
+            self._sent = now
+        self._next += self._interval
+        if self._next <= now:
+            self._next = now + self._interval
+        self._timer = self._loop.call_at(self._next, self._tick)
 
-    protocol.on_line = on_line
+    def stop(self) -> None:
+        self._timer.cancel()
+
+
+async def lean_floor_polling(spec: Result) -> Result:
+    """Polling one link driven by one timer callback (`_LeanPoller`)."""
+    transport, protocol = await _lean_link(spec["url"])
     try:
         meter = Meter()
-        state["next"] = loop.time()
-        timer = [loop.call_soon(tick)]
+        poller = _LeanPoller(transport, protocol, spec["interval_s"])
         await asyncio.sleep(spec["seconds"])
-        timer[0].cancel()
+        poller.stop()
         wall, cpu = meter.stop()
     finally:
         transport.close()
         await asyncio.sleep(0.05)
     return {
-        "readings": len(times),
+        "readings": len(poller.times),
         "other_readings": 0,
         "timeouts": 0,
         "wall_s": wall,
         "cpu_s": cpu,
         **meter.split(),
-        **interval_stats(times),
+        **interval_stats(poller.times),
     }
 
 
@@ -660,46 +671,15 @@ async def marlin_many(spec: Result) -> Result:
 
 
 async def lean_floor_many(spec: Result) -> Result:
-    """N lean links on one event loop, each driven by its own timer callback as in `lean_floor_polling`, reading
-    the hotend's temperature from each answer and skipping a slot whose answer is still out."""
-    loop = asyncio.get_running_loop()
+    """N lean links on one event loop, each driven by its own `_LeanPoller`."""
     links = await asyncio.gather(*(_lean_link(url) for url in spec["urls"]))
-    interval = spec["interval_s"]
-    per_printer: list[list[float]] = []
-    timers: list[asyncio.TimerHandle | asyncio.Handle] = []
-
-    def drive(transport: Any, protocol: _LeanProtocol, times: list[float], index: int) -> None:
-        state = {"pending": False, "next": loop.time(), "sent": 0.0}
-
-        def on_line(line: bytes) -> None:
-            if line.startswith(b"ok T:"):
-                float(line[5:].split(b" ", 1)[0])  # the hotend's temperature, read
-                times.append(loop.time())
-                state["pending"] = False
-
-        def tick() -> None:
-            now = loop.time()
-            if not state["pending"] or now - state["sent"] > ANSWER_TIMEOUT_S:
-                transport.write(b"M105\n")
-                state["pending"] = True
-                state["sent"] = now
-            state["next"] += interval
-            if state["next"] <= now:
-                state["next"] = now + interval
-            timers[index] = loop.call_at(state["next"], tick)
-
-        protocol.on_line = on_line
-        timers.append(loop.call_soon(tick))
-
     try:
         meter = Meter()
         probe = LagProbe()
-        for index, (transport, protocol) in enumerate(links):
-            per_printer.append([])
-            drive(transport, protocol, per_printer[-1], index)
+        pollers = [_LeanPoller(transport, protocol, spec["interval_s"]) for transport, protocol in links]
         await asyncio.sleep(spec["seconds"])
-        for timer in timers:
-            timer.cancel()
+        for poller in pollers:
+            poller.stop()
         lag = probe.stop()
         wall, cpu = meter.stop()
     finally:
@@ -713,7 +693,7 @@ async def lean_floor_many(spec: Result) -> Result:
         "cpu_s": cpu,
         **meter.split(),
         **lag,
-        **many_summary(per_printer, wall),
+        **many_summary([poller.times for poller in pollers], wall),
     }
 
 
