@@ -49,7 +49,6 @@ async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, passwo
         except TimeoutError:
             break
     link.line_seen = None
-    reset_on_open = link.stats().resets > 0
     # Whatever is left of the banner (half a line, noise from the reset) must not prefix the first reply.
     link.flush_input()
     # 2. Synchronise: M105 until one is answered (commands written during a reset are lost, so retry), then set
@@ -86,7 +85,9 @@ async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, passwo
         await send_until_processed(link, "M115", timeout_s=timeout_s)
     except CommandTimeoutError as exc:
         raise HandshakeTimeoutError(f"the printer did not answer M115: {exc}", step="identify") from exc
-    return reset_on_open
+    # A board's banner can come during the boot wait or, from a slow bootloader, while the first M105 waits: both
+    # are the reset of this open.
+    return link.stats().resets > 0
 
 
 async def send_until_processed(link: Link, command: str, *, timeout_s: float) -> None:
