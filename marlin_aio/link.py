@@ -321,6 +321,15 @@ def _why_lost(exc: Exception | None) -> str:
     access on port?)")."""
     if exc is None:
         return ""
-    if "returned no data" in str(exc) or getattr(exc, "errno", None) in (errno.EIO, errno.ENXIO, errno.ENODEV):
+    gone = (errno.EIO, errno.ENXIO, errno.ENODEV)
+    # pyserial wraps the OSError of a failed write in a SerialException that keeps only its text ("write failed:
+    # [Errno 5] Input/output error"), so the error number is looked for in the text and in the cause too.
+    causes = [exc, exc.__cause__, exc.__context__]
+    text = str(exc)
+    if (
+        "returned no data" in text
+        or any(getattr(cause, "errno", None) in gone for cause in causes if cause is not None)
+        or any(f"[Errno {number}]" in text for number in gone)
+    ):
         return ": the port went away (the printer was unplugged or switched off, or its USB bridge reset)"
     return f": {exc}"

@@ -420,3 +420,19 @@ async def wait_until_sent(printer: marlin_aio.Printer, text: str) -> None:
             return
         await asyncio.sleep(0)
     raise AssertionError(f"{text!r} was never sent")
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        "device reports readiness to read but returned no data (device disconnected or multiple access on port?)",
+        "write failed: [Errno 5] Input/output error",  # a write that found the port gone, as pyserial words it
+    ],
+)
+def test_a_port_that_went_away_is_said_in_words_whichever_way_pyserial_noticed(error: str) -> None:
+    import serial
+
+    from marlin_aio.link import _why_lost
+
+    assert _why_lost(serial.SerialException(error)).startswith(": the port went away")
+    assert _why_lost(ValueError("something else")) == ": something else"
