@@ -16,7 +16,8 @@ ends pyserial's `open()` (which would otherwise throw the banner away). This is 
 DTR is modelled as a real port has it: the first open raises it (the board resets), and closing drops it again
 only while the terminal has HUPCL set, the default. A client that clears HUPCL (`stty -hupcl`, as marlin_aio
 does) leaves DTR up, so the next open finds the board running, targets and all. The slave is held open here, so
-its settings outlive each client, as a real port's do; the setting is read at each set-up.
+its settings outlive each client, as a real port's do; an open resets the board when the setting seen before it
+(how the last client left the port) had HUPCL set.
 
 Only os, pty, tty and termios are used for the pseudo-terminal, never the serial package (the client's business).
 """
@@ -80,6 +81,7 @@ class PtyEndpoint:
         self._pending = bytearray()
         self._open_reset: asyncio.TimerHandle | None = None
         self._dtr_raised = False  # DTR has been up since an open (and no close with HUPCL dropped it)
+        self._hupcl_before = True  # HUPCL as last seen: a serial port starts with it set
         self.reading = False
         """Whether the master is being read (its reader is registered)."""
 
@@ -195,11 +197,14 @@ class PtyEndpoint:
         """The client set the port up (opened it): the board resets, as DTR would make it, a moment later, unless
         DTR stayed up since the last session (HUPCL cleared)."""
         assert self._loop is not None
-        hangs_up = True
+        # What matters is how the last session left the port: a close with HUPCL set dropped DTR. That is the
+        # setting seen before this set-up, not now: the client may have cleared it since (packets coalesce, and the
+        # setting is read when the packet is).
+        dropped = not self._dtr_raised or self._hupcl_before
         if self._slave_fd is not None:
             with contextlib.suppress(termios.error, OSError):
-                hangs_up = bool(termios.tcgetattr(self._slave_fd)[2] & termios.HUPCL)
-        if self._dtr_raised and not hangs_up:
+                self._hupcl_before = bool(termios.tcgetattr(self._slave_fd)[2] & termios.HUPCL)
+        if not dropped:
             return  # DTR never dropped: no reset (a reset already on its way from this open still comes)
         self._dtr_raised = True
         self._owner._clear_wires()  # what was on the wire belonged to the previous session
