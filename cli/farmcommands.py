@@ -126,7 +126,8 @@ def parse_command(
         for text in commands:
             try:
                 checked.append(marlin_aio.validate_command(text))
-                # A target typed as G-code meets the same limits as set_temperatures.
+                # Printer.send refuses such a target too, but only when its turn comes: checked here, a list with
+                # one bad target writes nothing at all.
                 marlin_aio.check_gcode_targets(
                     text,
                     max_hotend_celsius=spec.max_hotend_celsius,

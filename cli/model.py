@@ -16,11 +16,9 @@ from dataclasses import dataclass
 
 from marlin_aio import (
     DEFAULT_MAX_BED_CELSIUS,
-    DEFAULT_MAX_CHAMBER_CELSIUS,
     DEFAULT_MAX_HOTEND_CELSIUS,
     HEATER_NAMES,
     TemperatureReading,
-    check_gcode_targets,
     check_target,
     heater_name,
 )
@@ -408,17 +406,6 @@ class WatchControls:
         if not text:
             return None  # Enter on an empty line closes it, like Esc
         if prompt.what == "command":
-            try:
-                # A target typed as G-code meets the same limits as the keys' (M104 S999 is not sent).
-                check_gcode_targets(
-                    text,
-                    max_hotend_celsius=self.limits.hotend_celsius,
-                    max_bed_celsius=self.limits.bed_celsius,
-                    max_chamber_celsius=DEFAULT_MAX_CHAMBER_CELSIUS,
-                )
-            except ValueError as exc:
-                self.notice = Notice(str(exc), ("nothing sent",), error=True)
-                return None
             self._wanted.clear()  # the line may set targets itself: the readings say what they are now
             return SendCommand(text)
         if prompt.what == "fan":

@@ -30,7 +30,14 @@ from marlin_aio.errors import ConnectionLostError, MarlinError, TemperatureTimeo
 from marlin_aio.events import Capability, Event, FirmwareInfo, Ok
 from marlin_aio.feed import TemperatureFeed
 from marlin_aio.handshake import BAUD_RATES, handshake, send_until_processed
-from marlin_aio.heaters import HeaterLimits, describe_heaters, target_commands, targets_reached, wanted_targets
+from marlin_aio.heaters import (
+    HeaterLimits,
+    check_gcode_targets,
+    describe_heaters,
+    target_commands,
+    targets_reached,
+    wanted_targets,
+)
 from marlin_aio.link import Link
 from marlin_aio.linkstate import LinkState
 from marlin_aio.motion import command_timeout_s, disable_motors_command, extrude_commands, home_command, move_commands
@@ -210,13 +217,21 @@ class Printer:
         printer falls silent. If the caller is cancelled before the command was written, it is never written.
 
         Raises:
-            ValueError: the command is malformed (line break, non-ASCII, over 95 bytes, empty).
+            ValueError: the command is malformed (line break, non-ASCII, over 95 bytes, empty), or it sets a
+                target above the client's limits (`M104 S300` with `max_hotend_celsius=260`), as
+                `set_temperatures` would refuse it.
             CommandTimeoutError: no `ok` within `timeout_s` (default: the client's) without a sign of life.
             PrinterHaltedError: the printer halted (ThermalRunawayError if its thermal protection tripped).
             PrinterResetError: the printer reset before answering.
             LostReplyError: the command ran, but its reply cannot be proven its own (an ok was lost).
             ConnectionLostError: the link went away.
         """
+        check_gcode_targets(
+            command,
+            max_hotend_celsius=self.max_hotend_celsius,
+            max_bed_celsius=self.max_bed_celsius,
+            max_chamber_celsius=self.max_chamber_celsius,
+        )
         return await self._link.send(
             command, timeout_s=self.timeout_s if timeout_s is None else timeout_s, numbered=numbered
         )

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from marlin_aio.commands import check_target, format_celsius
+from marlin_aio.commands import check_target, command_code, format_celsius
 from marlin_aio.temperatures import TemperatureReading, heater_name
 
 __all__ = [
@@ -44,12 +44,12 @@ def check_gcode_targets(
     Raises:
         ValueError: the command sets a target that is not a number, negative or above its limit.
     """
-    words = command.split(";", 1)[0].split()
-    if words and words[0][:1] in "Nn" and words[0][1:].isdigit():
-        words = words[1:]
-    heater = _TARGET_CODES.get(words[0].upper()) if words else None
+    heater = _TARGET_CODES.get(command_code(command))  # cached: this runs for every command sent
     if heater is None:
         return
+    words = command.split(";", 1)[0].split()
+    if words[0][:1] in "Nn" and words[0][1:].isdigit():
+        words = words[1:]
     limit = {"hotend": max_hotend_celsius, "bed": max_bed_celsius, "chamber": max_chamber_celsius}[heater]
     for word in words[1:]:
         if word[:1] in "SsRr":

@@ -436,3 +436,14 @@ def test_a_port_that_went_away_is_said_in_words_whichever_way_pyserial_noticed(e
 
     assert _why_lost(serial.SerialException(error)).startswith(": the port went away")
     assert _why_lost(ValueError("something else")) == ": something else"
+
+
+async def test_send_refuses_a_target_above_the_clients_limit_before_writing(
+    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+) -> None:
+    before = pty_sim.printer.executed_count
+    for command in ("M104 S300", "N7 m140 s200", "M190 R141"):
+        with pytest.raises(ValueError, match="above the limit"):
+            await printer.send(command)
+    await printer.send("M104 S200")  # within the limit: sent as before
+    assert pty_sim.printer.executed_count == before + 1
