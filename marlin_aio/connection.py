@@ -34,6 +34,7 @@ from marlin_aio.deadlines import Deadlines
 from marlin_aio.errors import (
     MarlinError,
     PrinterHaltedError,
+    PrinterLockedError,
 )
 from marlin_aio.events import Event
 from marlin_aio.linkstate import LinkState
@@ -42,6 +43,7 @@ from marlin_aio.printjob import PrintJob
 from marlin_aio.receiving import Receiving
 from marlin_aio.replies import MAX_REPLY_LINES, Command, Reply
 from marlin_aio.resends import CALM_LINES
+from marlin_aio.states import LinkEvent
 from marlin_aio.stats import LinkStats
 
 __all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "Reply"]
@@ -97,10 +99,9 @@ class Connection(Receiving, Deadlines):
 
     @property
     def state(self) -> LinkState:
-        """READY, LOCKED (refusing commands until unlocked), STOPPED (M999 resumes) or HALTED (needs a reset)."""
-        if self._halt is not None:
-            return LinkState.STOPPED if self._stopped else LinkState.HALTED
-        return LinkState.LOCKED if self._locked else LinkState.READY
+        """READY, PRINTING, STOPPING (a stopped print's last lines are answered), LOCKED (refusing commands until
+        unlocked), STOPPED (M999 resumes) or HALTED (needs a reset): one value, moved by `marlin_aio.states`."""
+        return self._state
 
     @property
     def halted(self) -> PrinterHaltedError | None:
@@ -110,7 +111,7 @@ class Connection(Receiving, Deadlines):
     @property
     def locked(self) -> bool:
         """True while the printer refuses commands as locked (PASSWORD_FEATURE)."""
-        return self._locked
+        return self._state is LinkState.LOCKED
 
     @property
     def job(self) -> PrintJob | None:
@@ -252,7 +253,7 @@ class Connection(Receiving, Deadlines):
         needs a reset), and every command still waiting fails with `PrinterHaltedError`."""
         wire = self.emergency("M112", now=now)
         self._halt = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
-        self._stopped = False
+        self._move(LinkEvent.HALTED)
         self._fail_everything(self._halt)
         return wire
 
@@ -261,8 +262,15 @@ class Connection(Receiving, Deadlines):
 
         Raises:
             RuntimeError: another job is still running.
+            PrinterHaltedError: the printer halted or stopped.
+            PrinterLockedError: the printer is locked.
         """
+        if self._halt is not None:
+            raise self._halt
+        if self._state is LinkState.LOCKED:
+            raise PrinterLockedError("the printer is locked: unlock it (M511 P<password>) before printing")
         self._feed.attach(job, timeout_s)
+        self._move(LinkEvent.PRINT_STARTED)
 
     def cancel(self, command: Command) -> bool:
         """Withdraw a command whose caller gave up; return True if it was never written (so it never will be).
@@ -364,4 +372,5 @@ class Connection(Receiving, Deadlines):
 
     def _output(self, events: tuple[Event, ...], now: float) -> Output:
         data = self.data_to_send(now) if self.has_data_to_send else b""
+        self._sync_print_state()
         return Output(events, data, tuple(self.take_results()), self.next_deadline())

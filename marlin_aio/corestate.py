@@ -9,15 +9,20 @@ from __future__ import annotations
 
 from collections import deque
 
+import logging
+
 from marlin_aio.errors import MarlinError, PrinterHaltedError
 from marlin_aio.matching import InFlight
 from marlin_aio.parsing import EventParser
 from marlin_aio.replies import Command, Reply
 from marlin_aio.resends import Resends
+from marlin_aio.states import LINK_TRANSITIONS, LinkEvent, LinkState, next_link_state
 from marlin_aio.streaming import JobFeed
 from marlin_aio.trace import Trace
 
 __all__ = ["CoreState", "check_window"]
+
+_log = logging.getLogger("marlin_aio")
 
 
 def check_window(max_in_flight: int, rx_buffer_bytes: int) -> None:
@@ -60,15 +65,38 @@ class CoreState:
         self._next_id = 0
         self._exact_oks = advanced_ok  # the printer names lines in its oks (ADVANCED_OK): plain oks identify themselves
         self._thermal_message: str | None = None
-        self._halt: PrinterHaltedError | None = None  # why the printer halted or stopped; raised to new commands
-        self._stopped = False  # the halt is a stop() that M999 clears (ErrorKind.STOPPED), not a kill()
-        self._locked = False  # the printer said "Printer locked!" and has not run a command since
+        # The link's state: one value, moved only through `marlin_aio.states.LINK_TRANSITIONS` (`_move`).
+        self._state = LinkState.READY
+        self._halt: PrinterHaltedError | None = None  # why it is HALTED or STOPPED; raised to new commands
         self._requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
         # Counters (read them through `stats()`). Every submitted command ends up counted once: answered + failed
         # + cancelled + still queued or in flight.
         self._submitted = self._answered = self._failed = self._cancelled = 0
         self._timeouts = self._resets = self._stray_oks = self._lost_oks = self._garbage_lines = 0
         self._bytes_received = 0
+
+    def _move(self, event: LinkEvent, *, remote: bool = False) -> None:
+        """Move the link's state by the table.
+
+        A move the table lacks is a bug when the core itself asks for it (it raises `ImpossibleTransitionError`);
+        when the printer's words ask for it (`remote`: "locked" on a halted board, say) it is logged and ignored,
+        as no byte from the printer may break the link.
+        """
+        if remote and event not in LINK_TRANSITIONS[self._state]:
+            _log.warning("ignored: the printer said %s while the link was %s", event.value, self._state.value)
+            return
+        self._state = next_link_state(self._state, event)
+
+    def _sync_print_state(self) -> None:
+        """Move PRINTING and STOPPING on as the print ends and its last lines on the wire are answered."""
+        state = self._state
+        if state is LinkState.PRINTING:
+            job = self._feed.job
+            if job is None or not job.active:
+                on_wire = any(c.job is not None for c in self._in_flight)
+                self._move(LinkEvent.PRINT_STOPPED if on_wire else LinkEvent.PRINT_ENDED)
+        elif state is LinkState.STOPPING and not any(c.job is not None for c in self._in_flight):
+            self._move(LinkEvent.WIRE_CLEAR)
 
     def _new_id(self) -> int:
         self._next_id += 1

@@ -40,6 +40,7 @@ from marlin_aio.events import (
 )
 from marlin_aio.matching import attribute, match_ok
 from marlin_aio.replies import Command, Reply, is_noise
+from marlin_aio.states import LinkEvent, LinkState
 
 __all__ = ["Receiving"]
 
@@ -120,8 +121,9 @@ class Receiving(CoreState):
                     if isinstance(event, PrinterLocked):
                         # The ok that follows answers a command that was refused, not run.
                         head.refusal = text
-                        self._locked = True
-                        _log.warning("the printer is locked: %s", text)
+                        if self._state is not LinkState.LOCKED:
+                            _log.warning("the printer is locked: %s", text)
+                        self._move(LinkEvent.LOCKED, remote=True)
                     elif head.job is not None:
                         head.refusal = text  # a print line the firmware did not understand was not printed
             case _ if head is not None and isinstance(event, _REPLY_LINES):
@@ -154,12 +156,13 @@ class Receiving(CoreState):
         """Finish one command taken off the FIFO: answered by `ok`, or (ok None) processed with its ok lost."""
         refused = command.refusal is not None and not command.orphan and not command.probe
         self._resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
-        if command.code == "M999" and self._stopped:
+        state = self._state
+        if command.code == "M999" and state is LinkState.STOPPED:
             # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
             self._halt = None
-            self._stopped = False
-        if command.refusal is None and self._locked and not command.orphan and command.code != "M511":
-            self._locked = False  # a command ran normally: the printer was unlocked (M511 or its screen)
+            self._move(LinkEvent.RESUMED)
+        elif state is LinkState.LOCKED and command.refusal is None and not command.orphan and command.code != "M511":
+            self._move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
         if refused:
             self._refused(command, now)
         elif command.job is not None:
@@ -261,8 +264,9 @@ class Receiving(CoreState):
         _log.warning("%s", error)
         if self._halt is None or isinstance(error, ThermalRunawayError):
             self._halt = error
-        # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill().
-        self._stopped = stopped if self._halt is error else self._stopped and stopped
+        # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill()
+        # (the table: HALTED stays HALTED on a stop).
+        self._move(LinkEvent.STOPPED if stopped else LinkEvent.HALTED)
         self._fail_everything(self._halt)
 
     def _on_start(self) -> None:
@@ -271,7 +275,6 @@ class Receiving(CoreState):
         # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
         self._fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
         self._halt = None
-        self._stopped = False
-        self._locked = False
+        self._move(LinkEvent.RESET)
         self._thermal_message = None
         self._resends.restart_numbering()
