@@ -7,9 +7,8 @@ nothing comes). The state is declared here, in one place, so each room reads as 
 
 from __future__ import annotations
 
-from collections import deque
-
 import logging
+from collections import deque
 
 from marlin_aio.errors import MarlinError, PrinterHaltedError
 from marlin_aio.matching import InFlight
