@@ -5,8 +5,11 @@ protocol core and the callers' futures), `marlin_aio.handshake` (the start-up se
 (temperature readings to every subscriber), `marlin_aio.poller` (M105 on a schedule) and
 `marlin_aio.printhandle` (a print in progress). All protocol decisions live in `marlin_aio.connection`.
 Loop-bound objects are created in `open()`, never in `__init__`, so a `Printer` can be built outside a running
-loop. (This module is longer than the others because it is the API reference: about a third of it is the
-docstrings of `Printer`'s public methods; the logic behind them lives in the collaborators.)
+loop. No user code runs in the read path: what the link reads only resolves futures, updates state and queues
+readings; `on_reading` callbacks run from the loop right after the read (see `marlin_aio.feed`), and one that
+raises is logged, never able to stop the link. (This module is longer than the others because it is the API
+reference: about a third of it is the docstrings of `Printer`'s public methods; the logic behind them lives in the
+collaborators.)
 """
 
 from __future__ import annotations
@@ -350,12 +353,22 @@ class Printer:
         return self._feed.readings(self._link.lost)
 
     def on_reading(self, callback: Callable[[TemperatureReading], None]) -> Callable[[], None]:
-        """Call `callback` with every temperature reading from now on, as it is read (no queue, no task wake-up per
-        reading: the cheapest way to follow 100 Hz polling); return the function that stops the calls.
+        """Call `callback` with every temperature reading from now on; return the function that stops the calls
+        (at once: no reading reaches it after that, not even one already read).
 
-        The callback runs inside the link's read handler: keep it short, and do not await there.
+        It is called from the event loop soon after each read, outside the link's read handler: the readings of one
+        read are handed over in one `loop.call_soon`, before a task awaiting the command that brought them resumes
+        (no queue and no task wake-up per reading: the cheapest way to follow 100 Hz polling). It runs on the
+        loop, so keep it short and do not block. If it raises, the error is logged once for this callback (logger
+        "marlin_aio", WARNING, with its name and traceback) and then only counted in `callback_errors`; it stays
+        subscribed, and neither the link, the polls nor the other callbacks and readers notice.
         """
         return self._feed.add_callback(callback)
+
+    @property
+    def callback_errors(self) -> int:
+        """Exceptions raised by `on_reading` callbacks (each callback's first is logged, the rest only counted)."""
+        return self._feed.callback_errors
 
     @property
     def readings_dropped(self) -> int:

@@ -4,6 +4,12 @@ Reports come from three places (the `ok T:` of an M105, auto-reports, the wait l
 `TemperatureReading` with its source. Some firmwares send targets on lines of their own (`TargetExtr0:200`); they
 fill the targets reports lack. Each subscriber of `readings()` has its own queue, bounded: a reader that falls
 behind loses its oldest readings (counted in `dropped`), never a failure, which always gets through.
+
+No user code runs in the read path (`Link.data_received` calls `on_event` from inside the transport's read
+handler): a reading is only queued there. Callbacks (`add_callback`, `Printer.on_reading`) get the readings of one
+read in one batch, from a `loop.call_soon` scheduled by its first reading: one call per read, not per reading, and
+no task to wake. A callback that raises is logged once (logger "marlin_aio", WARNING) and counted in
+`callback_errors` after that; it stays subscribed, and the other callbacks and the link never notice.
 """
 
 from __future__ import annotations
@@ -11,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import logging
 import time
 from collections import deque
 from collections.abc import AsyncGenerator, Callable
@@ -23,6 +30,8 @@ __all__ = ["TemperatureFeed"]
 
 #: Readings a subscriber may fall behind by before the oldest are dropped: ten seconds of 100 Hz polling.
 QUEUE_READINGS = 1000
+
+_log = logging.getLogger("marlin_aio")
 
 
 class _Subscriber:
@@ -37,6 +46,19 @@ class _Subscriber:
         self.dropped = 0
 
 
+class _Callback:
+    """One callback of `add_callback`: what to call, from which reading on, whether it still wants them, and how
+    often it raised."""
+
+    __slots__ = ("active", "call", "errors", "first")
+
+    def __init__(self, call: Callable[[TemperatureReading], None], first: int) -> None:
+        self.call = call
+        self.first = first  # the number of the first reading it gets: none read before it subscribed
+        self.active = True
+        self.errors = 0
+
+
 class TemperatureFeed:
     """The latest reading, the subscribers of all readings, and the targets learnt from target lines."""
 
@@ -47,7 +69,14 @@ class TemperatureFeed:
         self.dropped = 0  # readings dropped because a subscriber fell more than QUEUE_READINGS behind
         self._targets: dict[str, float] = {}  # from Repetier-style target lines, for reports that lack targets
         self._subscribers: list[_Subscriber] = []
-        self._callbacks: list[Callable[[TemperatureReading], None]] = []
+        self._callbacks: list[_Callback] = []
+        self._published = 0  # readings published so far; the last one's number
+        # Readings not yet handed to the callbacks (those of one read), the number of the first, and the loop that
+        # will deliver them; one `call_soon` is pending while the batch is not empty.
+        self._batch: list[TemperatureReading] = []
+        self._batch_first = 0
+        self._batch_loop: asyncio.AbstractEventLoop | None = None
+        self.callback_errors = 0  # exceptions raised by callbacks, each logged only the first time for its callback
 
     @property
     def latest(self) -> TemperatureReading | None:
@@ -71,12 +100,15 @@ class TemperatureFeed:
                 self._targets[heater] = celsius
 
     def add_callback(self, callback: Callable[[TemperatureReading], None]) -> Callable[[], None]:
-        """Call `callback` with every reading from now on, as it is read; return the function that stops it."""
-        self._callbacks.append(callback)
+        """Call `callback` with every reading from now on, soon after it is read (never inside the read handler);
+        return the function that stops it (at once: not even readings already read reach it afterwards)."""
+        entry = _Callback(callback, self._published + 1)
+        self._callbacks.append(entry)
 
         def remove() -> None:
+            entry.active = False
             with contextlib.suppress(ValueError):
-                self._callbacks.remove(callback)
+                self._callbacks.remove(entry)
 
         return remove
 
@@ -106,17 +138,56 @@ class TemperatureFeed:
         return TemperatureReading(temperatures, now, time.time() if wall_time_s is None else wall_time_s, source)
 
     def publish(self, reading: TemperatureReading) -> None:
-        """Make `reading` the latest and hand it to every subscriber."""
+        """Make `reading` the latest, queue it for every subscriber, and have the callbacks called with it soon.
+
+        Runs inside the read handler, so it calls no user code (it must be called on the running loop).
+        """
         self._latest = reading
         self._unbuilt = None
-        for callback in self._callbacks:
-            callback(reading)
+        self._published += 1
+        if self._callbacks:
+            loop = asyncio.get_running_loop()
+            if not self._batch or self._batch_loop is not loop:
+                # The first reading of this read: one call for the batch. (A batch whose loop stopped before it ran
+                # is dropped: its readings belong to a connection that has gone.)
+                self._batch = []
+                self._batch_first = self._published
+                self._batch_loop = loop
+                loop.call_soon(self._deliver)
+            self._batch.append(reading)
         for subscriber in self._subscribers:
             if len(subscriber.readings) == QUEUE_READINGS:
                 subscriber.dropped += 1
                 self.dropped += 1
             subscriber.readings.append(reading)
             subscriber.wakeup.set()
+
+    def _deliver(self) -> None:
+        """Call every callback with the readings of one batch, outside the read handler."""
+        batch, self._batch = self._batch, []
+        number = self._batch_first
+        callbacks = tuple(self._callbacks)  # one added meanwhile gets none of these: they were read before it
+        for reading in batch:
+            for callback in callbacks:
+                # `active`: a callback stopped by itself or another one meanwhile gets nothing more.
+                if callback.active and callback.first <= number:
+                    try:
+                        callback.call(reading)
+                    except Exception as exc:  # a callback's bug must not stop the others or the link
+                        self._callback_raised(callback, exc)
+            number += 1
+
+    def _callback_raised(self, callback: _Callback, exc: Exception) -> None:
+        self.callback_errors += 1
+        callback.errors += 1
+        if callback.errors == 1:
+            _log.warning(
+                "the reading callback %s raised %r; it is still called with every reading, and its further errors "
+                "are counted (Printer.callback_errors), not logged",
+                _name_of(callback.call),
+                exc,
+                exc_info=exc,
+            )
 
     def fail(self, error: MarlinError) -> None:
         """Tell every subscriber that readings end (the printer halted or the link went away)."""
@@ -141,3 +212,12 @@ class TemperatureFeed:
                 await subscriber.wakeup.wait()
         finally:
             self._subscribers.remove(subscriber)
+
+
+def _name_of(function: Callable[..., object]) -> str:
+    """A callable's name for a message: `module.Class.method`, or its repr (a `functools.partial`)."""
+    qualname = getattr(function, "__qualname__", None)
+    if qualname is None:
+        return repr(function)
+    module = getattr(function, "__module__", None)
+    return f"{module}.{qualname}" if module else str(qualname)

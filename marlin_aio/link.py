@@ -3,6 +3,11 @@
 `Link` is the thin layer the sans-I/O `Connection` needs: it writes what the core says to write, feeds it what the
 port reads, arms one timer for the core's next deadline, and resolves each caller's future with its own result.
 Everything above it (the handshake, the poller, the temperature feed, prints) uses its public methods only.
+
+Its listeners (`on_event`, `on_failure`, `after_results`, `submit_quietly`'s `done`) are called inside the read
+handler, between reading a step's events and writing its bytes, resolving its futures and re-arming its timer: one
+that raised would leave that step half done and the link hung. So they are the client's own bookkeeping only
+(resolve a future, update state, queue a reading), never user code: the feed defers user callbacks to the loop.
 """
 
 from __future__ import annotations
@@ -52,6 +57,8 @@ class Link:
         on_event: called with every event received and its time on the loop's clock.
         on_failure: called once when the printer halts (each halt) or the link is lost.
         after_results: called after every batch of finished commands was delivered (a print may have ended).
+
+    The listeners run inside the read handler and must not raise (see the module's docstring).
     """
 
     def __init__(
@@ -207,7 +214,8 @@ class Link:
 
     def submit_quietly(self, command: str, *, timeout_s: float, done: Callable[[Reply | MarlinError], None]) -> bool:
         """Queue a command nobody awaits (the poller's M105, built by the caller and known valid); `done` gets its
-        outcome. Return False (nothing queued) while the printer is halted or the link is down."""
+        outcome, inside the read handler (so it must not raise). Return False (nothing queued) while the printer is
+        halted or the link is down."""
         if self._lost is not None or self._conn.halted is not None:
             return False
         entry = self._conn.submit(command, timeout_s=timeout_s, now=self.now(), checked=False)
