@@ -113,7 +113,8 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
     """Stream the file; return the exit code (0 done, 130 cancelled, 7 after the emergency stop).
 
     Raises:
-        MarlinError: the print failed (a `PrintStalledError` carries the trace, printed before raising).
+        MarlinError: the print failed (a `PrintStalledError` carries the trace, printed before raising; after a
+            `FileChangedError` the heaters and fan are turned off first, as on a cancel).
     """
     plan = settings.plan
     _announce(plan, errors)
@@ -125,9 +126,14 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
             )
             mode = "send-ahead" if settings.send_ahead else "ping-pong"
             errors.print(f"printing {plan.path.name} on {label} ({mode}); Ctrl-C to cancel", style="dim")
+            script = () if settings.keep_heaters else CANCEL_SCRIPT
             try:
-                script = () if settings.keep_heaters else CANCEL_SCRIPT
                 outcome = await _follow(handle, printer, plan, console, interrupted, script)
+            except marlin_aio.FileChangedError as exc:
+                # The printer is well and idle, but hot and standing on the part: end as a cancel would.
+                raise marlin_aio.FileChangedError(
+                    f"{exc}; {await _cool_down(printer, script)}", path=exc.path, line=exc.line
+                ) from exc
             except marlin_aio.PrintStalledError as exc:
                 errors.print(f"[bold red]error:[/] {exc}", highlight=False)
                 errors.print("last lines sent (>>) and received (<<), seconds before the stall:", style="dim")
@@ -164,6 +170,18 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                 f"{final.bytes_acked / max(final.elapsed_s, 1e-9):.0f} bytes/s, {final.resends} resends)"
             )
             return Exit.OK
+
+
+async def _cool_down(printer: marlin_aio.Printer, script: tuple[str, ...]) -> str:
+    """Send `script` (heaters and fan off, or nothing with --keep-heaters); say what became of the heaters."""
+    if not script:
+        return "heaters left on"
+    try:
+        for command in script:
+            await printer.send(command)
+    except marlin_aio.MarlinError as exc:
+        return f"turning the heaters off failed ({exc}): turn them off on the printer"
+    return "heaters and fan turned off"
 
 
 async def _follow(

@@ -9,6 +9,11 @@ time, so a file of any size streams in constant memory.
 
 Skipped lines are yielded as empty lines rather than left out, so the library's source line numbers stay the
 file's line numbers: "cancelled after line 8123" is a line the user can find and resume from.
+
+The second reading is of the file as it was checked: the plan keeps its size, modification time and number of
+lines, and `lines()` reads through `marlin_aio.PrintJob.file_lines`, which stops with `FileChangedError` once the
+file is found cut short, rewritten or appended to (also between the check and the print), so a file saved again
+under a running print fails it, naming the line reached, instead of ending it as done half way.
 """
 
 from __future__ import annotations
@@ -75,22 +80,29 @@ class GcodePlan:
     # what a print's progress reports as the last line answered while the wait runs.
     heat_waits: dict[int, HeatWait] = field(default_factory=dict)
     extrusion_warning: str | None = None  # with from_line: the resumed part would extrude from the header's E
+    # The file as it was checked (None: not known, for a plan made by hand): a print stops if it differs.
+    size_bytes: int | None = None
+    mtime_ns: int | None = None
+    file_lines: int | None = None  # comments and blank lines included
 
     def lines(self) -> Iterator[str]:
         """The file's lines as they are to be sent: selected, transliterated, skipped ones empty.
 
         Raises:
             OSError: the file cannot be read.
+            marlin_aio.FileChangedError: (while iterating) the file is no longer the one checked.
         """
-        with self.path.open(encoding="utf-8", errors="replace") as source:
-            for number, raw in enumerate(source, 1):
-                command = marlin_aio.strip_comment(raw)
-                if not command or not self._selected(number):
-                    yield "\n"
-                elif command.isascii():
-                    yield command + "\n"
-                else:
-                    yield transliterate(command) + "\n"
+        source = marlin_aio.PrintJob.file_lines(
+            self.path, size_bytes=self.size_bytes, mtime_ns=self.mtime_ns, lines_total=self.file_lines
+        )
+        for number, raw in enumerate(source, 1):
+            command = marlin_aio.strip_comment(raw)
+            if not command or not self._selected(number):
+                yield "\n"
+            elif command.isascii():
+                yield command + "\n"
+            else:
+                yield transliterate(command) + "\n"
 
     def _selected(self, number: int) -> bool:
         if self.from_line is None or self.first_move_line is None:
@@ -110,6 +122,7 @@ def plan_print(path: Path, from_line: int | None = None) -> GcodePlan:
             sent), or `from_line` lies past the last command or there is no move to resume at.
         OSError: the file cannot be read.
     """
+    stamp = path.stat()  # before the file is read: a change while it is checked is a change too
     first_move = _first_move(path) if from_line is not None else None
     if from_line is not None and first_move is None:
         raise ValueError(f"{path}: --from-line needs a file with moves (G0/G1/G2/G3); this one has none")
@@ -121,6 +134,7 @@ def plan_print(path: Path, from_line: int | None = None) -> GcodePlan:
     changed_count = 0
     waits: dict[int, HeatWait] = {}
     extrusion = _Extrusion(from_line, first_move) if from_line is not None and first_move is not None else None
+    number = 0
     with path.open(encoding="utf-8", errors="replace") as source:
         for number, raw in enumerate(source, 1):
             command = marlin_aio.strip_comment(raw)
@@ -166,6 +180,9 @@ def plan_print(path: Path, from_line: int | None = None) -> GcodePlan:
         changed_count,
         waits,
         extrusion.warning if extrusion is not None else None,
+        stamp.st_size,
+        stamp.st_mtime_ns,
+        number,
     )
 
 

@@ -12,6 +12,7 @@ __all__ = [
     "CommandTimeoutError",
     "ConnectError",
     "ConnectionLostError",
+    "FileChangedError",
     "HandshakeError",
     "HandshakeTimeoutError",
     "LostReplyError",
@@ -133,6 +134,19 @@ class PrinterLockedError(MarlinError):
 
 class CommandNotExecutedError(MarlinError):
     """The printer answered a command with `ok` but said it did not run it (`!! Lost communication ...`)."""
+
+
+class FileChangedError(MarlinError):
+    """The G-code file being printed changed on disk under the print (cut short, rewritten or appended to), so the
+    rest of it is no longer the file that was checked; the print stopped feeding it.
+
+    `path` is the file; `line` the last line of it handed to the print (0: none was).
+    """
+
+    def __init__(self, message: str, *, path: str, line: int) -> None:
+        super().__init__(message)
+        self.path = path
+        self.line = line
 
 
 class ChecksumRequiredError(MarlinError):
