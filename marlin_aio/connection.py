@@ -43,7 +43,7 @@ from marlin_aio.printjob import PrintJob
 from marlin_aio.receiving import Receiving
 from marlin_aio.replies import MAX_REPLY_LINES, Command, Reply
 from marlin_aio.resends import CALM_LINES
-from marlin_aio.states import LinkEvent
+from marlin_aio.states import LineEvent, LinkEvent
 from marlin_aio.stats import LinkStats
 
 __all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "Reply"]
@@ -282,6 +282,7 @@ class Connection(Receiving, Deadlines):
                 self._queue.remove(command)
             except ValueError:
                 return False
+            command.move(LineEvent.WITHDRAWN)
             self._cancelled += 1
             return True
         command.orphan = True
@@ -324,7 +325,11 @@ class Connection(Receiving, Deadlines):
             if not nudge:
                 resends.nudge_pending = False
             if flight and (
-                (len(flight) >= self._max_in_flight and not command.probe)
+                # An M110 goes alone: Marlin sets its counter when it *runs* it, so a line taken in behind it
+                # would be counted twice (and a damaged one may be dropped without a word).
+                flight.barriers
+                or command.code == "M110"
+                or (len(flight) >= self._max_in_flight and not command.probe)
                 or (calm and not (command.probe or nudge) and resends.rejectable(flight))
                 or flight.bytes + resends.wire_size(command) > (self._rx_buffer_bytes if command.probe else limit)
                 or not answer_stays_distinct(command, flight, exact_oks=self._exact_oks)
@@ -343,6 +348,7 @@ class Connection(Receiving, Deadlines):
                 resends.assign_wire(command, max(256, 4 * self._max_in_flight))
             if command.job is not None and command.sends == 0:
                 command.job.sent()
+            command.move(LineEvent.WRITTEN)
             command.sends += 1
             if command.sent_s is None:
                 command.sent_s = now

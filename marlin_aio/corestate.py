@@ -15,7 +15,7 @@ from marlin_aio.matching import InFlight
 from marlin_aio.parsing import EventParser
 from marlin_aio.replies import Command, Reply
 from marlin_aio.resends import Resends
-from marlin_aio.states import LINK_TRANSITIONS, LinkEvent, LinkState, next_link_state
+from marlin_aio.states import FINAL_LINE_STATES, LINK_TRANSITIONS, LineEvent, LinkEvent, LinkState, next_link_state
 from marlin_aio.streaming import JobFeed
 from marlin_aio.trace import Trace
 
@@ -57,6 +57,7 @@ class CoreState:
             max_resends=max_resends, ok_after_resend=ok_after_resend, resend_timeout_s=resend_timeout_s
         )
         self._feed = JobFeed()
+        self._resends.make_placeholder = self._new_placeholder
         self._queue: deque[Command] = deque()  # accepted, not yet written
         self._in_flight = InFlight()  # written, waiting for an ok, in the order they were written
         self._results: list[tuple[Command, Reply | MarlinError]] = []
@@ -101,6 +102,13 @@ class CoreState:
         self._next_id += 1
         return self._next_id
 
+    def _new_placeholder(self, number: int) -> Command:
+        """`M110 N<number>`: takes a line number without running anything (nobody waits for its answer)."""
+        text = f"M110 N{number}"
+        command = Command(self._new_id(), text, "M110", True, self._resends.resend_timeout_s, self._now)
+        command.placeholder = command.orphan = True
+        return command
+
     def _fail_everything(self, error: MarlinError) -> None:
         feed = self._feed
         if feed.job is not None:
@@ -108,6 +116,8 @@ class CoreState:
             feed.job.fail(feed.job_error(error), self._now)
         feed.detach()
         for command in (*self._in_flight, *self._queue):
+            if command.state not in FINAL_LINE_STATES:
+                command.move(LineEvent.FAILED)
             if not command.orphan and command.job is None and not command.probe:
                 self._finish(command, error)
         self._in_flight.clear()
@@ -129,7 +139,12 @@ class CoreState:
         for command in self._in_flight:
             if command.job is not None:
                 command.orphan = True
-        kept = [c for c in self._queue if c.job is None]
+        kept = []
+        for command in self._queue:
+            if command.job is None:
+                kept.append(command)
+            elif command.state not in FINAL_LINE_STATES:
+                command.move(LineEvent.WITHDRAWN)  # never written again: a placeholder takes its number if asked
         self._queue.clear()
         self._queue.extend(kept)
 

@@ -15,6 +15,7 @@ import math
 from marlin_aio.corestate import CoreState
 from marlin_aio.errors import CommandTimeoutError, PrintStalledError
 from marlin_aio.replies import Command
+from marlin_aio.states import FINAL_LINE_STATES, LineEvent, LineState
 
 __all__ = ["Deadlines"]
 
@@ -33,18 +34,52 @@ class Deadlines(CoreState):
         if head is None:
             return drain_until
         due = min(self._deadlines(head))
+        if head.state is LineState.IN_DOUBT:
+            due = min(due, self._waiting_bound())
         return due if drain_until is None else min(due, drain_until)
 
     def _deadlines(self, head: Command) -> tuple[float, float, float]:
         """(time out, write again, probe) for the oldest command; inf where that step does not apply."""
         start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
         resends = self._resends
-        resend_at = start + min(head.timeout_s, resends.resend_timeout_s) if resends.resending(head) else math.inf
         feed = self._feed
-        # Only while a job streams: outside prints a probe M105 could answer a user's own M105 (say M105 T9).
+        if head.code == "M110" and head.numbered and head.state is LineState.ON_WIRE:
+            # An M110 goes alone and sets what it sets however often it runs: unanswered, it is written again
+            # soon (a damaged one may be dropped without a word), not after a whole timeout.
+            resend_at = start + feed.probe_delay_s()
+        elif resends.resending(head):
+            resend_at = start + min(head.timeout_s, resends.resend_timeout_s)
+        else:
+            resend_at = math.inf
+        if head.state is LineState.IN_DOUBT:
+            # Only the printer settles it: a late ok, or the answer to an M105 behind it. An M105 in doubt is let
+            # go after one more timeout, as only another M105 could take its late `ok T:`, and that answer would
+            # be as true for it.
+            probe_at = start if self._may_probe_doubt() else math.inf
+            timeout_at = start + head.timeout_s if head.code == "M105" else math.inf
+            return timeout_at, resend_at, probe_at
+        # While a job streams: outside prints a lost ok is found by the timeout, then probed (above).
         may_probe = feed.active and feed.probe is None and self._numbered and not resends.draining
         probe_at = max(start, feed.probed_s) + feed.probe_delay_s() if may_probe else math.inf
         return start + head.timeout_s, resend_at, probe_at
+
+    def _may_probe_doubt(self) -> bool:
+        """May an M105 go behind a line in doubt? Not while one is on its way (it will tell), nor while draining."""
+        if self._feed.probe is not None or self._resends.draining or self._in_flight.barriers:
+            return False
+        return not any(c.code == "M105" for c in self._in_flight) and not any(c.code == "M105" for c in self._queue)
+
+    def _waiting_bound(self) -> float:
+        """The earliest bound of a caller waiting behind a line in doubt (its own timeout from when it began
+        waiting there)."""
+        head = self._in_flight.head
+        since = 0.0 if head is None or head.head_since_s is None else head.head_since_s
+        bounds = [
+            max(c.submitted_s, since) + c.timeout_s
+            for c in (*self._in_flight, *self._queue)
+            if not c.orphan and c.job is None and not c.probe
+        ]
+        return min(bounds, default=math.inf)
 
     def probe_delay_s(self) -> float:
         """How long a streamed line may wait before a probe asks whether its `ok` was lost (see `JobFeed`)."""
@@ -67,6 +102,17 @@ class Deadlines(CoreState):
             timeout_at, resend_at, probe_at = self._deadlines(head)
             last_in = self.trace.last_received
             talking = last_in is not None and last_in.time_s > (head.head_since_s or 0.0)
+            if now >= resend_at and head.code == "M110" and head.state is LineState.ON_WIRE:
+                self._in_flight.popleft(now)
+                head.move(LineEvent.RESEND)
+                self._queue.appendleft(head)
+                error = self._resends.m110_unanswered(head)
+                if error is not None:
+                    self._fail_everything(error)
+                return
+            if head.state is LineState.IN_DOUBT:
+                self._settle_doubt(head, now, timeout_at, probe_at)
+                return
             if now >= resend_at and head.line_number is not None and talking:
                 # A resent line went unanswered while the printer talked: its rejection was probably taken for a
                 # stale one. (A silent printer is not helped by resends: it times out below.)
@@ -80,23 +126,53 @@ class Deadlines(CoreState):
             resends.forget_stale()
             self._timeouts += 1
             _log.warning("no answer to %r within %g s", head.text, head.timeout_s)
-            if head.job is not None or head.probe:
+            if (head.job is not None or head.probe) and not head.orphan:
                 self._stall_job(head, now)
                 continue
-            if head.orphan:
-                # Its caller was told already (it timed out behind another command, or gave up): drop it quietly.
-                self._in_flight.popleft(now)
-                continue
             summary = self.describe_stall(head, now)
-            # Its caller is told now, but the command keeps its place for one more timeout (quarantine): Marlin may
-            # still answer it (a long G28), and that late ok must land on it, not on the next caller's command,
-            # which waits (see `answer_stays_distinct`). Only then is its place given up.
+            # Its caller is told now, but the command keeps its place, in doubt, until the printer settles it:
+            # Marlin may still answer it (a long G28), and that late ok must land on it, never on the next
+            # caller's command, which waits (see `answer_stays_distinct`) or goes out behind it.
+            was_orphan = head.orphan
             head.orphan = True
+            head.move(LineEvent.OVERDUE)
             head.head_since_s = now
             head.alive_s = None
-            self._finish(head, CommandTimeoutError(summary, command=head.text))
-            self._give_up_behind(head, summary)
+            if not was_orphan:
+                self._finish(head, CommandTimeoutError(summary, command=head.text))
+            silent = last_in is None or now - last_in.time_s >= head.timeout_s
+            if silent:
+                # The printer has said nothing for the whole timeout: what waits behind it fails now, not one
+                # timeout after another.
+                self._give_up_behind(head, summary)
             return
+
+    def _settle_doubt(self, head: Command, now: float, timeout_at: float, probe_at: float) -> None:
+        """The oldest command is in doubt: probe behind it, let an M105 go, fail callers past their bound."""
+        if now >= timeout_at:
+            self._in_flight.popleft(now)  # an M105 in doubt (see `_deadlines`)
+            return
+        if now >= probe_at:
+            self._feed.probed_s = now
+            self._queue.appendleft(self._feed.new_probe(self._new_id(), now))
+        if now >= self._waiting_bound():
+            since = head.head_since_s or now
+            for command in (*self._in_flight, *self._queue):
+                if command.orphan or command.job is not None or command.probe:
+                    continue
+                if now >= max(command.submitted_s, since) + command.timeout_s:
+                    error = CommandTimeoutError(
+                        f"no answer within {command.timeout_s:g} s: it waited behind {head.text!r}, which the "
+                        f"printer has not answered ({self.describe_stall(head, now)})",
+                        command=command.text,
+                    )
+                    if command.sends == 0:
+                        self._queue.remove(command)
+                        command.move(LineEvent.WITHDRAWN)
+                    else:
+                        command.orphan = True  # it keeps its place: its late ok must land on it
+                    self._timeouts += 1
+                    self._finish(command, error)
 
     def _probe(self, now: float) -> None:
         self._feed.probed_s = now
@@ -157,10 +233,20 @@ class Deadlines(CoreState):
         if job is not None:
             job.fail(error, now)
         feed.detach()
-        # The stream's lines will not be answered (the printer is silent): take them out so the FIFO stays true
-        # for whatever the user sends next.
-        self._in_flight.keep_only((c for c in self._in_flight if c.job is None and not c.probe), now, restart_head=True)
-        kept = [c for c in self._queue if c.job is None and not c.probe]
+        # The stream's lines on the wire keep their places, in doubt: a printer that answers late must not hand
+        # their oks to whatever the user sends next. Unwritten ones are withdrawn.
+        head.head_since_s = now
+        for command in self._in_flight:
+            if command.job is not None or command.probe:
+                command.orphan = True
+                if command.state is LineState.ON_WIRE:
+                    command.move(LineEvent.OVERDUE)
+        kept = []
+        for command in self._queue:
+            if command.job is None and not command.probe:
+                kept.append(command)
+            elif command.state not in FINAL_LINE_STATES:
+                command.move(LineEvent.WITHDRAWN)
         self._queue.clear()
         self._queue.extend(kept)
 

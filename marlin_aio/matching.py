@@ -31,11 +31,12 @@ class InFlight:
     """The commands written and waiting for their `ok`, oldest first, and the bytes they hold in the printer's
     receive buffer. The oldest command's `head_since_s` says since when it has been the one answered next."""
 
-    __slots__ = ("_commands", "bytes")
+    __slots__ = ("_commands", "barriers", "bytes")
 
     def __init__(self) -> None:
         self._commands: deque[Command] = deque()
         self.bytes = 0
+        self.barriers = 0  # M110s in flight: nothing may be written behind one (see `marlin_aio.resends`)
 
     def __len__(self) -> int:
         return len(self._commands)
@@ -60,11 +61,15 @@ class InFlight:
             command.head_since_s = now
         self._commands.append(command)
         self.bytes += len(command.wire)
+        if command.code == "M110":
+            self.barriers += 1
 
     def popleft(self, now: float) -> Command:
         """Take the oldest command off; the next one is answered next from `now` on."""
         command = self._commands.popleft()
         self.bytes -= len(command.wire)
+        if command.code == "M110":
+            self.barriers -= 1
         if self._commands:
             self._commands[0].head_since_s = now
         return command
@@ -74,6 +79,8 @@ class InFlight:
         was_head = self._commands[0] is command
         self._commands.remove(command)
         self.bytes -= len(command.wire)
+        if command.code == "M110":
+            self.barriers -= 1
         if was_head and self._commands:
             self._commands[0].head_since_s = now
 
@@ -82,6 +89,7 @@ class InFlight:
         waits from `now` if `restart_head`, else only if it had not been the oldest before."""
         self._commands = deque(keep)
         self.bytes = sum(len(c.wire) for c in self._commands)
+        self.barriers = sum(c.code == "M110" for c in self._commands)
         if self._commands and (restart_head or self._commands[0].head_since_s is None):
             self._commands[0].head_since_s = now
 
@@ -89,6 +97,7 @@ class InFlight:
         """Forget every command in flight (the printer reset, halted, or the link is gone)."""
         self._commands.clear()
         self.bytes = 0
+        self.barriers = 0
 
 
 def match_ok(flight: InFlight, ok: Ok, *, exact_oks: bool) -> int | None:
@@ -108,10 +117,13 @@ def match_ok(flight: InFlight, ok: Ok, *, exact_oks: bool) -> int | None:
         # Only M105 answers `ok T:...`.
         return next((i for i, c in enumerate(flight) if c.code == "M105"), None)
     if exact_oks:
-        # This printer names the line in the ok of every numbered command: a plain ok is an unnumbered one's.
-        return next(
+        # This printer names the line in the ok of every numbered command: a plain ok is an unnumbered one's,
+        # or that of a numbered line whose `N` was damaged on the way, which the printer took as unnumbered.
+        unnumbered = next(
             (i for i, c in enumerate(flight) if c.line_number is None and (c.code != "M105" or c.refusal)), None
         )
+        if unnumbered is not None:
+            return unnumbered
     # A plain ok: the oldest command that answers with a plain ok (not M105, whose answer carries temperatures;
     # a refused one is answered plainly whatever it was).
     return next((i for i, c in enumerate(flight) if c.code != "M105" or c.refusal is not None), None)

@@ -40,7 +40,8 @@ from marlin_aio.events import (
 )
 from marlin_aio.matching import attribute, match_ok
 from marlin_aio.replies import Command, Reply, is_noise
-from marlin_aio.states import LinkEvent, LinkState
+from marlin_aio.resends import wanted
+from marlin_aio.states import LineEvent, LineState, LinkEvent, LinkState
 
 __all__ = ["Receiving"]
 
@@ -111,6 +112,11 @@ class Receiving(CoreState):
                 self._garbage_lines += 1  # noise from the link (a baud glitch, a reset) is nobody's reply
             case UnrecognisedLine() if is_noise(text):
                 self._garbage_lines += 1
+            case UnknownCommand() if (damaged := self._damaged_copy(event.command)) is not None:
+                # A numbered line whose `N` was damaged on the way: the printer took it as an unnumbered command it
+                # does not know, did not count it, and will answer it with a plain ok. It goes again, in its place.
+                damaged.mangled = True
+                damaged.add_line(text)
             case UnknownCommand() if self._resends.is_fragment(event.command):
                 # The tail of a line cut in two by a flush, which the firmware read as a command of its own and
                 # refused: its ok answers nothing.
@@ -149,11 +155,55 @@ class Receiving(CoreState):
         for lost in skipped:
             self._lost_oks += 1
             _log.info("the ok of %r was lost; %r was answered after it", lost.text, command.text)
-            self._settle(lost, None, None, now)
+            self._settle(lost, None, None, now, proof=ok)
         self._settle(command, ok, lines, now)
 
-    def _settle(self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float) -> None:
-        """Finish one command taken off the FIFO: answered by `ok`, or (ok None) processed with its ok lost."""
+    def _damaged_copy(self, echoed: str) -> Command | None:
+        """The numbered command in flight of which `echoed` (an `Unknown command`'s text) is a damaged copy.
+
+        The printer echoes what it received up to the `*`; a line it took as unnumbered because its leading `N`
+        was damaged reads as that line's wire with one or two bytes changed (an undecodable byte is one U+FFFD).
+        """
+        size = len(echoed)
+        for command in self._in_flight:
+            wire = command.wire
+            if command.line_number is None or command.mangled:
+                continue
+            star = wire.rfind(b"*")
+            if star != size:
+                continue
+            sent = wire[:star].decode("ascii")
+            if sent != echoed and sum(a != b for a, b in zip(sent, echoed, strict=True)) <= 2:
+                return command
+        return None
+
+    def _mangled(self, command: Command, now: float) -> None:
+        """The printer answered a damaged copy of `command` and did not count it: write it again in its place.
+
+        Lines written behind it meet the sequence check and bring a `Resend:` for it; with none behind it (one line
+        at a time), it goes again at once.
+        """
+        command.move(LineEvent.MANGLED)
+        command.mangled = False
+        del command.lines[:]
+        behind = any(c.line_number is not None for c in self._in_flight)
+        if not behind:
+            self._queue.appendleft(command if wanted(command) else self._new_placeholder(command.line_number or 0))
+
+    def _settle(
+        self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float, proof: Ok | None = None
+    ) -> None:
+        """Finish one command taken off the FIFO: answered by `ok`, or (ok None) processed with its ok lost, as
+        `proof` (the answer of a command behind it) shows."""
+        if command.mangled and ok is not None:
+            self._mangled(command, now)
+            return
+        if command.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
+            command.move(LineEvent.REFUSED if command.refusal is not None else LineEvent.OK)
+        if command.code == "M110" and ok is not None and command.refusal is None:
+            self._resends.m110_answered(command)
+            if command.sends > 1:
+                self._resends.m110_repeated(command, now, self._feed.quiet_s())
         refused = command.refusal is not None and not command.orphan and not command.probe
         self._resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
         state = self._state
@@ -171,16 +221,22 @@ class Receiving(CoreState):
                 self._feed.answered(command, now)
             command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
         elif command.probe:
-            self._feed.probe = None
+            if self._feed.probe is command:
+                self._feed.probe = None
         elif command.orphan:
             return
-        elif ok is None or lines is None:
-            what = "its ok was lost" if ok is None else "the ok of a command before it was lost"
+        elif ok is None:
+            # It ran (a later answer proves it), but its own ok was lost: its caller gets that, marked as such,
+            # never an error that would invite running it twice.
+            sent = now if command.sent_s is None else command.sent_s
+            answer = proof if proof is not None else Ok()
+            self._finish(command, Reply(command.text, (), answer, sent, now, command.lines_dropped, ok_lost=True))
+        elif lines is None:
             self._finish(
                 command,
                 LostReplyError(
-                    f"{command.text!r} was processed but {what}, so which reply lines are its own cannot be "
-                    "proven; it was not handed another command's answer",
+                    f"{command.text!r} was processed but the ok of a command before it was lost, so which reply "
+                    "lines are its own cannot be proven; it was not handed another command's answer",
                     command=command.text,
                 ),
             )

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from marlin_aio.events import Ok
+from marlin_aio.states import LineEvent, LineState, next_line_state
 from marlin_aio.temperatures import Temperatures
 
 if TYPE_CHECKING:
@@ -36,6 +37,9 @@ class Reply:
     answered_s: float
     lines_dropped: int = 0
     """Lines that came before `lines` and were not kept (over `MAX_REPLY_LINES`)."""
+    ok_lost: bool = False
+    """The command's own `ok` was lost on the line, and a later answer proved that it ran: `ok` is that later
+    answer, and `lines` are its reply lines as far as they can be told apart (else none)."""
 
     @property
     def latency_s(self) -> float:
@@ -76,6 +80,17 @@ class Command:
     source_bytes: int = 0
     probe: bool = False  # an M105 written to find out whether a stalled stream lost an ok
     refusal: str | None = None  # the printer's line saying it did not run this command (locked, not executed)
+    mangled: bool = False  # the printer echoed a damaged copy as an unknown command: its ok means "not counted"
+    placeholder: bool = False  # an `M110 N<n>` that takes the number of a line that must not run (again)
+    state: LineState = LineState.QUEUED  # moved only by `move`, through `marlin_aio.states.LINE_TRANSITIONS`
+
+    def move(self, event: LineEvent) -> None:
+        """Move this line's state by the table.
+
+        Raises:
+            ImpossibleTransitionError: the table has no such move (a bug in the core).
+        """
+        self.state = next_line_state(self.state, event)
 
     def add_line(self, text: str) -> None:
         """Collect one reply line, keeping only the last `MAX_REPLY_LINES` (a chatty or noisy printer must not

@@ -26,6 +26,7 @@ from marlin_aio.commands import number_command
 from marlin_aio.errors import MarlinError, RemoteProtocolError, ResendLimitError
 from marlin_aio.matching import InFlight
 from marlin_aio.replies import Command
+from marlin_aio.states import LineEvent, LineState
 
 __all__ = ["CALM_LINES", "Resends"]
 
@@ -35,6 +36,25 @@ _log = logging.getLogger("marlin_aio")
 #: After a line error, how many print lines must be answered without another before send-ahead writes more than
 #: one line at a time again. One line at a time never leaves a line on the wire behind one the firmware may reject.
 CALM_LINES = 100
+
+
+def _no_placeholders(number: int) -> Command:
+    raise RuntimeError("Resends.make_placeholder was not set")
+
+
+def wanted(line: Command) -> bool:
+    """Should `line` run if the printer asks for it again?
+
+    Not if it already ran (ACCEPTED: its `N` was damaged and the printer ran it unnumbered), nor if its caller
+    gave up, nor if it belongs to a print that stopped or is being cancelled: nothing of a stopped print runs
+    after the stop. Probes and placeholders run nothing that matters, so they may go again.
+    """
+    if line.placeholder or line.probe:
+        return True
+    if line.state not in (LineState.TO_RESEND, LineState.ON_WIRE, LineState.IN_DOUBT) or line.orphan:
+        return False
+    job = line.job
+    return job is None or (job.active and not job.cancelling)
 
 
 class Resends:
@@ -65,7 +85,11 @@ class Resends:
         self._calm_left = 0  # print lines still to be answered one at a time after the last line error
         self.fragment_wires: list[tuple[str, str]] = []  # (wire, text) of lines a flush may have cut in two
         self._fragment_oks = 0  # oks still due for fragments the firmware reported as unknown commands
+        self.spare_oks = 0  # oks that may still come for copies of an M110 written more than once
         self.nudge_pending = False  # let the next resend out past the window, as a probe
+        # Builds the `M110 N<n>` that takes the number n of lines that must not run (set by the connection).
+        self.make_placeholder: Callable[[int], Command] = _no_placeholders
+        self.now = 0.0  # the time of the call in progress, for jobs that end when a line is withdrawn
         self.requests = 0
         self.fragments = 0  # pieces of lines the printer received on their own after a flush (and refused)
         self.fragments_run = 0  # pieces of lines the printer ran on their own: a line ran out of place
@@ -90,20 +114,52 @@ class Resends:
         return len(command.text) + len(str(self.line_number_for(command))) + 7
 
     def assign_wire(self, command: Command, history_size: int) -> None:
-        """Give `command` its line number (if numbered) and its bytes, and keep it for resends."""
+        """Give `command` its line number (if numbered) and its bytes, and keep it for resends.
+
+        An `M110` is numbered with the value it sets, but the counter moves only when it is answered
+        (`m110_answered`): a damaged `M110` is an ordinary numbered line to Marlin, which changes nothing.
+        """
         if not command.numbered:
             command.wire = command.text.encode("ascii") + b"\n"
             return
         command.line_number = self.line_number_for(command)
-        if command.code == "M110":
-            self.forget_history()
-            self.accepted_through = command.line_number - 1
-        self.next_line = command.line_number + 1
+        if command.code != "M110":
+            self.next_line = command.line_number + 1
         command.wire = number_command(command.text, command.line_number).encode("ascii") + b"\n"
         self._history[command.line_number] = command
         self._history_order.append(command.line_number)
         while len(self._history_order) > history_size:
             self._history.pop(self._history_order.popleft(), None)
+
+    def m110_answered(self, command: Command) -> None:
+        """An `M110` was answered: the printer's counter is now its number.
+
+        A placeholder only takes the number of lines that must not run; a user's `M110 N<n>` (the handshake's
+        `M110 N0`) starts the numbering again from n + 1.
+        """
+        number = command.line_number
+        if number is None:
+            number = self.line_number_for(command)
+        if command.placeholder:
+            self.accepted_through = max(self.accepted_through, number)
+            return
+        self.forget_history()
+        self.accepted_through = number
+        self.next_line = number + 1
+
+    def m110_unanswered(self, command: Command) -> MarlinError | None:
+        """An M110 went unanswered and is written again; return the error that ends everything, if it must.
+
+        Its first copy may have been dropped without a word (damaged into an ordinary line numbered like the
+        printer's last), or its ok may only be late: the oks of copies beyond the first answer nothing.
+        """
+        return self._limit_error(command, command.line_number or 0)
+
+    def m110_repeated(self, command: Command, now: float, quiet_s: float) -> None:
+        """A repeated M110 was answered: the oks of its other copies may still come. Write nothing until the
+        printer has been quiet, and let those oks answer nothing."""
+        self.spare_oks = command.sends - 1
+        self.drain_until = now + quiet_s
 
     def forget_history(self) -> None:
         """Forget every line sent (the numbering restarts, or the printer forgot them)."""
@@ -140,6 +196,9 @@ class Resends:
         if self._fragment_oks:
             self._fragment_oks -= 1
             return True
+        if self.spare_oks and self.drain_until is not None:
+            self.spare_oks -= 1
+            return True
         return False
 
     def on_request(
@@ -163,16 +222,17 @@ class Resends:
             # (If it was in fact the resent line failing again, the resend deadline recovers.)
             self._stale -= 1
             return None
-        head = flight.head
+        if flight.barriers and rejected:
+            m110 = next(c for c in reversed(flight) if c.code == "M110")
+            if line_number == self.next_line or m110.line_number == line_number:
+                # The M110 itself was damaged: an ordinary numbered line to the firmware, whose counter did not
+                # move (and neither did ours). Write it again; it sets the counter whatever its own number.
+                flight.remove(m110, now)
+                m110.move(LineEvent.RESEND)
+                queue.appendleft(m110)
+                return self._limit_error(m110, line_number)
         if line_number == self.next_line:
-            if rejected and head is not None and head.code == "M110":
-                # The M110 itself was damaged: the firmware's counter is not reset, and it asks for the line after
-                # its old one, which happens to be our next. Write the M110 again; it sets the counter whatever
-                # its own number.
-                flight.popleft(now)
-                queue.appendleft(head)
-                return self._limit_error(head, line_number)
-            # Otherwise the printer has every line we sent (M999 asks this way): nothing to write again.
+            # The printer has every line we sent (M999 asks this way): nothing to write again.
             return None
         return self.resend(line_number, flight, queue, now, quiet_s)
 
@@ -195,7 +255,6 @@ class Resends:
         # the wire will be rejected or lost. Take them out of the in-flight FIFO (all but the one this rejection
         # answers will each send a stale rejection, or nothing) and write every line from N on again, in order,
         # ahead of new commands.
-        owed = {id(c) for c in flight}
         keep: list[Command] = []
         removed = 0
         behind: list[Command] = []  # written after the rejected line: on the wire when the firmware flushed
@@ -214,27 +273,51 @@ class Resends:
             # pieces (`is_fragment`).
             self.drain_until = now + quiet_s
             self.fragment_wires = [(c.wire.decode("ascii").rstrip("\n"), c.text) for c in behind]
-        queued = {id(c) for c in queue}
         again: list[Command] = []
+        unwanted: list[Command] = []  # a run of lines that must not run: one placeholder takes their numbers
         for number in range(line_number, self.next_line):
             resend = self._history.get(number)
             if resend is None:
                 continue
-            if id(resend) not in owed and id(resend) not in queued:
-                # Not in flight and not queued: its caller already had a result (a timeout). Resend it so the
-                # numbering goes on, but its answer completes nothing.
-                resend.orphan = True
-            again.append(resend)
+            if resend.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
+                resend.move(LineEvent.RESEND)
+            if wanted(resend):
+                if unwanted:
+                    again.append(self._placeholder_for(unwanted))
+                    unwanted = []
+                again.append(resend)
+            else:
+                unwanted.append(resend)
+        if unwanted:
+            again.append(self._placeholder_for(unwanted))
         flight.keep_only(keep, now, restart_head=False)
         self.resend_from = line_number
         # Every line from N on goes out again in order, ahead of everything else, including the lines an earlier
         # request had already queued for resending.
         again_ids = {id(c) for c in again}
-        rest = [c for c in queue if id(c) not in again_ids]
+        rest = [c for c in queue if id(c) not in again_ids and c.state is not LineState.WITHDRAWN]
         queue.clear()
         queue.extend(again)
         queue.extend(rest)
         return None
+
+    def _placeholder_for(self, lines: list[Command]) -> Command:
+        """A numbered `M110 N<n>` that takes the numbers of `lines` (n the last of them) without running any.
+
+        Every line of a stopped print, of a caller who gave up, or one that already ran (taken unnumbered after
+        its `N` was damaged) is withdrawn: writing it again would run what nobody means to run (again).
+        """
+        for line in lines:
+            if line.state is LineState.TO_RESEND:
+                line.move(LineEvent.WITHDRAWN)
+                if line.job is not None and not line.placeholder:
+                    line.job.in_flight -= 1  # it will never be answered
+                    line.job.finish_if_idle(self.now)
+        number = lines[-1].line_number
+        assert number is not None
+        placeholder = self.make_placeholder(number)
+        self._history[number] = placeholder
+        return placeholder
 
     def resend_overdue(
         self, head: Command, flight: InFlight, queue: deque[Command], now: float, quiet_s: float
@@ -270,6 +353,7 @@ class Resends:
         # rejection from now on is a fresh one.
         self.drain_until = None
         self._stale = 0
+        self.spare_oks = 0
         return False
 
     @property
@@ -328,4 +412,5 @@ class Resends:
         self._swallow_ok = False
         self.drain_until = None
         self._fragment_oks = 0
+        self.spare_oks = 0
         self.fragment_wires = []

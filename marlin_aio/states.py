@@ -31,6 +31,7 @@ from enum import Enum
 from types import MappingProxyType
 
 __all__ = [
+    "FINAL_LINE_STATES",
     "LINE_TRANSITIONS",
     "LINK_TRANSITIONS",
     "ImpossibleTransitionError",

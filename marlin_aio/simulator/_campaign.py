@@ -1,25 +1,36 @@
-"""A seeded fault campaign in simulated time: the protocol core against the simulated firmware, with nothing between.
+"""A seeded, model-based fault campaign in simulated time: the protocol core against the simulated firmware.
 
 One `run_print()` is one print of a generated file over a simulated serial line, driven by a discrete-event loop:
 the host side is a `marlin_aio.connection.Connection` fed by the same calls the asyncio client makes (a poller
-sending M105 every 10 ms, a user sending commands whose answers identify themselves, the print job), the printer is
-a `SimulatedPrinter` with its faults switched on, and the line between them carries bytes at a UART's speed in
-each direction. No clock, no thread and no I/O, so a run of thousands of lines takes a fraction of a second and
-every run with the same seed is the same run.
+sending M105 every 10 ms, any number of users sending commands whose answers identify themselves, some of whom
+give up waiting, the print job, paused or cancelled on the way), the printer is a `SimulatedPrinter` whose line
+intake is Marlin's, with its faults switched on (bit flips anywhere in what the host sends, damaged lines, lost
+oks, noise, a reset, a silent board), and the line between them carries bytes at a UART's speed in each
+direction. No clock, no thread and no I/O, so a run of thousands of lines takes a fraction of a second and every
+run with the same seed is the same run.
 
-What each run checks, as the invariants of issue 8 state them:
+What each run checks, on the simulator's own record of what it executed:
 
-- exactly once, in order: the numbered print lines the firmware executed are the file's commands, each once, in
-  order (or the print failed with a diagnosis, for the faults that must fail it);
-- no wrong reply: every reply handed to a user command belongs to it. A user command is `M118 U<k>`, which the
-  firmware answers with the line `U<k>`, so a reply that carries another command's line (or none) is caught;
-  every poll reply must carry temperatures;
-- nothing hangs: every command submitted gets its result within its bound, and the run ends.
+- at most once, in order: the file lines the firmware executed are the file's first lines, each once, in order;
+  exactly all of them when the print reports done (and then `M114` shows the exact position the file's relative
+  moves add up to);
+- never one more: when the print stops, the firmware ran exactly the lines the print says ran, give or take the
+  lines it names as possibly run (those on the wire at a reset); nothing of it ran after that;
+- each reply to its own caller: a user command is `M118 U<k>`, which the firmware answers with the line `U<k>`,
+  so a reply that carries another command's line (or none) is caught; every poll reply carries temperatures;
+  a caller who gave up gets nothing;
+- every wait bounded: every command submitted gets its result within its bound, and the run ends.
+
+The one fault no host can see is left out of the invariants and named in the result: a line damaged twice in the
+same bit (the 8-bit XOR checksum cannot see it), and a line whose leading `N` turned into `n` while its `ok`
+was lost too (it ran unnumbered, and nothing the printer says tells).
 """
 
 from __future__ import annotations
 
 import heapq
+import random
+import re
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -31,6 +42,7 @@ from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorCon
 __all__ = ["CampaignResult", "Scenario", "run_print"]
 
 _BYTE_S = 10 / 250_000  # one byte on a 250000-baud UART (start bit, 8 data bits, stop bit)
+_M114_X = re.compile(r"X:(-?\d+\.\d+)")
 
 
 @dataclass(frozen=True)
@@ -41,11 +53,17 @@ class Scenario:
     lines: int = 400
     send_ahead: bool = True
     advanced_ok: bool = False
-    corrupt: float = 0.0  # share of host lines the firmware receives damaged
+    corrupt: float = 0.0  # share of host lines the firmware receives with one character replaced
+    flip_bits: float = 0.0  # share of host bytes that get one bit flipped on the wire (any byte: N, M110, '*', EOL)
     drop_ok: float = 0.0  # share of oks the firmware never sends
     noise: float = 0.0  # share of firmware lines preceded by a line of garbage
     poll_interval_s: float | None = 0.01  # the poller's M105; None: no polling
-    user_interval_s: float | None = 0.05  # a user's `M118 U<k>` this often (after the last one finished); None: none
+    user_interval_s: float | None = 0.05  # each user's `M118 U<k>` about this often (random); None: no users
+    users: int = 1  # callers sending at the same time, each awaiting its own command
+    give_up: float = 0.0  # share of user commands whose caller gives up (cancels) before the answer
+    relative: bool = False  # the file is G91 and relative moves; done, M114 must show the exact sum
+    pause_at_line: int | None = None  # pause the print once this many lines were answered, resume 0.2 s later
+    cancel_at_line: int | None = None  # cancel the print once this many lines were answered
     reset_at_line: int | None = None  # the board resets once this many print lines ran
     silent_at_line: int | None = None  # the board falls silent (and stays so) once this many print lines ran
     timeout_s: float = 2.0
@@ -62,15 +80,20 @@ class CampaignResult:
     error: str | None
     executed_in_order: bool
     lines_executed: int
+    lines_said_run: int = 0  # the file lines the print says ran (its last acknowledged line)
     user_replies: int = 0
     user_failures: int = 0
+    users_gave_up: int = 0
     poll_replies: int = 0
     wrong_replies: int = 0
     unfinished_commands: int = 0
     end_s: float = 0.0
+    position_checked: bool = False  # M114 was read after a print that reported done
+    bits_flipped: int = 0
     fragments: int = 0  # tails of cut lines the firmware refused, recognised by the host
     fragments_run: int = 0  # tails of cut lines the firmware ran: the print stopped with that diagnosis
     tail_ran_after_reset: bool = False  # the board reset mid-line and ran the rest of that line afterwards
+    blind_spot: bool = False  # a fault no host can see struck (see the module's docstring)
     problems: list[str] = field(default_factory=list)
     failures_by_kind: Counter[str] = field(default_factory=Counter)
 
@@ -80,7 +103,10 @@ class CampaignResult:
         return not self.problems
 
 
-def _print_lines(count: int) -> list[str]:
+def print_lines(count: int, *, relative: bool = False) -> list[str]:
+    """The campaign's file: distinct absolute moves, or G91 and relative moves of 0.1 mm (whose sum M114 shows)."""
+    if relative:
+        return ["G91", *(f"G1 X0.1 F{6000 + 60 * (index % 7)}" for index in range(count - 1))]
     return [f"G1 X{index % 200}.{index % 10} Y{(index * 7) % 200} F6000" for index in range(count)]
 
 
@@ -90,9 +116,12 @@ def run_print(scenario: Scenario) -> CampaignResult:
         advanced_ok=scenario.advanced_ok, seed=scenario.seed, motion_time_scale=0.0, record_limit=None
     )
     faults = Faults(corrupt_rx_ratio=scenario.corrupt, drop_ok_ratio=scenario.drop_ok, noise_ratio=scenario.noise)
+    if scenario.flip_bits:
+        faults.flip_bit_ratio = scenario.flip_bits
     printer = SimulatedPrinter(config, faults, now=0.0, boot=False)
     conn = Connection(numbered=True, max_in_flight=64 if scenario.send_ahead else 1)
-    lines = _print_lines(scenario.lines)
+    lines = print_lines(scenario.lines, relative=scenario.relative)
+    rng = random.Random(f"{scenario.seed}:campaign")
 
     now = 0.0
     to_printer: list[tuple[float, int, bytes]] = []  # (arrival, sequence, bytes) on the wire, host to printer
@@ -100,12 +129,19 @@ def run_print(scenario: Scenario) -> CampaignResult:
     wire_free = {"out": 0.0, "in": 0.0}
     sequence = 0
     pending: dict[int, tuple[Command, float, str]] = {}  # command id -> (command, bound, kind)
+    gave_up: set[int] = set()  # ids of commands whose caller stopped waiting
+    give_up_at: list[tuple[float, int]] = []  # (when, command id)
     result = CampaignResult(scenario, PrintState.RUNNING, None, False, 0)
     poll: Command | None = None
     next_poll = 0.0 if scenario.poll_interval_s is not None else None
-    next_user = 0.01 if scenario.user_interval_s is not None else None
+    user_due: list[float | None] = [
+        0.01 + rng.random() * 0.01 if scenario.user_interval_s is not None else None for _ in range(scenario.users)
+    ]
+    user_command: list[int | None] = [None] * scenario.users
     user_count = 0
-    reset_done = False
+    reset_done = paused = cancelled = False
+    resume_at: float | None = None
+    position: list[str] = []  # M114's reply lines once the print is done
 
     def transmit(data: bytes, direction: str, queue: list[tuple[float, int, bytes]]) -> None:
         nonlocal sequence
@@ -135,7 +171,8 @@ def run_print(scenario: Scenario) -> CampaignResult:
         for command, outcome in output.finished:
             entry = pending.pop(command.id, None)
             if entry is None:
-                result.problems.append(f"a result for {command.text!r}, which nobody waits for")
+                who = "a caller who gave up on it" if command.id in gave_up else "nobody"
+                result.problems.append(f"a result for {command.text!r}, for {who}")
                 continue
             _, bound, kind = entry
             if now > bound:
@@ -146,6 +183,9 @@ def run_print(scenario: Scenario) -> CampaignResult:
                 if kind == "user":
                     result.user_failures += 1
                 result.failures_by_kind[type(outcome).__name__] += 1
+                continue
+            if kind == "position":
+                position.extend(outcome.lines)
                 continue
             _check_reply(command, outcome, kind, result)
 
@@ -161,11 +201,16 @@ def run_print(scenario: Scenario) -> CampaignResult:
     start = submit("M110 N0", "internal")
     flush()
     started = False
+    asked_position = False
 
     while now < scenario.time_limit_s:
         if not started and start.id not in pending:
             conn.attach(job, timeout_s=scenario.timeout_s)
             started = True
+            flush()
+        if started and job.finished and not asked_position and job.state is PrintState.DONE and conn.halted is None:
+            asked_position = True
+            submit("M114", "position")
             flush()
         if started and job.finished and not pending and not to_printer and not to_host:
             break
@@ -173,9 +218,11 @@ def run_print(scenario: Scenario) -> CampaignResult:
         for queue in (to_printer, to_host):
             if queue:
                 candidates.append(queue[0][0])
-        for due in (conn.next_deadline(), printer.next_wakeup(), next_poll, next_user):
+        for due in (conn.next_deadline(), printer.next_wakeup(), next_poll, resume_at, *user_due):
             if due is not None:
                 candidates.append(max(due, now))
+        if give_up_at:
+            candidates.append(max(give_up_at[0][0], now))
         now = max(now, min(candidates))
 
         if to_printer and to_printer[0][0] <= now:
@@ -196,6 +243,29 @@ def run_print(scenario: Scenario) -> CampaignResult:
             pump_printer()
         if scenario.silent_at_line is not None and ran >= scenario.silent_at_line:
             faults.silent = True
+        if scenario.pause_at_line is not None and not paused and job.lines_acked >= scenario.pause_at_line:
+            paused = True
+            if job.active:
+                job.pause()
+                resume_at = now + 0.2
+        if resume_at is not None and now >= resume_at:
+            resume_at = None
+            if job.state is PrintState.PAUSED:
+                job.resume(now)
+                flush()
+        if scenario.cancel_at_line is not None and not cancelled and job.lines_acked >= scenario.cancel_at_line:
+            cancelled = True
+            if job.active:
+                job.cancel(now)
+                flush()
+        while give_up_at and give_up_at[0][0] <= now:
+            _, command_id = heapq.heappop(give_up_at)
+            entry = pending.pop(command_id, None)
+            if entry is not None:
+                # As `asyncio.wait_for` does when it runs out: the caller withdraws and waits no more.
+                gave_up.add(command_id)
+                result.users_gave_up += 1
+                conn.cancel(entry[0])
         deadline = conn.next_deadline()
         if deadline is not None and now >= deadline:
             flush()  # the core acts on the deadline that passed
@@ -204,33 +274,50 @@ def run_print(scenario: Scenario) -> CampaignResult:
                 poll = submit("M105", "poll")
                 flush()
             next_poll = now + scenario.poll_interval_s
-        if next_user is not None and now >= next_user and scenario.user_interval_s is not None:
-            # The user awaits each command before sending the next, as a task calling `send()` does.
-            if not job.finished and conn.halted is None and not any(k == "user" for _, _, k in pending.values()):
+        for user, due in enumerate(user_due):
+            if due is None or now < due or scenario.user_interval_s is None:
+                continue
+            # Each user awaits its command before sending the next, as a task calling `send()` does.
+            waiting = user_command[user]
+            if not job.finished and conn.halted is None and (waiting is None or waiting not in pending):
                 user_count += 1
-                submit(f"M118 U{user_count}", "user")
+                command = submit(f"M118 U{user_count}", "user")
+                user_command[user] = command.id
+                if scenario.give_up and rng.random() < scenario.give_up:
+                    heapq.heappush(give_up_at, (now + rng.random() * 2 * scenario.timeout_s, command.id))
                 flush()
-            next_user = now + scenario.user_interval_s
+            user_due[user] = now + rng.expovariate(1.0 / scenario.user_interval_s)
 
     result.end_s = now
     stats = conn.stats()
     result.fragments, result.fragments_run = stats.fragments, stats.fragments_run
+    result.bits_flipped = getattr(printer, "bits_flipped", 0)
     result.state = job.state
     result.error = None if job.error is None else str(job.error)
+    result.lines_said_run = job.last_source_line
     if job.active:
         result.problems.append(f"the print was still {job.state.value} at the time limit ({now:.0f} s)")
     for command, bound, kind in pending.values():
         if kind != "internal" or now > bound:
             result.unfinished_commands += 1
             result.problems.append(f"{kind} command {command.text!r} never finished")
-    executed = [text for text in printer.executed if text.startswith("G1 ")]
+    _check_record(printer, lines, job, result)
+    if job.state is PrintState.DONE and scenario.relative:
+        _check_position(position, lines, result)
+    return result
+
+
+def _check_record(printer: SimulatedPrinter, lines: list[str], job: PrintJob, result: CampaignResult) -> None:
+    """The invariants on what the firmware executed: at most once, in order; all when done; never one more."""
+    scenario = result.scenario
+    file_codes = ("G1 ", "G91")
+    executed = [text for text in printer.executed if text.startswith(file_codes)]
     result.lines_executed = len(executed)
     result.executed_in_order = executed == lines[: len(executed)]
     # With send-ahead, a flush can cut a line in two and the firmware run its tail: the one fault no host can
     # prevent with lines on the wire. The print must then stop at once, saying so, with that one line out of place.
     one_extra = not result.executed_in_order and _one_line_out_of_place(executed, lines)
     failed_with = result.error if job.state is PrintState.FAILED and result.error is not None else ""
-    # (The line that ran may be a user's command or a poll rather than a print line.)
     diagnosed_fragment = (
         (result.executed_in_order or one_extra) and result.fragments_run > 0 and "ran out of place" in failed_with
     )
@@ -239,15 +326,45 @@ def run_print(scenario: Scenario) -> CampaignResult:
     # the reset's diagnosis.
     result.tail_ran_after_reset = one_extra and scenario.reset_at_line is not None and "reset" in failed_with
     if not result.executed_in_order and not (diagnosed_fragment or result.tail_ran_after_reset):
-        result.problems.append("the firmware executed print lines out of order, twice or not at all")
+        result.problems.append(
+            f"the firmware executed print lines out of order, twice or not at all (first difference at file line "
+            f"{_first_difference(executed, lines)}; {len(executed)} executed)"
+        )
     if job.state is PrintState.DONE and len(executed) != len(lines):
         result.problems.append(f"the print ended DONE with {len(executed)} of {len(lines)} lines executed")
     if job.state is PrintState.DONE and result.fragments_run:
         result.problems.append("a cut line ran on its own and the print still ended DONE")
+    if job.state in (PrintState.FAILED, PrintState.CANCELLED) and result.executed_in_order:
+        # Never one more: the lines it says ran, plus at most those it names as possibly run.
+        said = job.last_source_line
+        maybe = job.may_have_run if hasattr(job, "may_have_run") else 0
+        if not said <= len(executed) <= said + maybe:
+            result.problems.append(
+                f"the print says {said} lines ran (and {maybe} may have), but the firmware ran {len(executed)}"
+            )
     expected_failure = scenario.reset_at_line is not None or scenario.silent_at_line is not None
     if job.state is PrintState.FAILED and not expected_failure and not diagnosed_fragment:
         result.problems.append(f"the print failed on a link that should carry it: {result.error}")
-    return result
+    if job.state is PrintState.CANCELLED and scenario.cancel_at_line is None:
+        result.problems.append("the print ended CANCELLED, but nobody cancelled it")
+
+
+def _check_position(position: list[str], lines: list[str], result: CampaignResult) -> None:
+    expected = 0.1 * (len(lines) - 1)
+    found = next((m for line in position if (m := _M114_X.search(line))), None)
+    if found is None:
+        result.problems.append(f"M114 after the print answered {position!r}, without a position")
+        return
+    result.position_checked = True
+    if abs(float(found.group(1)) - expected) > 0.005:
+        result.problems.append(f"M114 shows X:{found.group(1)} after the print; its moves add up to {expected:.2f}")
+
+
+def _first_difference(executed: list[str], lines: list[str]) -> int:
+    for index, (ran, line) in enumerate(zip(executed, lines, strict=False)):
+        if ran != line:
+            return index + 1
+    return min(len(executed), len(lines)) + 1
 
 
 def _one_line_out_of_place(executed: list[str], lines: list[str]) -> bool:
@@ -264,11 +381,11 @@ def _check_reply(command: Command, reply: Reply, kind: str, result: CampaignResu
     if kind == "user":
         result.user_replies += 1
         token = command.text.split()[1]
-        if reply.lines != (token,):
+        if reply.lines != (token,) and not (getattr(reply, "ok_lost", False) and reply.lines == ()):
             result.wrong_replies += 1
             result.problems.append(f"{command.text!r} was handed the reply lines {reply.lines!r}")
     elif kind == "poll":
         result.poll_replies += 1
-        if reply.temperatures is None:
+        if reply.temperatures is None and not getattr(reply, "ok_lost", False):
             result.wrong_replies += 1
             result.problems.append(f"a poll was handed an ok without temperatures: {reply.ok!r}")
