@@ -10,6 +10,7 @@ import asyncio
 import os
 import signal
 import sys
+import termios
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -192,18 +193,76 @@ async def test_pty_reset_on_open_gives_pyserial_the_banner_after_its_open(baud_r
             assert received.count(b"start\n") == 1
 
 
-async def test_pty_reset_on_open_keeps_raw_bytes_and_ignores_plain_opens() -> None:
-    # os.open sets nothing up: the power-up banner, and no reset.
+async def test_pty_reset_on_open_resets_on_a_plain_open_too_and_keeps_raw_bytes() -> None:
+    # os.open sets nothing up, but it is an open: DTR rises and the board resets. A client that does not flush
+    # reads the power-up banner that waited in the terminal, then the reset's.
     async with (
         serve_pty(SimulatorConfig(), time_scale=TIME_SCALE, reset_on_open=True) as sim,
         pty_client(sim.url) as host,
     ):
         banner = await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
         assert banner[:2] == ["start", "PowerUp"]
-        host.write(b"M118 a\rM105\n")  # packet mode changes no byte, in either direction
+        banner = await read_until(host.readline, lambda line: line.startswith("echo:  M301"))
+        assert banner[:2] == ["start", "External Reset"]
+        host.write(b"M118 a\rM105\n")  # the host's bytes and the replies pass unchanged
         assert [await host.readline() for _ in range(3)] == ["a", "ok", IDLE_M105]
     with pytest.raises(ValueError, match="reset_on_open"):
         SimulatorServer(SimulatorConfig(), None, kind="tcp", reset_on_open=True)
+
+
+async def test_pty_settings_changed_on_an_open_port_do_not_reset_the_board() -> None:
+    # OctoPrint changes its port's timeouts (and may try another baud rate) in the middle of a session: each is a
+    # tcsetattr() on the open port, which a real board never notices. Only the open's DTR edge resets it.
+    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE, reset_on_open=True) as sim:
+
+        def session() -> list[bytes]:
+            with serial.Serial(sim.url, 250000, timeout=5) as port:
+                received = [port.readline()]
+                while not received[-1].startswith(b"echo:  M301"):
+                    received.append(port.readline())
+                port.write(b"M104 S200\n")
+                received.append(port.readline())
+                port.baudrate = 115200
+                port.write_timeout = 1
+                port.inter_byte_timeout = 0.1
+                port.baudrate = 250000
+                port.inter_byte_timeout = None
+                port.timeout = 0.5  # a reset would print its banner within 0.05 s: none comes
+                received.append(port.read(1))
+                port.timeout = 5
+                port.write(b"M105\n")
+                received.append(port.readline())
+                return received
+
+        received = await asyncio.to_thread(session)
+        assert sim.printer.executed == ["M104 S200", "M105"]
+    assert received[:2] == [b"start\n", b"External Reset\n"]
+    assert received.count(b"start\n") == 1
+    assert received[-3:-1] == [b"ok\n", b""]
+    assert received[-1].startswith(b"ok T:") and b" /200.00 " in received[-1]  # the target survived
+
+
+async def test_pty_reset_on_open_only_when_the_last_close_dropped_dtr() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=TIME_SCALE, reset_on_open=True) as sim:
+
+        def session(hupcl: bool) -> list[bytes]:
+            """Open, get an M105 answered, and close leaving HUPCL as `hupcl` says; return what was read."""
+            with serial.Serial(sim.url, 250000, timeout=5) as port:
+                port.write(b"M105\n")  # dropped if the board is in its bootloader: sent again after the banner
+                received = [port.readline()]
+                while not received[-1].startswith(b"ok T:"):
+                    if received[-1].startswith(b"echo:  M301"):
+                        port.write(b"M105\n")
+                    received.append(port.readline())
+                attributes = termios.tcgetattr(port.fileno())
+                attributes[2] = attributes[2] | termios.HUPCL if hupcl else attributes[2] & ~termios.HUPCL
+                termios.tcsetattr(port.fileno(), termios.TCSANOW, attributes)
+                return received
+
+        # The first open raises DTR (a reset); a close with HUPCL cleared leaves it up, one with HUPCL set drops it.
+        opens = [await asyncio.to_thread(session, hupcl) for hupcl in (False, True, True, False, False)]
+        assert [received.count(b"start\n") for received in opens] == [1, 0, 1, 1, 0]
+        assert all(received[-1] == IDLE_M105.encode() + b"\n" for received in opens)
 
 
 async def test_pty_disconnect_makes_the_host_see_the_link_drop() -> None:
@@ -512,12 +571,15 @@ def test_the_shared_option_table_builds_the_serve_settings() -> None:
     from marlin_aio.simulator._options import SimulatorSettings, build_parser, simulator_settings
 
     arguments = build_parser("marlin-temp sim").parse_args(
-        ["--tcp", "0", "--time-scale", "5", "--baud", "9600", "--no-bed", "--seed", "3", "--drop-ok", "0.5"]
+        [
+            *("--tcp", "0", "--time-scale", "5", "--baud", "9600", "--no-bed", "--seed", "3", "--drop-ok", "0.5"),
+            *("--boot-delay", "1.5", "--flip-bits", "0.001"),
+        ]
     )
     settings = simulator_settings(arguments)
     assert (settings.tcp_port, settings.host, settings.time_scale, settings.baud_rate) == (0, "127.0.0.1", 5.0, 9600)
-    assert settings.config == SimulatorConfig(has_bed=False, seed=3)
-    assert settings.faults == Faults(drop_ok_ratio=0.5)
+    assert settings.config == SimulatorConfig(has_bed=False, seed=3, boot_delay_s=1.5)
+    assert settings.faults == Faults(drop_ok_ratio=0.5, flip_bit_ratio=0.001)
     assert simulator_settings(build_parser().parse_args([])) == SimulatorSettings()
 
 

@@ -13,7 +13,7 @@ are exact; configuration is given in seconds and converted once.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 __all__ = [
     "BUILD_DATE",
@@ -129,9 +129,20 @@ class SimulatorConfig:
     motion_time_scale: float = 1.0
     """Factor on the time each move takes (distance / feedrate): 0.1 runs moves ten times faster, 0 makes them
     instant, so a link benchmark measures the link rather than the planner."""
-    ignore_duplicate_lines: bool = False
-    """Drop a numbered line repeating one of the last two numbers without any answer (no error, no `ok`), as
-    newer Marlin `queue.cpp` does; off, such a line gets the line-number error and `Resend:` like 2.1.2."""
+    ignore_duplicate_lines: bool = True
+    """Drop a numbered line repeating one of the last two numbers (`n == last` or `n == last - 1`) without any
+    answer (no error, no `Resend:`, no `ok`), as bugfix-2.1.x's `queue.cpp` does ("a request-for-resend line was
+    already in transit"). False gives Marlin 2.1.2's answer instead: the line-number error and `Resend:`."""
+    case_insensitive: bool = True
+    """GCODE_CASE_INSENSITIVE (on in Marlin 2.1's default configuration): command letters and parameter letters
+    may be lowercase (`m105`, `g1 x5`, `n15 G1 X0.1` with its line number skipped). Off, a lowercase command is
+    an unknown command and lowercase parameters are not seen. A line is numbered only by an uppercase `N` either
+    way (queue.cpp does not fold case), so `n15 G1 X0.1` runs unnumbered."""
+    boot_delay_s: float = 0.0
+    """How long a board stays in its bootloader after power-up or `reset()`, in simulated seconds: it reads
+    nothing (bytes arriving are dropped) and says nothing, then prints `start` and its banner. Real AVR boards
+    take 1-3 s; 0 prints the banner at once. A pty served with `reset_on_open` waits at least a moment of real
+    time after an open whatever this says (see `serve_pty`)."""
     checksum_required: bool = False
     """Take only numbered lines with a checksum: an unnumbered command is answered with `Error: Missing checksum`
     and nothing else (no `ok`) and is not run. Numbered lines, `N0 M110` included, work as usual."""
@@ -180,6 +191,8 @@ class SimulatorConfig:
             raise ValueError(f"password must be one word of ASCII without ';' or '*', got {self.password!r}")
         if self.record_limit is not None and self.record_limit < 0:
             raise ValueError(f"record_limit must be None or at least 0, got {self.record_limit}")
+        if not 0.0 <= self.boot_delay_s < math.inf:
+            raise ValueError(f"boot_delay_s must be a finite number >= 0, got {self.boot_delay_s}")
 
 
 @dataclass
@@ -207,3 +220,24 @@ class Faults:
     `!! Lost communication with MCU 'mcu'` and `ok`, and is not run (not in `executed`)."""
     drop_ok_codes: frozenset[str] = frozenset()
     """Commands (by code: `"M110"`, `"M115"`) that run, print their reply lines, and never get their `ok`."""
+    flip_bit_ratio: float = 0.0
+    """Share of the host's bytes that get one random bit (0-7) flipped on the wire, before the board sees them
+    (before the emergency parser and the receive buffer). A flip can hit anything: the leading `N` (the line
+    then runs unnumbered, or is an unknown command), an `M110`, a `*`, a digit, or a line end (`\\n` turned into
+    another byte joins two lines; a `*` turned into `\\n` splits one). Which bytes are hit depends only on the
+    seed and each byte's place in the host's stream, never on how the bytes were split into `receive()` calls.
+    `SimulatedPrinter.bits_flipped` counts the flips."""
+    flip_once: list[tuple[str, int, int]] = field(default_factory=list)
+    """Targeted flips for tests, each `(substring, byte_offset, bit)`: flip bit `bit` (0-7) of byte
+    `byte_offset` of the first line the host sends that contains `substring` (matched on the line as sent,
+    before any flip; the offset counts from the line's first byte, and the offset of its length is the line's
+    `\\n`), then the entry is removed from this list. `("N15 ", 0, 5)` turns `N15 G1 X0.1*75` into
+    `n15 G1 X0.1*75`, `("N15 ", 0, 0)` into `O15 G1 X0.1*75`. While entries are left, the bytes of a line are
+    held back until its end has arrived, so that any byte of it can be hit; applied where `flip_bit_ratio` is."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.flip_bit_ratio <= 1.0:
+            raise ValueError(f"flip_bit_ratio must be between 0 and 1, got {self.flip_bit_ratio}")
+        for substring, offset, bit in self.flip_once:
+            if offset < 0 or not 0 <= bit <= 7:
+                raise ValueError(f"flip_once entries need an offset >= 0 and a bit 0-7, got {(substring, offset, bit)}")

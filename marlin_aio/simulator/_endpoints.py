@@ -6,27 +6,35 @@ through the server's `EndpointOwner` methods: bytes from the host, how much it m
 opened the port (the board resets, as DTR makes it), and a link that dropped. The server itself never asks which
 kind of endpoint it has.
 
-Opening a port resets most boards (DTR), and each TCP client finds the board reset. A pty cannot see DTR, and the
-endpoint holds the slave open, so it sees no open either; with `reset_on_open` it watches the terminal's settings
-instead: the slave gets EXTPROC and the master packet mode (TIOCPKT), so every `tcsetattr()` on the slave reaches
-the master as a TIOCPKT_IOCTL packet. pyserial's `open()` always sets the port up that way, and its reads and
-flushes do not, so a client finds the board booting a moment after it opened the port, after the flush that
-ends pyserial's `open()` (which would otherwise throw the banner away). This is Linux behaviour.
+Opening a port resets most boards (DTR), and each TCP client finds the board reset. A pty has no DTR, and the
+endpoint holds the slave open (so its settings outlive each client, as a real port's do, and the master never
+sees a hang-up), so the master sees no open either. With `reset_on_open` the endpoint watches the slave's path
+with inotify (Linux), which reports every open and close of it by any process, and models DTR from those:
 
-DTR is modelled as a real port has it: the first open raises it (the board resets), and closing drops it again
-only while the terminal has HUPCL set, the default. A client that clears HUPCL (`stty -hupcl`, as marlin_aio
-does) leaves DTR up, so the next open finds the board running, targets and all. The slave is held open here, so
-its settings outlive each client, as a real port's do; an open resets the board when the setting seen before it
-(how the last client left the port) had HUPCL set.
+- DTR rises when a client opens the port while it is down: the board resets at that moment (the DTR edge) and
+  sits in its bootloader for at least `OPEN_BOOT_S` of real time, so its banner comes after the flush that ends
+  pyserial's `open()` (which would otherwise throw the banner away). The first open after the server started
+  finds DTR down.
+- DTR drops when the last client closes the port while the terminal has HUPCL set, a serial port's default. A
+  client that clears HUPCL (`stty -hupcl`, as marlin_aio does) leaves DTR up, so the next open finds the board
+  running, targets and all. The setting is read when the close is seen, normally at once.
+- Nothing else resets the board: a client changing the baud rate, timeouts or any other setting of an open port,
+  or flushing it, does what it does on a real port, nothing to the board. (An earlier version watched
+  `tcsetattr()` calls instead, and rebooted the board when a host such as OctoPrint changed its port's settings
+  in the middle of a print.)
 
-Only os, pty, tty and termios are used for the pseudo-terminal, never the serial package (the client's business).
+An open is seen before any byte the client writes after it: the watch is read before each read of the host's
+bytes.
+
+Only os, pty, tty, termios and ctypes (for inotify, which the standard library does not wrap) are used here,
+never the serial package (the client's business).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import fcntl
+import ctypes
 import os
 import pty
 import socket
@@ -35,18 +43,20 @@ import termios
 import tty
 from typing import Protocol
 
-__all__ = ["EndpointOwner", "PtyEndpoint", "TcpEndpoint"]
+__all__ = ["OPEN_BOOT_S", "EndpointOwner", "PtyEndpoint", "TcpEndpoint"]
 
 _READ_CHUNK = 65536
 # Output the host has not read yet, beyond what the kernel holds. A board's transmit path is not an endless
 # queue either; past this, output is dropped rather than delivered stale minutes later.
 _MAX_PENDING_OUTPUT = 4096
-# With reset_on_open: how long after the port's set-up the board prints its banner (a real one takes 1-3 s in
-# its bootloader; this is short so a handshake is not slowed down, and long enough to come after pyserial's flush).
-_OPEN_RESET_DELAY_S = 0.05
-# Linux values; the termios module names neither.
-_EXTPROC = 0o200000
-_TIOCPKT_IOCTL = 0x40
+OPEN_BOOT_S = 0.05
+"""With `reset_on_open`: the shortest bootloader after an open, in real seconds (`SimulatorConfig.boot_delay_s`
+may ask for longer). A real board takes 1-3 s; this is short so a handshake is not slowed down, and long enough
+for the banner to come after the flush that ends pyserial's `open()`."""
+# <sys/inotify.h>
+_IN_OPEN = 0x20
+_IN_CLOSE = 0x08 | 0x10  # IN_CLOSE_WRITE | IN_CLOSE_NOWRITE
+_INOTIFY_EVENT = struct.Struct("iIII")  # wd, mask, cookie, len (a name of len bytes follows)
 
 
 class EndpointOwner(Protocol):
@@ -64,24 +74,68 @@ class EndpointOwner(Protocol):
     def _clear_wires(self) -> None:
         """Forget the bytes under way: they belonged to a session that ended."""
 
-    def _reset_on_connect(self) -> None:
-        """A client opened the port: reset the board so it starts from its banner (unless paused or closed)."""
+    def _reset_on_connect(self, *, min_boot_s: float = 0.0) -> None:
+        """A client opened the port: reset the board so it starts from its banner (unless paused or closed), its
+        bootloader taking at least `min_boot_s` of real time."""
+
+
+class _OpenWatch:
+    """Every open and close of one path, by any process (Linux inotify, called through libc)."""
+
+    def __init__(self, path: str) -> None:
+        """Watch `path`.
+
+        Raises:
+            OSError: if inotify is not available.
+        """
+        libc = ctypes.CDLL(None, use_errno=True)
+        fd: int = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)  # IN_NONBLOCK, IN_CLOEXEC are these
+        if fd < 0:
+            error = ctypes.get_errno()
+            raise OSError(error, f"inotify_init1: {os.strerror(error)}")
+        if libc.inotify_add_watch(fd, os.fsencode(path), _IN_OPEN | _IN_CLOSE) < 0:
+            error = ctypes.get_errno()
+            os.close(fd)
+            raise OSError(error, f"inotify_add_watch {path}: {os.strerror(error)}")
+        self.fd = fd
+        """The inotify descriptor, readable when something happened."""
+
+    def events(self) -> list[bool]:
+        """What happened since the last call, in order: True for an open, False for a close."""
+        happened: list[bool] = []
+        while True:
+            try:
+                data = os.read(self.fd, 4096)
+            except OSError:  # nothing more (EAGAIN), or the watch is gone
+                return happened
+            offset = 0
+            while offset + _INOTIFY_EVENT.size <= len(data):
+                _, mask, _, name_size = _INOTIFY_EVENT.unpack_from(data, offset)
+                offset += _INOTIFY_EVENT.size + name_size
+                if mask & _IN_OPEN:
+                    happened.append(True)
+                elif mask & _IN_CLOSE:
+                    happened.append(False)
+
+    def close(self) -> None:
+        """Stop watching."""
+        os.close(self.fd)
 
 
 class PtyEndpoint:
     """A new pseudo-terminal; the client opens its slave path. The endpoint holds both ends open."""
 
     def __init__(self, owner: EndpointOwner, *, reset_on_open: bool) -> None:
-        """An endpoint for `owner`; with `reset_on_open` (Linux) a client's port set-up resets the board."""
+        """An endpoint for `owner`; with `reset_on_open` (Linux) a client's open resets the board as DTR does."""
         self._owner = owner
         self._reset_on_open = reset_on_open
         self._loop: asyncio.AbstractEventLoop | None = None
         self._master_fd: int | None = None
         self._slave_fd: int | None = None
         self._pending = bytearray()
-        self._open_reset: asyncio.TimerHandle | None = None
-        self._dtr_raised = False  # DTR has been up since an open (and no close with HUPCL dropped it)
-        self._hupcl_before = True  # HUPCL as last seen: a serial port starts with it set
+        self._watch: _OpenWatch | None = None
+        self._opens = 0  # clients that have the port open now (not counting the endpoint's own slave)
+        self._dtr = False  # DTR is up: raised by an open, not dropped by a last close with HUPCL set
         self.reading = False
         """Whether the master is being read (its reader is registered)."""
 
@@ -100,27 +154,29 @@ class PtyEndpoint:
         master_fd, slave_fd = pty.openpty()
         # Raw at once: otherwise the line discipline echoes the host's bytes back and turns \n into \r\n.
         tty.setraw(slave_fd)
+        url = os.ttyname(slave_fd)
         if self._reset_on_open:
             attributes = termios.tcgetattr(slave_fd)
-            attributes[3] |= _EXTPROC  # lflag; in raw mode it changes nothing but the reporting
             # A serial port starts with HUPCL set (a pty without): closing drops DTR until a client clears it.
             attributes[2] |= termios.HUPCL
             termios.tcsetattr(slave_fd, termios.TCSANOW, attributes)
-            fcntl.ioctl(master_fd, termios.TIOCPKT, struct.pack("i", 1))
+            try:
+                self._watch = _OpenWatch(url)
+            except OSError:
+                os.close(master_fd)
+                os.close(slave_fd)
+                raise
+            loop.add_reader(self._watch.fd, self._on_port_event)
         os.set_blocking(master_fd, False)
         self._master_fd = master_fd
         # Held open for the server's life, so the master sees no hang-up while no client has the port open.
         self._slave_fd = slave_fd
-        url = os.ttyname(slave_fd)
         self.reading = False
         self._owner._update_reading()
         return url
 
     async def close(self) -> None:
-        """Close the pty for good, and forget a reset still to come."""
-        if self._open_reset is not None:
-            self._open_reset.cancel()
-            self._open_reset = None
+        """Close the pty for good."""
         self._close_pty()
 
     def hang_up(self) -> None:
@@ -156,6 +212,11 @@ class PtyEndpoint:
         self.reading = want
 
     def _close_pty(self) -> None:
+        if self._watch is not None:
+            if self._loop is not None:
+                self._loop.remove_reader(self._watch.fd)
+            self._watch.close()
+            self._watch = None
         if self._master_fd is not None:
             if self._loop is not None:
                 self._loop.remove_reader(self._master_fd)
@@ -172,9 +233,11 @@ class PtyEndpoint:
     def _on_readable(self) -> None:
         if self._master_fd is None:
             return
+        if self._watch is not None:
+            self._on_port_event()  # an open comes before the bytes written after it
+            if self._master_fd is None:
+                return
         size = self._owner._read_size()
-        if self._reset_on_open:
-            size += 1  # room for the packet's status byte, so a read always makes progress
         try:
             data = os.read(self._master_fd, size)
         except (BlockingIOError, InterruptedError):
@@ -183,38 +246,33 @@ class PtyEndpoint:
             # EIO and friends: the terminal is gone; stop listening rather than spin on an error.
             self._close_pty()
             return
-        if data and self._reset_on_open:
-            # Packet mode: a status byte first; 0 (TIOCPKT_DATA) means the host's bytes follow.
-            status, data = data[0], data[1:]
-            if status & _TIOCPKT_IOCTL:
-                self._port_opened()
-            if status:
-                return
         if data:
             self._owner._receive_from_host(data)
 
-    def _port_opened(self) -> None:
-        """The client set the port up (opened it): the board resets, as DTR would make it, a moment later, unless
-        DTR stayed up since the last session (HUPCL cleared)."""
-        assert self._loop is not None
-        # What matters is how the last session left the port: a close with HUPCL set dropped DTR. That is the
-        # setting seen before this set-up, not now: the client may have cleared it since (packets coalesce, and the
-        # setting is read when the packet is).
-        dropped = not self._dtr_raised or self._hupcl_before
-        if self._slave_fd is not None:
-            with contextlib.suppress(termios.error, OSError):
-                self._hupcl_before = bool(termios.tcgetattr(self._slave_fd)[2] & termios.HUPCL)
-        if not dropped:
-            return  # DTR never dropped: no reset (a reset already on its way from this open still comes)
-        self._dtr_raised = True
-        self._owner._clear_wires()  # what was on the wire belonged to the previous session
-        if self._open_reset is not None:
-            self._open_reset.cancel()
-        self._open_reset = self._loop.call_later(_OPEN_RESET_DELAY_S, self._reset_after_open)
+    def _on_port_event(self) -> None:
+        """Opens and closes of the port by clients: DTR rises with an open, and drops with the last close while
+        HUPCL is set; a rising DTR resets the board."""
+        if self._watch is None:
+            return
+        for opened in self._watch.events():
+            if opened:
+                self._opens += 1
+                if not self._dtr:
+                    self._dtr = True
+                    self._owner._clear_wires()  # what was on the wire belonged to the previous session
+                    self._owner._reset_on_connect(min_boot_s=OPEN_BOOT_S)
+                continue
+            self._opens = max(self._opens - 1, 0)
+            if self._opens == 0 and self._hupcl():
+                self._dtr = False
 
-    def _reset_after_open(self) -> None:
-        self._open_reset = None
-        self._owner._reset_on_connect()
+    def _hupcl(self) -> bool:
+        if self._slave_fd is None:
+            return True
+        try:
+            return bool(termios.tcgetattr(self._slave_fd)[2] & termios.HUPCL)
+        except (termios.error, OSError):
+            return True
 
     def _queue_output(self, data: bytes) -> None:
         room = _MAX_PENDING_OUTPUT - len(self._pending)

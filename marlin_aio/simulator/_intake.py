@@ -1,46 +1,80 @@
-"""The simulated board's serial input: the receive buffer, the emergency parser and queue.cpp's line checks.
+"""The simulated board's serial input: the wire's bit flips, the receive buffer, the emergency parser, and
+`queue.cpp`'s and `parser.cpp`'s reading of each line (Marlin bugfix-2.1.x).
 
-`LineReader` holds what Marlin 2.1 keeps between the UART and the command ring (`gcode/queue.cpp`,
-`feature/e_parser.h`); the printer (`_printer.SimulatedPrinter`) owns the ring and decides when lines may move.
+`WireFlips` is the cable: the faults that flip bits of the host's bytes before the board sees them. `LineReader`
+holds what Marlin keeps between the UART and the command ring (`gcode/queue.cpp`, `feature/e_parser.h`); the
+printer (`_printer.SimulatedPrinter`) owns the ring and decides when lines may move.
 
 - Bytes land in the serial receive buffer (`rx_buffer_size`); what does not fit is dropped, and the printer
-  counts it. Whole lines move from there into the command ring (`command_buffer_size` slots, the running command
+  counts it. Lines move from there into the command ring (`command_buffer_size` slots, the running command
   included) whenever a slot is free, also while a long command blocks: Marlin's `idle()` calls
   `manage_inactivity()`, which calls `queue.get_available_commands()`. The captures show it too: the `ok` ending
   an M109 that had commands sent behind it reads `B0`, not `B3`. So line-number and checksum errors are answered
   (`Resend:` and `ok`) even while G28 or M109 runs.
+- Each byte goes through `process_stream_char()` as it is read: `;` starts a comment to the end of the line (a
+  `*checksum` after it is lost), 0x08 erases the byte before, `\\` makes the next byte plain, and from the 95th
+  byte on (MAX_CMD_SIZE - 1) the rest of the line is skipped. `\\n` or `\\r` ends a line; empty lines are
+  ignored, but a line of spaces is a command (an unknown one, `""`). A NUL ends the line's text where it stands,
+  as it ends a C string.
+- `queue.cpp`: after leading spaces, a line is numbered only if its first byte is `N`. A numbered line with
+  `M110` anywhere in it takes its number from the `N` after it and skips the sequence check; otherwise `last+1`
+  is taken, `last` and `last-1` are dropped without a word ("a request-for-resend line was already in transit";
+  `ignore_duplicate_lines`, 2.1.2 answered them with the line error), and anything else is the line-number
+  error. Then the checksum (XOR of every byte before the last `*`, against the decimal number after it).
+  Every error is `Error:...Last Line: <last>`, `Resend: <last+1>`, `ok`, and the rest of the receive buffer
+  thrown away. Anything else, `n15 ...` or a damaged `N` included, is unnumbered: no check, counter unchanged.
+- `parser.cpp`: spaces and an `N<digits>` word are skipped (with `case_insensitive`, an `n` too), the text is cut
+  at the first `*`, and the command letter must be G, M or T followed by digits; otherwise the command is unknown
+  and the echo shows the text as cut (`echo:Unknown command: "?15 G1 X0.1"`).
+- M110 sets the counter when it runs (`gcode/host/M110.cpp`), unnumbered or numbered alike; a numbered one set it
+  on reading too. Here every line of a burst arrives at the same instant, where on the wire the next line takes
+  longer to come in than an idle board needs to run an M110; so a line behind an M110 that runs at once is read
+  after it has run, as on the board. An M110 queued behind other commands lets the lines behind it in first, and
+  resets the counter under them when its turn comes, as Marlin does.
 - The emergency parser sees bytes as they arrive, before the receive buffer, so M108/M112/M410 act even when the
   buffer is full; the line itself is still queued and later answered with an `ok` (Marlin's no-op case).
-- Line-number protection as in 2.1.2: a numbered line is run only when it is the next number, so a line is run
-  once however often the host sends it. A repeat of the last line (the host retransmitted because an `ok` went
-  missing) gets the line-number error and a `Resend:` of the next line; with `ignore_duplicate_lines` the two
-  numbers below the next one are dropped without a word instead, as newer `queue.cpp` sources do.
 - `Faults.corrupt_rx_ratio` draws from a random stream of its own (derived from the seed), so which lines are
-  hit does not depend on how the host's bytes happened to be split into reads.
+  hit does not depend on how the host's bytes happened to be split into reads; `WireFlips` likewise.
 
-This is the per-byte and per-line path the benchmarks measure: each method works on whole chunks and lines,
-never byte by byte in Python.
+Not modelled: without the emergency parser, queue.cpp acts on an unnumbered `M108`/`M112`/`M410` as soon as its
+line is read; here it waits its turn (see `_gcode`).
+
+This is the per-byte and per-line path the benchmarks measure: each method works on whole chunks and lines; only
+a line with a `;`, `\\` or 0x08 in it is walked byte by byte.
 """
 
 from __future__ import annotations
 
+import math
 import random
 import re
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from marlin_aio.commands import checksum
 from marlin_aio.simulator._config import Faults, SimulatorConfig
 
-__all__ = ["Command", "LineReader", "parse_parameters"]
+__all__ = ["Command", "LineReader", "WireFlips", "parse_parameters"]
 
-_MAX_COMMAND_CHARS = 95  # MAX_CMD_SIZE 96 including the NUL
+_MAX_COMMAND_BYTES = 95  # MAX_CMD_SIZE 96 including the NUL
 _EOL = re.compile(rb"[\r\n]")
-_LINE_NUMBER_PREFIX = re.compile(r"N-?\d+ *")
-_COMMAND_WORD = re.compile(r"([GMT])(\d+)(?:\.\d+)? *")
+# process_stream_char()'s input states (PS_NORMAL, PS_EOL, PS_ESC; no quoted strings or paren comments).
+_NORMAL, _SKIP, _ESCAPED = 0, 1, 2
+_STREAM_SPECIAL = re.compile(rb"[;\\\x08]")
+_SPACES_ETC = b" \t\n\v\f\r"  # what strtol skips (isspace)
+_LONG_MIN, _LONG_MAX = -(2**31), 2**31 - 1  # a long on AVR and 32-bit ARM
+_LEADING_LONG = re.compile(rb"[-+]?[0-9]+")
+# What the ADVANCED_OK `ok` echoes of a command that starts with N: the N and every signed digit after it.
+_OK_LABEL = re.compile(rb"N[-+0-9]*")
+# parser.cpp: `N` and a digit or sign, more digits, spaces.
+_LINE_NUMBER_WORD = re.compile(r"N[-+0-9][0-9]* *")
+_LINE_NUMBER_WORD_ANY_CASE = re.compile(r"[Nn][-+0-9][0-9]* *")
+_CODE_DIGITS = re.compile(r" *([0-9]+) *")
+_TO_UPPER = str.maketrans("abcdefghijklmnopqrstuvwxyz", "ABCDEFGHIJKLMNOPQRSTUVWXYZ")
+# Commands whose argument is a string, not parameters (parser.cpp hands them the raw text); M511's password is a
+# number on Marlin, a word here, so it keeps its case too.
+_STRING_ARGUMENT_CODES = frozenset({"M23", "M28", "M30", "M117", "M118", "M928", "M511"})
 _PARAMETER = re.compile(r"([A-Z]) *([-+]?(?:\d+\.?\d*|\.\d+))?")
-_LEADING_INT = re.compile(r" *([-+]?\d+)")
 # What Marlin's emergency parser (feature/e_parser.h) recognises at the start of a line.
 _EMERGENCY_LINE = re.compile(rb" *(?:N[-0-9 ]*)?M *(108|112|410)")
 _EMERGENCY_HINT = re.compile(rb"1[01][028]|410")
@@ -49,13 +83,20 @@ _EMERGENCY_TAIL_MAX = 64
 
 @dataclass(slots=True)
 class Command:
-    """One line taken into the command ring, checked and stripped."""
+    """One line taken into the command ring, checked and parsed."""
 
-    text: str  # as executed: no line number, checksum or comment
-    code: str  # "G1", "M105", ... or "" when it is not a G/M/T command
-    args: str  # the text after the command word
-    line_label: str | None  # "N5" when the line was numbered (ADVANCED_OK echoes it)
-    line_number: int | None  # 5 for that line
+    text: str
+    """The command as parser.cpp sees it: no leading spaces or line number, cut at the first `*` (and the spaces
+    before it); what `echo:Unknown command: "..."` shows."""
+    code: str
+    """`"G1"`, `"M105"`, `"T0"` (letter uppercased, number without leading zeros), or `""` when the line is not
+    a G, M or T command."""
+    args: str
+    """The text after the command's number; uppercased with `case_insensitive`, except for string arguments."""
+    line_label: str | None
+    """`"N5"` when the stored line starts with `N` (ADVANCED_OK echoes it in the `ok`)."""
+    line_number: int | None
+    """5 for a numbered line (its own number, also for an M110 line), None for an unnumbered one."""
 
 
 def parse_parameters(args: str) -> dict[str, float | None]:
@@ -63,9 +104,149 @@ def parse_parameters(args: str) -> dict[str, float | None]:
     return {letter: float(value) if value else None for letter, value in _PARAMETER.findall(args)}
 
 
-def _leading_int(text: str, start: int) -> int:
-    match = _LEADING_INT.match(text, start)
-    return int(match.group(1)) if match else 0
+def _strtol(data: bytes, start: int) -> int:
+    """C's `strtol(data + start, nullptr, 10)` for a 32-bit long: white space, a sign, digits; 0 if none."""
+    end = len(data)
+    while start < end and data[start] in _SPACES_ETC:
+        start += 1
+    match = _LEADING_LONG.match(data, start)
+    if match is None:
+        return 0
+    return min(max(int(match.group()), _LONG_MIN), _LONG_MAX)
+
+
+def _xor(data: bytes) -> int:
+    value = 0
+    for byte in data:
+        value ^= byte
+    return value
+
+
+def _stream_chars(line: bytearray, state: int, chunk: bytes | bytearray) -> int:
+    """queue.cpp's `process_stream_char()` over `chunk` (no line end in it): add to `line`, return the new state."""
+    if state == _SKIP:
+        return state
+    if state == _NORMAL and _STREAM_SPECIAL.search(chunk) is None:
+        line += chunk[: _MAX_COMMAND_BYTES - len(line)]
+        return _SKIP if len(line) >= _MAX_COMMAND_BYTES else _NORMAL
+    for byte in chunk:
+        if state == _ESCAPED:
+            state = _NORMAL  # the escaped byte is kept as it is (a 0x08 still erases: Marlin checks it after)
+        elif byte == 0x5C:  # backslash
+            state = _ESCAPED
+            continue
+        elif byte == 0x3B:  # ;
+            return _SKIP
+        if byte == 0x08:
+            if line:
+                del line[-1]
+        else:
+            line.append(byte)
+            if len(line) >= _MAX_COMMAND_BYTES:
+                return _SKIP
+    return state
+
+
+class WireFlips:
+    """Bit flips on the host-to-printer wire (`Faults.flip_bit_ratio` and `Faults.flip_once`).
+
+    Random flips are decided byte by byte in the order the bytes come: the gap to the next flipped byte is drawn
+    geometrically from a random stream of its own, so the common case costs one comparison a chunk and which bytes
+    are hit does not depend on how the stream was split into chunks.
+    """
+
+    def __init__(self, seed: int) -> None:
+        """Flips drawn from a stream derived from `seed`."""
+        self._rng = random.Random(f"{seed}:flip-bit")
+        self._gap_ratio = 0.0  # the ratio `_gap` was drawn for
+        self._gap = 0  # bytes still to pass unflipped before the next flipped one
+        self._line_start = True  # the last byte passed on (as sent) ended a line
+        self._held_sent = bytearray()  # with flip_once: the unfinished line as sent ...
+        self._held = bytearray()  # ... and as it will arrive (random flips applied)
+        self.count = 0
+        """How many bits were flipped so far, random and targeted."""
+
+    def carry(self, data: bytes, faults: Faults) -> bytes:
+        """What arrives at the board of `data` as the host sent it, by the `faults` in force now."""
+        sent = data
+        if faults.flip_bit_ratio != self._gap_ratio:
+            self._redraw(faults.flip_bit_ratio)
+        if self._gap_ratio > 0.0:
+            if self._gap >= len(data):
+                self._gap -= len(data)
+            else:
+                data = self._flip_random(data)
+        if faults.flip_once or self._held_sent:
+            return self._flip_targeted(sent, data, faults)
+        if sent:
+            self._line_start = sent[-1] in b"\r\n"
+        return data
+
+    def _redraw(self, ratio: float) -> None:
+        self._gap_ratio = ratio
+        if ratio > 0.0:
+            self._gap = self._draw_gap()
+
+    def _draw_gap(self) -> int:
+        ratio = self._gap_ratio
+        if ratio >= 1.0:
+            return 0
+        # Geometric: the number of unflipped bytes before the next flipped one.
+        return int(math.log(1.0 - self._rng.random()) / math.log1p(-ratio))
+
+    def _flip_random(self, data: bytes) -> bytes:
+        flipped = bytearray(data)
+        at = self._gap
+        rng = self._rng
+        while at < len(flipped):
+            flipped[at] ^= 1 << rng.randrange(8)
+            self.count += 1
+            at += 1 + self._draw_gap()
+        self._gap = at - len(flipped)
+        return bytes(flipped)
+
+    def _flip_targeted(self, sent: bytes, data: bytes, faults: Faults) -> bytes:
+        """Hold back the unfinished line; at each line end, apply the `flip_once` entries that match it."""
+        self._held_sent += sent
+        self._held += data
+        out = bytearray()
+        start = 0
+        if not self._line_start:
+            # A line already partly passed on when the entries were set: they start with the next line.
+            match = _EOL.search(self._held_sent)
+            if match is None:
+                out += self._held
+                self._held_sent.clear()
+                self._held.clear()
+                return bytes(out)
+            start = match.end()
+            out += self._held[:start]
+            self._line_start = True
+        while faults.flip_once:
+            match = _EOL.search(self._held_sent, start)
+            if match is None:
+                break
+            end = match.start()
+            line = bytes(self._held_sent[start:end])
+            for entry in list(faults.flip_once):
+                substring, offset, bit = entry
+                if substring.encode("latin-1") not in line:
+                    continue
+                faults.flip_once.remove(entry)
+                if offset <= end - start:  # the line's bytes and its line end
+                    self._held[start + offset] ^= 1 << bit
+                    self.count += 1
+            out += self._held[start : end + 1]
+            start = end + 1
+        if faults.flip_once:
+            rest_sent, rest = self._held_sent[start:], self._held[start:]
+        else:
+            out += self._held[start:]
+            rest_sent, rest = bytearray(), bytearray()
+            if self._held_sent:
+                self._line_start = self._held_sent[-1] in b"\r\n"
+        self._held_sent, self._held = rest_sent, rest
+        return bytes(out)
 
 
 class LineReader:
@@ -81,22 +262,24 @@ class LineReader:
         self._corrupt_rng = random.Random(f"{config.seed}:corrupt-rx")
         self.rx = bytearray()
         """The serial receive buffer; the printer appends to it, at most `rx_buffer_size` bytes in all."""
-        self._partial_line = bytearray()
+        self._line = bytearray()  # the line being read, as process_stream_char() stored it
+        self._state = _NORMAL
         self._emergency_tail = b""
+        self._number_word = _LINE_NUMBER_WORD_ANY_CASE if config.case_insensitive else _LINE_NUMBER_WORD
         self.last_line_number = 0
         """The line counter: the number of the last numbered line taken (M110 sets it)."""
 
     def reset(self) -> None:
         """Power-on state: buffers empty, line counter 0. The fault stream carries on."""
-        self.rx.clear()
-        self._partial_line.clear()
+        self.clear()
         self._emergency_tail = b""
         self.last_line_number = 0
 
     def clear(self) -> None:
         """Throw away the receive buffer and the line being read (kill(), or a line error)."""
         self.rx.clear()
-        self._partial_line.clear()
+        self._line.clear()
+        self._state = _NORMAL
 
     def store(self, data: bytes) -> int:
         """Keep what fits of `data` in the receive buffer and nothing more; return how many bytes were dropped.
@@ -125,92 +308,114 @@ class LineReader:
         return [match.group(1) for line in complete.splitlines() if (match := _EMERGENCY_LINE.match(line))]
 
     def take_lines(self, ring: deque[Command], faults: Faults) -> None:
-        """Move whole lines from the receive buffer into the command `ring` while it has a free slot."""
+        """Move lines from the receive buffer into the command `ring` while it has a free slot."""
         slots = self._config.command_buffer_size
         rx = self.rx
         while rx and len(ring) < slots:
             match = _EOL.search(rx)
             if match is None:
-                # Marlin keeps reading characters into its line buffer; beyond MAX_CMD_SIZE they are ignored.
-                room = _MAX_COMMAND_CHARS - len(self._partial_line)
-                if room > 0:
-                    self._partial_line += rx[:room]
+                # Marlin reads what has come into its line buffer and waits for the rest.
+                self._state = _stream_chars(self._line, self._state, rx)
                 rx.clear()
                 return
             end = match.start()
-            line = bytes(self._partial_line + rx[:end]) if self._partial_line else bytes(rx[:end])
-            self._partial_line.clear()
+            if not self._line and self._state == _NORMAL and _STREAM_SPECIAL.search(rx, 0, end) is None:
+                raw = bytes(rx[: min(end, _MAX_COMMAND_BYTES)])  # the common case: a plain line, whole
+            else:
+                self._state = _stream_chars(self._line, self._state, rx[:end])
+                raw = bytes(self._line)
+                self._line.clear()
+            self._state = _NORMAL
             del rx[: end + 1]
-            command = self._check_line(line[:_MAX_COMMAND_CHARS], faults)
-            if command is not None:
-                ring.append(command)
+            if not raw:
+                continue  # an empty line (or a comment alone)
+            command = self._check_line(raw, faults)
+            if command is None:
+                continue
+            ring.append(command)
+            if command.code == "M110" and len(ring) == 1:
+                return  # it runs before the next line is read (see the module's docstring)
+
+    def run_m110(self, command: Command) -> None:
+        """M110 as it runs (`gcode/host/M110.cpp`): `N<n>` sets the line counter, for any M110 line."""
+        number = parse_parameters(command.args).get("N")
+        if number is not None:
+            self.last_line_number = min(max(int(number), _LONG_MIN), _LONG_MAX)
 
     def _check_line(self, raw: bytes, faults: Faults) -> Command | None:
         """Check one received line as queue.cpp does: the command to queue, or None (and any error reply)."""
-        text = raw.decode("latin-1")
-        cut = text.find(";")
-        if cut >= 0:
-            text = text[:cut]
-        text = text.strip()
-        if not text:
-            return None
+        nul = raw.find(0)
+        if nul >= 0:
+            raw = raw[:nul]  # the rest is beyond the C string's end
+        command = raw.lstrip(b" ")
         ratio = faults.corrupt_rx_ratio
-        if ratio > 0.0 and self._corrupt_rng.random() < ratio:
-            text = self._corrupt(text)
-        line_label = None
+        if command and ratio > 0.0 and self._corrupt_rng.random() < ratio:
+            command = self._corrupt(command)
+            raw = raw[: len(raw) - len(command)] + command
         line_number = None
-        if text[0] != "N" and self._config.checksum_required:
-            # Thrown away as it is read, like a line error, but with neither a resend request nor an ok.
-            self._emit("Error: Missing checksum")
-            return None
-        if text[0] == "N":
-            is_m110 = "M110" in text
+        if command[:1] == b"N":
+            is_m110 = b"M110" in command
             number_at = 0
             if is_m110:
-                second_n = text.find("N", 4)
+                second_n = command.find(b"N", 4)
                 if second_n >= 0:
                     number_at = second_n
-            number = _leading_int(text, number_at + 1)
-            if number != self.last_line_number + 1 and not is_m110:
-                if self._config.ignore_duplicate_lines and 0 <= self.last_line_number - number <= 1:
+            number = _strtol(command, number_at + 1)
+            last = self.last_line_number
+            if number != last + 1 and not is_m110:
+                if self._config.ignore_duplicate_lines and last - 1 <= number <= last:
                     return None  # "A request-for-resend line was already in transit so we got two"
                 self._line_error("Line Number is not Last Line Number+1, Last Line: ")
                 return None
-            star = text.rfind("*")
+            star = command.rfind(b"*")
             if star < 0:
                 self._line_error("No Checksum with line number, Last Line: ")
                 return None
-            if _leading_int(text, star + 1) != checksum(text[:star].encode("latin-1")):
+            if _strtol(command, star + 1) != _xor(command[:star]):
                 self._line_error("checksum mismatch, Last Line: ")
                 return None
             self.last_line_number = number
-            line_number = _leading_int(text, 1)
-            line_label = "N" + str(line_number)
-        star = text.find("*")
-        body = text if star < 0 else text[:star].rstrip()
-        prefix = _LINE_NUMBER_PREFIX.match(body)
-        if prefix is not None:
-            body = body[prefix.end() :]
-        word = _COMMAND_WORD.match(body)
-        if word is None:
-            return Command(body, "", "", line_label, line_number)
-        code = word.group(1) + str(int(word.group(2)))
-        command = Command(body, code, body[word.end() :], line_label, line_number)
-        if command.code == "M110" and line_label is None:
-            # Applied on reading, like the numbered form, so lines sent right behind it already match.
-            new_number = parse_parameters(command.args).get("N")
-            if new_number is not None:
-                self.last_line_number = int(new_number)
-        return command
+            line_number = number if not is_m110 else _strtol(command, 1)
+        elif self._config.checksum_required:
+            # Thrown away as it is read, like a line error, but with neither a resend request nor an ok.
+            self._emit("Error: Missing checksum")
+            return None
+        label = _OK_LABEL.match(raw)
+        return self._parse(
+            command.decode("latin-1"), None if label is None else label.group().decode("latin-1"), line_number
+        )
 
-    def _corrupt(self, text: str) -> str:
-        # Never the leading N: a line that loses it is run unchecked, which no host can guard against.
-        first = 1 if text[0] == "N" and len(text) > 1 else 0
-        at = self._corrupt_rng.randrange(first, len(text))
-        replacement = chr(self._corrupt_rng.randrange(0x21, 0x7E))
-        if replacement in (text[at], ";"):
-            replacement = "~"
-        return text[:at] + replacement + text[at + 1 :]
+    def _parse(self, text: str, line_label: str | None, line_number: int | None) -> Command:
+        """parser.cpp's `parse()` of a line without its leading spaces."""
+        case_insensitive = self._config.case_insensitive
+        word = self._number_word.match(text)
+        if word is not None:
+            text = text[word.end() :]
+        star = text.find("*")
+        if star >= 0:
+            text = text[:star].rstrip(" ")
+        letter = text[:1]
+        if case_insensitive and "a" <= letter <= "z":
+            letter = letter.upper()
+        if letter not in ("G", "M", "T"):
+            return Command(text, "", "", line_label, line_number)
+        digits = _CODE_DIGITS.match(text, 1)
+        if digits is None:
+            return Command(text, "", "", line_label, line_number)
+        code = letter + str(int(digits.group(1)) % 65536)  # codenum is a uint16_t
+        args = text[digits.end() :]
+        if case_insensitive and code not in _STRING_ARGUMENT_CODES:
+            args = args.translate(_TO_UPPER)
+        return Command(text, code, args, line_label, line_number)
+
+    def _corrupt(self, command: bytes) -> bytes:
+        # Never the leading N: a line that loses it is run unchecked (flip_bit_ratio is the fault that can).
+        first = 1 if command[:1] == b"N" and len(command) > 1 else 0
+        at = self._corrupt_rng.randrange(first, len(command))
+        replacement = self._corrupt_rng.randrange(0x21, 0x7E)
+        if replacement in (command[at], 0x3B):
+            replacement = 0x7E  # ~
+        return command[:at] + bytes((replacement,)) + command[at + 1 :]
 
     def _line_error(self, message: str) -> None:
         """gcode_line_error(): report, throw away the receive buffer, ask for the line again."""

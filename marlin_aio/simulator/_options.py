@@ -172,8 +172,17 @@ SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
         "serve",
         "reset_on_open",
         "pty (Linux): reset and print the banner when a client opens the port, as DTR resets a board"
-        " (a TCP client always finds the board reset)",
+        " (not when it changes the settings of the open port; a TCP client always finds the board reset)",
         default=False,
+    ),
+    SimulatorOption(
+        "--boot-delay",
+        "config",
+        "boot_delay_s",
+        "simulated seconds a reset board spends in its bootloader, deaf and mute, before 'start' (default 0;"
+        " real boards 1-3); a pty with --reset-on-open waits at least 0.05 s of real time",
+        parse=_not_negative,
+        metavar="SECONDS",
     ),
     SimulatorOption("--advanced-ok", "config", "advanced_ok", "ok N<line> P<planner> B<buffer> (ADVANCED_OK)"),
     SimulatorOption("--extruders", "config", "extruders", "hotends (1-8)", parse=int, metavar="N", choices=range(1, 9)),
@@ -185,6 +194,9 @@ SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
     SimulatorOption("--rx-buffer", "config", "rx_buffer_size", "serial receive buffer", parse=int, metavar="BYTES"),
     SimulatorOption("--seed", "config", "seed", "seed for every random fault decision", parse=int, metavar="SEED"),
     SimulatorOption("--corrupt-rx", "faults", "corrupt_rx_ratio", "share of lines corrupted", _ratio, "RATIO"),
+    SimulatorOption(
+        "--flip-bits", "faults", "flip_bit_ratio", "share of received bytes with one bit flipped", _ratio, "RATIO"
+    ),
     SimulatorOption("--drop-ok", "faults", "drop_ok_ratio", "share of oks not sent", _ratio, "RATIO"),
     SimulatorOption("--noise", "faults", "noise_ratio", "share of lines after noise", _ratio, "RATIO"),
     SimulatorOption(

@@ -10,7 +10,8 @@ in one class (a little over 400 lines: parting it further would put calls on the
 the parts that live in files of their own:
 
 - `_config`: how the board is built (`SimulatorConfig`) and the faults it shows (`Faults`).
-- `_intake`: the receive buffer, the emergency parser and the line checks (`LineReader`), which hand it `Command`s.
+- `_intake`: the wire's bit flips (`WireFlips`), the receive buffer, the emergency parser and the line checks
+  (`LineReader`), which hand it `Command`s.
 - `_gcode` (and `_heating` for the temperature commands): what each command does, by code.
 - `_thermal`: the heaters, integrated lazily on a fixed grid, so temperatures do not depend on call frequency.
 
@@ -22,6 +23,8 @@ How it follows Marlin 2.1 (`MarlinCore.cpp`, `gcode/gcode.cpp`):
   wait line comes first, as in the captures.
 - Each kind of random fault draws from a stream of its own (derived from the seed), so which `ok`s are dropped
   does not depend on how the host's bytes happened to be split into reads.
+- After power-up or `reset()` the board sits in its bootloader for `SimulatorConfig.boot_delay_s`: it reads
+  nothing (the host's bytes are dropped) and says nothing until its `start` line.
 - What was run is recorded in `executed` and `executed_line_numbers`, bounded to the last
   `SimulatorConfig.record_limit` entries so a simulator served for hours does not grow without end;
   `executed_count` and `executed_line_count` keep the totals.
@@ -35,7 +38,7 @@ from collections import deque
 from marlin_aio.simulator._config import BUILD_DATE, SETTINGS_LINES, US_PER_S, Faults, SimulatorConfig, to_us
 from marlin_aio.simulator._gcode import Task, handler_table, tool_change, unknown
 from marlin_aio.simulator._heating import heater_states
-from marlin_aio.simulator._intake import Command, LineReader
+from marlin_aio.simulator._intake import Command, LineReader, WireFlips
 from marlin_aio.simulator._record import BoundedRecord
 from marlin_aio.simulator._thermal import BED, CHAMBER, HOTEND, STEP_US, Heater
 
@@ -66,8 +69,8 @@ class SimulatedPrinter:
         self.faults = faults if faults is not None else Faults()
         limit = self.config.record_limit
         self.executed: BoundedRecord[str] = BoundedRecord(limit)
-        """The commands executed, in order, as received minus line number, checksum and comment: the last
-        `SimulatorConfig.record_limit` of them (`executed_count` counts all)."""
+        """The commands executed, in order, as received minus line number, checksum, comment and trailing
+        spaces: the last `SimulatorConfig.record_limit` of them (`executed_count` counts all)."""
         self.executed_line_numbers: BoundedRecord[int] = BoundedRecord(limit)
         """The number of each numbered line executed, in order (unnumbered commands add nothing): the last
         `SimulatorConfig.record_limit` of them (`executed_line_count` counts all)."""
@@ -95,11 +98,16 @@ class SimulatedPrinter:
             self._heaters_by_name["B"] = self._bed
         if self._chamber is not None:
             self._heaters_by_name["C"] = self._chamber
+        self._wire = WireFlips(seed)
+        self._booting_until: int | None = None
+        self._boot_cause = "PowerUp"
         self._reader = LineReader(self.config, self._emit)
         self._handlers = handler_table(self.config)
+        # M110 sets the counter when it runs (M110.cpp), not only as its line is read.
+        self._handlers["M110"] = _m110
         self._clear_state()
         if boot:
-            self._print_banner("PowerUp")
+            self._boot("PowerUp", self.config.boot_delay_s)
 
     # ----------------------------------------------------------------------------------------------- public API
 
@@ -114,15 +122,29 @@ class SimulatedPrinter:
         keeps."""
         return self.executed_line_numbers.total
 
+    @property
+    def bits_flipped(self) -> int:
+        """How many bits of the host's bytes the wire flipped so far (`Faults.flip_bit_ratio`, `Faults.flip_once`)."""
+        return self._wire.count
+
+    @property
+    def booting(self) -> bool:
+        """True while the board is in its bootloader after power-up or `reset()` (`boot_delay_s`): deaf and mute."""
+        return self._booting_until is not None
+
     def receive(self, data: bytes, now: float) -> None:
         """Bytes from the host arriving at `now`.
 
-        Whole lines move on into the command buffer while the bytes come in, as the board's main loop keeps
-        reading, so only bytes that find the receive buffer full while the command buffer is full too are lost
-        (counted in `rx_overflows` and `rx_dropped_bytes`).
+        The wire's faults (`Faults.flip_bit_ratio`, `Faults.flip_once`) act on them first. Lines move on into the
+        command buffer while the bytes come in, as the board's main loop keeps reading, so only bytes that find
+        the receive buffer full while the command buffer is full too are lost (counted in `rx_overflows` and
+        `rx_dropped_bytes`). A board in its bootloader drops them all.
         """
         self._run_until(to_us(now))
-        if self.halted or not data:
+        if not data:
+            return
+        data = self._wire.carry(data, self.faults)
+        if self.halted or not data or self._booting_until is not None:
             return
         if self.stalled:
             self._count_overflow(self._reader.store(data))
@@ -160,19 +182,29 @@ class SimulatedPrinter:
 
     def next_wakeup(self) -> float | None:
         """Simulated time at which `advance()` must next be called, or None while nothing is scheduled."""
+        if self._booting_until is not None:
+            return self._booting_until / US_PER_S
         if self.halted or self.stalled:
             return None
         due = self._next_event_us()
         return None if due is None else due / US_PER_S
 
-    def reset(self, now: float) -> None:
-        """Reset the board at `now`: everything in flight is lost, line counter 0, targets 0, banner again."""
+    def reset(self, now: float, *, boot_delay_s: float | None = None) -> None:
+        """Reset the board at `now`: everything in flight is lost, line counter 0, targets 0, and the banner
+        again once the bootloader is done, `boot_delay_s` later (None: `SimulatorConfig.boot_delay_s`).
+
+        Raises:
+            ValueError: if `boot_delay_s` is negative.
+        """
+        delay_s = self.config.boot_delay_s if boot_delay_s is None else boot_delay_s
+        if not delay_s >= 0.0:
+            raise ValueError(f"boot_delay_s must not be negative, got {boot_delay_s!r}")
         self._run_until(to_us(now))
         self._sync_thermal()
         self.halted = False
         self.stalled = False
         self._clear_state()
-        self._print_banner("External Reset")
+        self._boot("External Reset", delay_s)
 
     def thermal_runaway(self, now: float, heater: str = "E0") -> None:
         """Trip thermal protection at `now`: the error, the kill() line, then silence until `reset()`.
@@ -183,7 +215,7 @@ class SimulatedPrinter:
         if not heater or "\n" in heater or "\r" in heater:
             raise ValueError(f"heater must be a one-line name such as 'E0' or 'bed', got {heater!r}")
         self._run_until(to_us(now))
-        if self.halted or self.stalled:
+        if self.halted or self.stalled or self._booting_until is not None:
             return
         self._emit(f"Error:Thermal Runaway, system stopped! Heater_ID: {heater}")
         self._kill()
@@ -250,8 +282,24 @@ class SimulatedPrinter:
                 due = self._next_keepalive
         return due
 
+    def _boot(self, cause: str, delay_s: float) -> None:
+        """Start the firmware, after `delay_s` in the bootloader (a banner saying `cause` when it starts)."""
+        if delay_s > 0.0:
+            self._booting_until = self._t + to_us(delay_s)
+            self._boot_cause = cause
+        else:
+            self._booting_until = None
+            self._print_banner(cause)
+
     def _run_until(self, now_us: int) -> None:
         """Process every event up to `now_us` in time order."""
+        if self._booting_until is not None:
+            if now_us < self._booting_until:
+                self._t = max(self._t, now_us)
+                return
+            self._t = max(self._t, self._booting_until)
+            self._booting_until = None
+            self._print_banner(self._boot_cause)
         if not (self.halted or self.stalled):
             while True:
                 self._settle()
@@ -332,7 +380,7 @@ class SimulatedPrinter:
             self._emit(_LOCKED)
             self._finish_command()
             return
-        self.executed.append(command.text)
+        self.executed.append(command.text.rstrip(" "))  # a comment cut after a space leaves the space behind
         if command.line_number is not None:
             self.executed_line_numbers.append(command.line_number)
         handler = self._handlers.get(command.code)
@@ -434,3 +482,8 @@ class SimulatedPrinter:
         self._planner.clear()
         self._position = list(self._stepper_position)
         self._poked = True
+
+
+def _m110(printer: SimulatedPrinter, command: Command) -> None:
+    """M110 N<n>: set the line counter as the command runs (numbered lines set it as they were read, too)."""
+    printer._reader.run_m110(command)

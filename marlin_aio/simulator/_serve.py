@@ -23,7 +23,8 @@ blocking, as with a real serial port.
 
 The pseudo-terminal and the TCP port are endpoints (`_endpoints.PtyEndpoint`, `_endpoints.TcpEndpoint`) behind
 one small interface, so nothing here depends on which one serves; each client that opens the port finds the board
-reset, as DTR resets a real one (on a pty with `reset_on_open`, see `_endpoints`). (A little over 400 lines: the
+reset, as DTR resets a real one (on a pty with `reset_on_open`, see `_endpoints`), after its bootloader's
+`SimulatorConfig.boot_delay_s`. (A little over 400 lines: the
 two wires, the timers and the pause/resume of reading belong together, and a fifth of the module is this text.)
 """
 
@@ -260,11 +261,18 @@ class SimulatorServer:
     def _send_to_host(self, data: bytes) -> None:
         self._endpoint.write(data)
 
-    def _reset_on_connect(self) -> None:
-        """A client opened the port: the board resets (DTR), so it starts from the banner; not while paused."""
+    def _reset_on_connect(self, *, min_boot_s: float = 0.0) -> None:
+        """A client opened the port: the board resets (DTR), so it starts from the banner; not while paused.
+
+        Its bootloader takes `SimulatorConfig.boot_delay_s`, and at least `min_boot_s` of real time (simulated
+        seconds scale with `time_scale`; a manual clock has no real time to stretch, so there it is left out).
+        """
         if self._closed or self._paused:
             return
-        self.printer.reset(self.now())
+        boot_s = self.printer.config.boot_delay_s
+        if min_boot_s > 0.0 and self._clock is None:
+            boot_s = max(boot_s, min_boot_s * self._time_scale)
+        self.printer.reset(self.now(), boot_delay_s=boot_s)
         self._flush()
         self._reschedule()
 
@@ -373,10 +381,15 @@ def serve_pty(
     speed, in real time whatever the `time_scale`; without it they pass as fast as the pty carries them. The
     rate the client opens the port with does not matter either way.
 
-    With `reset_on_open` (Linux), the board resets a moment after a client sets the port up, as pyserial's
-    `open()` does (and as a later change of the port's settings does), so the client reads `start` and the boot
-    banner during its handshake, as from a board that DTR resets. Without it, the banner printed when the server
-    starts waits in the terminal, and pyserial's `open()` throws it away.
+    With `reset_on_open` (Linux), a client's open of the port resets the board, as the rising DTR of an open
+    resets a real one: when DTR was down, that is on the first open and on an open after the last client closed
+    the port with HUPCL set (the default; marlin_aio clears it, so its next open finds the board running). The
+    board then spends `SimulatorConfig.boot_delay_s` in its bootloader, but at least 0.05 s of real time, so the
+    client reads `start` and the boot banner after its `open()` has returned, during its handshake. Changing
+    the settings of the open port (baud rate, timeouts) or flushing it resets nothing. With a manual `clock`
+    the bootloader takes `boot_delay_s` of that clock, and its banner comes on the `poke()` after it. Without
+    `reset_on_open`, the banner printed when the server starts waits in the terminal, and pyserial's `open()`
+    throws it away.
 
     Raises:
         ValueError: if `time_scale` or `baud_rate` is not positive, or `reset_on_open` is asked off Linux.
