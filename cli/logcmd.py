@@ -10,6 +10,9 @@ readings are followed from before the first poll goes out, so a heat-up is recor
 with its target already in the row. With `--reconnect` each connection is a new session of the same file, and
 targets are not sent again: a board that reset has turned its heaters off, and re-heating a printer nobody is
 watching is not this command's call.
+
+A log the file system stops (disk full, the file size limit) ends the run at once with one line, the rows on
+disk counted in it, and exit code 1: logging is all this command does.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from rich.console import Console
 import marlin_aio
 
 from .connect import ConnectOptions, Exit, open_printer
-from .logfile import LogFormat, TemperatureLog
+from .logfile import LogFormat, LogWriteError, TemperatureLog
 from .terminal import on_stop_signals
 
 __all__ = ["RECONNECT_DELAYS_S", "LogSettings", "log_temperatures", "record_temperatures"]
@@ -70,7 +73,7 @@ async def record_temperatures(
     Raises:
         MarlinError: the printer halted or went away (the log keeps what was recorded).
         ValueError: the log file holds other heaters than this printer reports.
-        OSError: the file cannot be written.
+        LogWriteError: the file system refused the rows (disk full, ...); the file keeps its whole rows.
     """
 
     async def record() -> None:
@@ -80,16 +83,20 @@ async def record_temperatures(
     # Created before the polls start: the task subscribes on its first step, before any answer can arrive.
     recorder = asyncio.create_task(record(), name="marlin-temp log")
     stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
+    failed = asyncio.create_task(log.wait_for_failure(), name="marlin-temp log failure")
+    tasks = (recorder, stopper, failed)
     try:
         async with printer.poll_temperatures(interval_s):
-            done, _ = await asyncio.wait({recorder, stopper}, timeout=duration_s, return_when="FIRST_COMPLETED")
+            done, _ = await asyncio.wait(tasks, timeout=duration_s, return_when="FIRST_COMPLETED")
             if recorder in done:
                 recorder.result()
     finally:
-        for task in (recorder, stopper):
+        for task in tasks:
             task.cancel()
-        await asyncio.gather(recorder, stopper, return_exceptions=True)
+        await asyncio.gather(*tasks, return_exceptions=True)
         log.flush()
+    if log.failure is not None:
+        raise log.failure
 
 
 def _targets_line(settings: LogSettings) -> str:
@@ -138,7 +145,9 @@ async def log_temperatures(options: ConnectOptions, settings: LogSettings, error
         MarlinError: the printer could not be opened, halted, or went away without --reconnect (the file keeps
             what was logged).
         ValueError: the output file is not a log of this format, or holds other heaters than this printer has.
-        OSError: the file cannot be written.
+        OSError: the file cannot be opened.
+        LogWriteError: the file system refused the rows (disk full, ...); the file keeps its whole rows, and the
+            message counts them.
     """
     loop = asyncio.get_running_loop()
     deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
@@ -162,11 +171,15 @@ async def log_temperatures(options: ConnectOptions, settings: LogSettings, error
                                 ) from exc
                             raise
                         await _back_off(exc, run, log, rows_before, stop, deadline, errors)
+            except LogWriteError:
+                raise  # its one line counts the rows on disk
             except BaseException:
                 if log.summary.rows:  # what the file holds; a run refused before its first row has one line only
                     errors.print(log.summary.line())
                 raise
-            errors.print(log.summary.line())
+        if log.failure is not None:
+            raise log.failure  # met by the last rows, as the file was closed
+        errors.print(log.summary.line())
     return Exit.OK
 
 

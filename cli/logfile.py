@@ -15,6 +15,12 @@ later. A printer that falls silent (or a link that drops) brings no next row, an
 reach the disk. That timer is why the log is an async context manager: it belongs to the running event loop,
 taken in `__aenter__`.
 
+When the file system says no (disk full, the file size limit, an I/O error), a write may still have put part of
+the rows down: the file is cut back to the end of the last whole row, logging stops (`failure` says why in one
+line, `wait_for_failure()` wakes whoever runs the log), and the summary counts the rows on disk, not the rows
+read. The bytes go out with `os.write` on a file descriptor of the log's own: Python's buffered file keeps what a
+failed write did not take and writes it again at close, behind the cut.
+
 Appending: a file is appended to only when it is a log in this format with the same heaters (and, for CSV, the
 same header); a file from an older marlin-temp (`time_utc,elapsed_s,T_actual,...`), of the other format, or not a
 log at all is refused with one line before anything is written, so two vocabularies never mix in one file.
@@ -25,6 +31,7 @@ from __future__ import annotations
 
 import asyncio
 import csv
+import errno
 import io
 import json
 import math
@@ -34,7 +41,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from marlin_aio import HeaterReading, TemperatureReading, heater_name
 
@@ -47,6 +54,7 @@ __all__ = [
     "LogRow",
     "LogSession",
     "LogSummary",
+    "LogWriteError",
     "RowSampler",
     "TemperatureLog",
     "column_prefix",
@@ -147,6 +155,7 @@ class LogSummary:
     last: dict[str, float] = field(default_factory=dict)
     first_epoch_s: float | None = None
     last_epoch_s: float | None = None
+    stopped: str | None = None  # why logging stopped before the end, and what was lost: "disk full: the last row ..."
 
     @property
     def elapsed_s(self) -> float:
@@ -161,9 +170,45 @@ class LogSummary:
             f"{name} {self.first[name]:.1f} -> {self.last[name]:.1f} C" for name in self.last if name in self.first
         )
         sessions = f" in {len(self.sessions)} sessions" if len(self.sessions) > 1 else ""
-        return f"wrote {self.rows} rows to {self.path} over {self.elapsed_s:.1f} s{sessions}" + (
-            f": {changes}" if changes else ""
+        stopped = f"; {self.stopped}" if self.stopped else ""
+        return (
+            f"wrote {self.rows} rows to {self.path} over {self.elapsed_s:.1f} s{sessions}"
+            + (f": {changes}" if changes else "")
+            + stopped
         )
+
+
+class LogWriteError(OSError):
+    """The file system refused a log's rows (disk full, the file size limit, an I/O error); logging stopped.
+
+    The message is one line: what happened, how many rows the file holds, what was lost. `errno` is the refusal's.
+    """
+
+    def __init__(self, message: str, error_number: int | None) -> None:
+        super().__init__(message)
+        self.errno = error_number
+
+
+def _refusal(exc: OSError) -> str:
+    """A write's refusal in words."""
+    if exc.errno == errno.ENOSPC:
+        return "disk full"
+    if exc.errno == errno.EDQUOT:
+        return "disk quota exceeded"
+    if exc.errno == errno.EFBIG:
+        return "file size limit reached"
+    return (exc.strerror or str(exc)).lower()
+
+
+class _Entry:
+    """A queued line: a row (with the reading and session it counts for in the summary) or a header or line end."""
+
+    __slots__ = ("data", "reading", "session")
+
+    def __init__(self, text: str, reading: TemperatureReading | None = None, session: str = "") -> None:
+        self.data = text.encode("utf-8")
+        self.reading = reading
+        self.session = session
 
 
 class TemperatureLog:
@@ -174,11 +219,16 @@ class TemperatureLog:
     is a row. Each `TemperatureLog` starts a session of its own; `new_session()` starts another (after a
     reconnect).
 
+    A write the file system refuses stops the log instead of raising: the file keeps its whole rows only,
+    `failure` holds a `LogWriteError`, `wait_for_failure()` returns it, `add` takes no more rows, and
+    `summary` counts what is on disk and says that logging stopped. So a view may go on without its log, and a
+    command that exists to log can end on it.
+
     Raises:
         ValueError: `fmt` is unknown, `flush_interval_s` or `interval_s` is not positive; on entering, `path`
             exists and is not a log of this format (an older marlin-temp's, the other format, not a log);
             later, an existing CSV has other heaters than this printer reports.
-        OSError: the file cannot be opened or written.
+        OSError: the file cannot be opened.
     """
 
     def __init__(
@@ -195,21 +245,24 @@ class TemperatureLog:
         self.summary = LogSummary(path)
         self.session = _new_session_id()
         self._session_start: float | None = None
-        self._file: IO[str] | None = None
+        self._fd: int | None = None  # appending; None before `async with`, after close, and once logging stopped
         self._keys: list[str] | None = None  # the heater keys the CSV columns were made from
         self._existing_columns: list[str] | None = None
-        self._pending: list[str] = []
+        self._pending: list[_Entry] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._flush_timer: asyncio.TimerHandle | None = None
-        self._error: OSError | ValueError | None = None  # met by a timed flush, raised by the next add() or flush()
+        self._error: ValueError | None = None  # met by a timed flush, raised by the next add() or flush()
         self._header: str | None = None  # the CSV header, until it is written (or found already there)
+        self.failure: LogWriteError | None = None  # why logging stopped, if the file system refused a write
+        self._failed: asyncio.Event | None = None
 
     async def __aenter__(self) -> TemperatureLog:
         needs_newline = self._check_existing()
-        self._file = self.path.open("a", newline="", encoding="utf-8")
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
         if needs_newline:
-            self._pending.append("\n")  # a last line cut short by someone else's crash stays a line of its own
+            self._pending.append(_Entry("\n"))  # a last line cut short by someone else's crash stays a line of its own
         self._loop = asyncio.get_running_loop()
+        self._failed = asyncio.Event()
         return self
 
     async def __aexit__(self, *exc: object) -> None:
@@ -309,18 +362,21 @@ class TemperatureLog:
     def add(self, reading: TemperatureReading) -> bool:
         """Queue one row, unless the sampler skips this reading; return whether a row was queued.
 
-        A row reaches the file within `flush_interval_s`, even if no other row follows.
+        A row reaches the file within `flush_interval_s`, even if no other row follows. Once logging stopped
+        (`failure`), nothing is queued.
 
         Raises:
-            ValueError: an existing CSV has other heaters than this reading's.
+            ValueError: an existing CSV has other heaters than this reading's (or, met by a timed flush, another
+                program began the same new file with other columns).
             RuntimeError: the log is not open (`async with`).
-            OSError: a timed flush since the last row could not write the file.
         """
         if self._loop is None:
             raise RuntimeError("the log is not open: use `async with TemperatureLog(...)`")
         if self._error is not None:
             error, self._error = self._error, None
             raise error
+        if self.failure is not None:
+            return False  # logging stopped; `failure` says why
         heaters = _logged(reading.temperatures.heaters)
         if not heaters:
             return False
@@ -345,7 +401,7 @@ class TemperatureLog:
                     row.append(_number(power, 0))
             buffer = io.StringIO()
             csv.writer(buffer, lineterminator="\n").writerow(row)
-            self._pending.append(buffer.getvalue())
+            self._pending.append(_Entry(buffer.getvalue(), reading, self.session))
         else:
             record = {
                 "time": fixed[0],
@@ -363,18 +419,18 @@ class TemperatureLog:
                     for key, heater in heaters.items()
                 },
             }
-            self._pending.append(json.dumps(record) + "\n")
-        self._count(reading)
+            self._pending.append(_Entry(json.dumps(record) + "\n", reading, self.session))
         if self._flush_timer is None:
             # The oldest row in the buffer sets the deadline; rows after it go out with it, sooner than theirs.
             self._flush_timer = self._loop.call_later(self.flush_interval_s, self._flush_due)
         return True
 
-    def _count(self, reading: TemperatureReading) -> None:
+    def _count(self, reading: TemperatureReading, session: str) -> None:
+        """A row is on disk: count it in the summary."""
         summary = self.summary
         summary.rows += 1
-        if not summary.sessions or summary.sessions[-1] != self.session:
-            summary.sessions.append(self.session)
+        if not summary.sessions or summary.sessions[-1] != session:
+            summary.sessions.append(session)
         if summary.first_epoch_s is None:
             summary.first_epoch_s = reading.wall_time_s
         summary.last_epoch_s = reading.wall_time_s
@@ -386,16 +442,18 @@ class TemperatureLog:
         self._flush_timer = None
         try:
             self.flush()
-        except (OSError, ValueError) as exc:
+        except ValueError as exc:
             # Raised in a timer callback, it would only reach the loop's log: keep it for the recorder to meet.
             self._error = exc
 
     def flush(self) -> None:
-        """Write every queued row as whole lines and push them to the operating system.
+        """Write every queued row as whole lines and push them to the disk.
+
+        A write the file system refuses stops logging (see the class) rather than raising.
 
         Raises:
-            OSError: the file cannot be written (also one that a timed flush met since the last call).
-            ValueError: another program began the same new file with other columns meanwhile.
+            ValueError: another program began the same new file with other columns meanwhile (also met by a
+                timed flush since the last call).
         """
         if self._error is not None:
             error, self._error = self._error, None
@@ -403,30 +461,83 @@ class TemperatureLog:
         if self._flush_timer is not None:
             self._flush_timer.cancel()
             self._flush_timer = None
-        if not self._pending or self._file is None:
+        if not self._pending or self._fd is None:
             return
         if self._header is not None:
-            self._write_header(self._file)
-        # One write of whole lines: a kill between writes can cut the file only at a line end.
-        self._file.write("".join(self._pending))
-        self._pending.clear()
-        self._file.flush()
-        os.fsync(self._file.fileno())
+            self._write_header(self._fd)
+        entries, self._pending = self._pending, []
+        data = b"".join(entry.data for entry in entries)
+        start = os.fstat(self._fd).st_size  # appends land here (another writer at the same moment aside)
+        written = 0
+        try:
+            # One write of whole lines: a kill between writes can cut the file only at a line end. A full disk
+            # takes what fits (a short write), then refuses the rest.
+            while written < len(data):
+                written += os.write(self._fd, data[written:])
+            os.fsync(self._fd)
+        except OSError as exc:
+            # After a refused fsync nothing of the batch is known to be on disk: none of it counts.
+            self._stop(exc, entries, start, written if written < len(data) else 0)
+            return
+        for entry in entries:
+            if entry.reading is not None:
+                self._count(entry.reading, entry.session)
 
-    def _write_header(self, file: IO[str]) -> None:
+    def _stop(self, exc: OSError, entries: list[_Entry], start: int, written: int) -> None:
+        """The file system refused a write after `written` bytes of `entries`: keep their whole rows, cut the rest,
+        and stop logging."""
+        kept = lost = 0  # bytes of whole lines on disk; rows not written
+        whole = True
+        for entry in entries:
+            whole = whole and kept + len(entry.data) <= written
+            if whole:
+                kept += len(entry.data)
+                if entry.reading is not None:
+                    self._count(entry.reading, entry.session)
+            elif entry.reading is not None:
+                lost += 1
+        fd, self._fd = self._fd, None
+        assert fd is not None
+        try:
+            os.ftruncate(fd, start + kept)  # a smaller file always fits, even on a full disk or at the size limit
+        except OSError:
+            pass  # nothing more can be done for the file
+        finally:
+            os.close(fd)
+        why = _refusal(exc)
+        unwritten = "the last row was" if lost == 1 else f"the last {lost:,} rows were"
+        stopped = f"{unwritten} not written and logging stopped" if lost else "logging stopped"
+        self.summary.stopped = f"{why}: {stopped}"
+        self.failure = LogWriteError(f"{why}: wrote {self.summary.rows:,} rows to {self.path}; {stopped}", exc.errno)
+        if self._failed is not None:
+            self._failed.set()
+
+    async def wait_for_failure(self) -> LogWriteError:
+        """Wait until the file system refuses a write and logging stops; return why (at once if it already did).
+
+        Raises:
+            RuntimeError: the log is not open (`async with`).
+        """
+        if self._failed is None:
+            raise RuntimeError("the log is not open: use `async with TemperatureLog(...)`")
+        await self._failed.wait()
+        assert self.failure is not None
+        return self.failure
+
+    def _write_header(self, fd: int) -> None:
         # `log` and `watch --log` started at once on a new file both found it empty: the first to write gives the
         # header, the other finds it there (the same columns, or it must not write at all).
         header, self._header = self._header, None
         assert header is not None
-        if os.fstat(file.fileno()).st_size == 0:
-            self._pending.insert(0, header)
+        if os.fstat(fd).st_size == 0:
+            self._pending.insert(0, _Entry(header))
             return
         with self.path.open(encoding="utf-8", newline="") as existing:
             theirs = existing.readline()
         if theirs != header:
             self._pending.clear()
-            file.close()  # nothing more of ours goes into a file with their columns
-            self._file = None
+            os.close(fd)  # nothing more of ours goes into a file with their columns
+            self._fd = None
             raise ValueError(
                 f"another program began {self.path} with other columns ({theirs.strip()[:60]!r}) while this log was "
                 "starting; choose another --output file"
@@ -436,15 +547,16 @@ class TemperatureLog:
         """Flush and close (idempotent).
 
         Raises:
-            OSError: the last rows could not be written (the file is closed all the same).
+            ValueError: as `flush` (the file is closed all the same).
         """
-        if self._file is None:
+        if self._fd is None:
             return
         try:
             self.flush()
         finally:
-            self._file.close()
-            self._file = None
+            if self._fd is not None:
+                os.close(self._fd)
+                self._fd = None
 
 
 # ------------------------------------------------------------------------------------------- reading back
