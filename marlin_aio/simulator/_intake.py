@@ -61,9 +61,8 @@ _EOL = re.compile(rb"[\r\n]")
 # process_stream_char()'s input states (PS_NORMAL, PS_EOL, PS_ESC; no quoted strings or paren comments).
 _NORMAL, _SKIP, _ESCAPED = 0, 1, 2
 _STREAM_SPECIAL = re.compile(rb"[;\\\x08]")
-_SPACES_ETC = b" \t\n\v\f\r"  # what strtol skips (isspace)
 _LONG_MIN, _LONG_MAX = -(2**31), 2**31 - 1  # a long on AVR and 32-bit ARM
-_LEADING_LONG = re.compile(rb"[-+]?[0-9]+")
+_LEADING_LONG = re.compile(rb"[ \t\n\v\f\r]*([-+]?[0-9]+)")  # strtol skips what isspace() says
 # What the ADVANCED_OK `ok` echoes of a command that starts with N: the N and every signed digit after it.
 _OK_LABEL = re.compile(rb"N[-+0-9]*")
 # parser.cpp: `N` and a digit or sign, more digits, spaces.
@@ -106,13 +105,11 @@ def parse_parameters(args: str) -> dict[str, float | None]:
 
 def _strtol(data: bytes, start: int) -> int:
     """C's `strtol(data + start, nullptr, 10)` for a 32-bit long: white space, a sign, digits; 0 if none."""
-    end = len(data)
-    while start < end and data[start] in _SPACES_ETC:
-        start += 1
     match = _LEADING_LONG.match(data, start)
     if match is None:
         return 0
-    return min(max(int(match.group()), _LONG_MIN), _LONG_MAX)
+    value = int(match.group(1))
+    return value if _LONG_MIN <= value <= _LONG_MAX else min(max(value, _LONG_MIN), _LONG_MAX)
 
 
 def _xor(data: bytes) -> int:
@@ -165,6 +162,12 @@ class WireFlips:
         self._held = bytearray()  # ... and as it will arrive (random flips applied)
         self.count = 0
         """How many bits were flipped so far, random and targeted."""
+        self.unseen = 0
+        """Lines damaged in a way Marlin's checks cannot see (counted at the line's end, random flips only): two
+        or more flips whose masks cancel in the 8-bit XOR before the `*`, or a leading `N` turned into `n` (an
+        unnumbered line, run unchecked) with more damage behind it."""
+        self._line_sent = bytearray()  # the unfinished line as sent, kept only while it has random flips
+        self._line_flips: list[tuple[int, int]] = []  # (offset in that line, mask) of its random flips
 
     def carry(self, data: bytes, faults: Faults) -> bytes:
         """What arrives at the board of `data` as the host sent it, by the `faults` in force now."""
@@ -174,6 +177,8 @@ class WireFlips:
         if self._gap_ratio > 0.0:
             if self._gap >= len(data):
                 self._gap -= len(data)
+                if self._line_flips:
+                    self._account(sent, [])
             else:
                 data = self._flip_random(data)
         if faults.flip_once or self._held_sent:
@@ -198,12 +203,50 @@ class WireFlips:
         flipped = bytearray(data)
         at = self._gap
         rng = self._rng
+        flips: list[tuple[int, int]] = []
         while at < len(flipped):
-            flipped[at] ^= 1 << rng.randrange(8)
+            mask = 1 << rng.randrange(8)
+            flipped[at] ^= mask
+            flips.append((at, mask))
             self.count += 1
             at += 1 + self._draw_gap()
         self._gap = at - len(flipped)
+        self._account(data, flips)
         return bytes(flipped)
+
+    def _account(self, sent: bytes, flips: list[tuple[int, int]]) -> None:
+        """Follow the lines (as sent) that random flips hit, and count those damaged unseen (`unseen`)."""
+        start = 0
+        index = 0
+        while True:
+            match = _EOL.search(sent, start)
+            end = len(sent) if match is None else match.start()
+            base = len(self._line_sent)
+            while index < len(flips) and flips[index][0] < end + (match is not None):
+                offset, mask = flips[index]
+                self._line_flips.append((base + offset - start, mask))
+                index += 1
+            if self._line_flips:
+                self._line_sent += sent[start:end]
+            if match is None:
+                return
+            if self._line_flips:
+                self._judge(bytes(self._line_sent), self._line_flips)
+                self._line_sent.clear()
+                self._line_flips = []
+            start = match.end()
+
+    def _judge(self, line: bytes, flips: list[tuple[int, int]]) -> None:
+        if len(flips) < 2:
+            return
+        star = line.rfind(b"*")
+        checked = [mask for offset, mask in flips if offset < star]
+        masks = 0
+        for mask in checked:
+            masks ^= mask
+        n_to_n = line[:1] == b"N" and (0, 0x20) in flips
+        if (len(checked) >= 2 and masks == 0) or n_to_n:
+            self.unseen += 1
 
     def _flip_targeted(self, sent: bytes, data: bytes, faults: Faults) -> bytes:
         """Hold back the unfinished line; at each line end, apply the `flip_once` entries that match it."""
@@ -376,21 +419,23 @@ class LineReader:
                 return None
             self.last_line_number = number
             line_number = number if not is_m110 else _strtol(command, 1)
+            label = _OK_LABEL.match(raw)  # None after leading spaces
+            if label is not None:
+                return self._parse(command.decode("latin-1"), label.group().decode("latin-1"), line_number)
         elif self._config.checksum_required:
             # Thrown away as it is read, like a line error, but with neither a resend request nor an ok.
             self._emit("Error: Missing checksum")
             return None
-        label = _OK_LABEL.match(raw)
-        return self._parse(
-            command.decode("latin-1"), None if label is None else label.group().decode("latin-1"), line_number
-        )
+        return self._parse(command.decode("latin-1"), None, line_number)
 
     def _parse(self, text: str, line_label: str | None, line_number: int | None) -> Command:
         """parser.cpp's `parse()` of a line without its leading spaces."""
         case_insensitive = self._config.case_insensitive
-        word = self._number_word.match(text)
-        if word is not None:
-            text = text[word.end() :]
+        first = text[:1]
+        if first == "N" or (first == "n" and case_insensitive):
+            word = self._number_word.match(text)
+            if word is not None:
+                text = text[word.end() :]
         star = text.find("*")
         if star >= 0:
             text = text[:star].rstrip(" ")
@@ -404,8 +449,9 @@ class LineReader:
             return Command(text, "", "", line_label, line_number)
         code = letter + str(int(digits.group(1)) % 65536)  # codenum is a uint16_t
         args = text[digits.end() :]
-        if case_insensitive and code not in _STRING_ARGUMENT_CODES:
-            args = args.translate(_TO_UPPER)
+        if case_insensitive and code not in _STRING_ARGUMENT_CODES and not args.isupper():
+            # Only a-z: str.upper() would also change latin-1 letters, which Marlin leaves alone.
+            args = args.upper() if args.isascii() else args.translate(_TO_UPPER)
         return Command(text, code, args, line_label, line_number)
 
     def _corrupt(self, command: bytes) -> bytes:
