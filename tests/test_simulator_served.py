@@ -377,6 +377,22 @@ async def test_tcp_resets_on_connect_and_answers_m105(baud_rate: int | None) -> 
             await writer.wait_closed()
 
 
+async def test_tcp_connect_finds_the_board_in_its_bootloader() -> None:
+    # 10 simulated seconds at time scale 50: 0.2 s of silence, in which what the host sends is lost.
+    async with serve_tcp(SimulatorConfig(boot_delay_s=10.0), time_scale=TIME_SCALE) as sim:
+        reader, writer = await asyncio.open_connection(*host_port(sim))
+        try:
+            writer.write(b"M118 E1 too early\n")
+            banner = await read_until(lambda: tcp_readline(reader), lambda line: line.startswith("echo:  M301"))
+            assert banner[:2] == ["start", "External Reset"]
+            writer.write(b"M118 E1 in time\n")
+            assert [await tcp_readline(reader) for _ in range(2)] == ["echo:in time", "ok"]
+            assert sim.printer.executed == ["M118 E1 in time"]
+        finally:
+            writer.close()
+            await writer.wait_closed()
+
+
 async def test_tcp_accepts_one_client_at_a_time_and_disconnect_drops_it() -> None:
     async with serve_tcp(SimulatorConfig(), time_scale=TIME_SCALE) as sim:
         reader, writer = await asyncio.open_connection(*host_port(sim))

@@ -58,20 +58,23 @@ async def run_simulator(settings: SimulatorSettings, *, prog: str = "marlin-sim"
         baud = f", {settings.baud_rate} baud" if settings.baud_rate is not None else ""
         dialects = "".join(f", {field}" for field, _ in DIALECT_SWITCHES if getattr(config, field))
         locked = ", locked (M511)" if config.password is not None else ""
+        boot = f", {config.boot_delay_s:g} s bootloader" if config.boot_delay_s else ""
         where = servers[0].url if len(servers) == 1 else f"{len(servers)} printers ({servers[0].url} ...)"
         print(
             f"{prog}: {config.firmware_name} on {where}, sim speed {settings.time_scale:g}{baud}"
-            f"{', ADVANCED_OK' if config.advanced_ok else ''}{dialects}{locked}; Ctrl-C to stop",
+            f"{', ADVANCED_OK' if config.advanced_ok else ''}{dialects}{locked}{boot}; Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
         )
         await stop.wait()
     printers = [server.printer for server in servers]
+    flipped = sum(p.bits_flipped for p in printers)
     print(
         f"{prog}: stopped; {sum(p.executed_count for p in printers)} commands run, "
         f"{sum(p.executed_line_count for p in printers)} of them numbered; "
         f"{sum(p.rx_dropped_bytes for p in printers)} received bytes dropped in "
-        f"{sum(p.rx_overflows for p in printers)} overflows",
+        f"{sum(p.rx_overflows for p in printers)} overflows"
+        f"{f'; {flipped} bits flipped on the wire' if flipped else ''}",
         file=sys.stderr,
         flush=True,
     )

@@ -6,6 +6,11 @@ Dialects a host meets in the field (Marlin forks, Repetier-compatible boards, op
 `m114_on_ok` and `password` (PASSWORD_FEATURE). A host-side bridge that drops commands is the fault
 `Faults.not_executed_ratio`.
 
+How the board reads its lines follows Marlin bugfix-2.1.x by default: `ignore_duplicate_lines` and
+`case_insensitive` are on (turn the first off for 2.1.2's answer to a repeated line). `boot_delay_s` is the
+bootloader's silence after a reset. On the wire, `Faults.flip_bit_ratio` and `Faults.flip_once` flip bits of the
+host's bytes before the board sees them; `Faults.corrupt_rx_ratio` damages whole received lines, sparing the `N`.
+
 Simulated time is integer microseconds throughout the simulator (`US_PER_S`, `to_us()`), so ties between timers
 are exact; configuration is given in seconds and converted once.
 """
