@@ -59,9 +59,14 @@ class Deadlines(CoreState):
             timeout_at = start + head.timeout_s if head.code == "M105" else math.inf
             return timeout_at, resend_at, probe_at
         # While a job streams: outside prints a lost ok is found by the timeout, then probed (above).
-        may_probe = feed.active and feed.probe is None and self._numbered and not resends.draining
+        # A probe whose own line end was damaged waits in the printer for a line end: another probe behind it
+        # brings it out (as a line error), so an unanswered probe is followed by another, two at most.
+        may_probe = feed.active and self._numbered and not resends.draining and self._probes_out() < 2
         probe_at = max(start, feed.probed_s) + feed.probe_delay_s() if may_probe else math.inf
         return start + head.timeout_s, resend_at, probe_at
+
+    def _probes_out(self) -> int:
+        return sum(c.probe for c in self._in_flight) + sum(c.probe for c in self._queue)
 
     def _may_probe_doubt(self) -> bool:
         """May an M105 go behind a line in doubt? Not while one is on its way (it will tell), nor while draining."""

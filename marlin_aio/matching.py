@@ -155,7 +155,8 @@ def answer_stays_distinct(command: Command, flight: InFlight, *, exact_oks: bool
     with each other (a print line needs only to be known to have run, and a later answer proves that).
     """
     if command.code == "M105":
-        return not any(c.code == "M105" for c in flight)
+        # Probes may follow each other (nobody waits for their answers, and each proves the same thing).
+        return not any(c.code == "M105" and not (command.probe and c.probe) for c in flight)
     if exact_oks and command.numbered:
         return True
     waits_for_reply = command.job is None and not command.probe

@@ -55,6 +55,15 @@ _HEATER_WAITS = frozenset({"M109", "M190", "M191"})
 _REPLY_LINES = (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability)
 
 
+def _changed(sent: str, echoed: str) -> int:
+    """How many bytes of `sent` differ in `echoed`, if one or two (else 3 or more). The printer drops trailing
+    spaces from what it echoes, so a byte damaged into a space at the end shows as a shorter echo."""
+    if sent == echoed or not 0 <= len(sent) - len(echoed) <= 2:
+        return 3
+    padded = echoed.ljust(len(sent))
+    return sum(a != b for a, b in zip(sent, padded, strict=True))
+
+
 class Receiving(CoreState):
     """The receiving side of `Connection`."""
 
@@ -112,15 +121,11 @@ class Receiving(CoreState):
                 self._garbage_lines += 1  # noise from the link (a baud glitch, a reset) is nobody's reply
             case UnrecognisedLine() if is_noise(text):
                 self._garbage_lines += 1
-            case UnknownCommand() if (damaged := self._damaged_copy(event.command)) is not None:
-                # A numbered line whose `N` was damaged on the way: the printer took it as an unnumbered command it
-                # does not know, did not count it, and will answer it with a plain ok. It goes again, in its place.
-                damaged.mangled = True
-                damaged.add_line(text)
-            case UnknownCommand() if self._resends.is_fragment(event.command):
-                # The tail of a line cut in two by a flush, which the firmware read as a command of its own and
-                # refused: its ok answers nothing.
-                self._resends.fragment_refused()
+            case UnknownCommand() if not any(c.text == event.command for c in self._in_flight):
+                # Not the text of any command of ours: something damaged on the way (a line whose `N` was hit, which
+                # the printer took as unnumbered and did not count, or the tail of a line cut in two by a flush).
+                # The firmware refused it, and its ok answers nothing.
+                self._damaged_input(event.command, now)
             case PrinterLocked() | UnknownCommand():
                 if head is not None:
                     head.add_line(text)
@@ -158,46 +163,64 @@ class Receiving(CoreState):
             self._settle(lost, None, None, now, proof=ok)
         self._settle(command, ok, lines, now)
 
-    def _damaged_copy(self, echoed: str) -> Command | None:
+    def _damaged_copy(self, echoed: str, *, body: bool = False) -> Command | None:
         """The numbered command in flight of which `echoed` (an `Unknown command`'s text) is a damaged copy.
 
         The printer echoes what it received up to the `*`; a line it took as unnumbered because its leading `N`
         was damaged reads as that line's wire with one or two bytes changed (an undecodable byte is one U+FFFD).
+        With `body`, the echo is compared with the command's text instead: a line counted under its number whose
+        command arrived damaged.
         """
-        size = len(echoed)
+        best: Command | None = None
+        fewest = 3
         for command in self._in_flight:
             wire = command.wire
-            if command.line_number is None or command.mangled:
+            if command.line_number is None:
                 continue
             star = wire.rfind(b"*")
-            if star != size:
-                continue
             sent = wire[:star].decode("ascii")
-            if sent != echoed and sum(a != b for a, b in zip(sent, echoed, strict=True)) <= 2:
-                return command
-        return None
+            if body:
+                # What follows the number: the separator (a damaged one shows in the echo) and the command.
+                after = len(str(command.line_number)) + 1
+                changed = min(_changed(sent[after:], echoed), _changed(command.text, echoed))
+            else:
+                changed = _changed(sent, echoed)
+            if changed < fewest:
+                best, fewest = command, changed
+        return best
 
-    def _mangled(self, command: Command, now: float) -> None:
-        """The printer answered a damaged copy of `command` and did not count it: write it again in its place.
+    def _damaged_input(self, echoed: str, now: float) -> None:
+        """The printer refused something we never sent as such: its ok answers nothing.
 
-        Lines written behind it meet the sequence check and bring a `Resend:` for it; with none behind it (one line
-        at a time), it goes again at once.
+        If it is a damaged copy of a numbered line in flight, that line was not counted. Lines written behind it
+        meet the sequence check and bring a `Resend:` for it; with none behind it (one line at a time), it goes
+        again at once, in its place.
         """
+        damaged_body = self._damaged_copy(echoed, body=True)
+        if damaged_body is not None:
+            # The line was counted with a damaged body (two flips of one bit, which the 8-bit checksum cannot
+            # see): the printer did not run what was sent, and nothing can put it back in its place.
+            damaged_body.refusal = (
+                f"echo:Unknown command: {echoed!r} (it arrived damaged in a way its checksum could not show)"
+            )
+            return
+        self._resends.fragment_refused()
+        command = self._damaged_copy(echoed)
+        if command is None:
+            return
+        at = list(self._in_flight).index(command)
+        if any(c.line_number is not None for c in list(self._in_flight)[at + 1 :]):
+            return
+        self._in_flight.remove(command, now)
         command.move(LineEvent.MANGLED)
-        command.mangled = False
-        del command.lines[:]
-        behind = any(c.line_number is not None for c in self._in_flight)
-        if not behind:
-            self._queue.appendleft(command if wanted(command) else self._new_placeholder(command.line_number or 0))
+        _log.info("the printer received a damaged copy of %r and did not count it; it goes again", command.text)
+        self._queue.appendleft(command if wanted(command) else self._new_placeholder(command.line_number or 0))
 
     def _settle(
         self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float, proof: Ok | None = None
     ) -> None:
         """Finish one command taken off the FIFO: answered by `ok`, or (ok None) processed with its ok lost, as
         `proof` (the answer of a command behind it) shows."""
-        if command.mangled and ok is not None:
-            self._mangled(command, now)
-            return
         if command.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
             command.move(LineEvent.REFUSED if command.refusal is not None else LineEvent.OK)
         if command.code == "M110" and ok is not None and command.refusal is None:

@@ -80,7 +80,6 @@ class Command:
     source_bytes: int = 0
     probe: bool = False  # an M105 written to find out whether a stalled stream lost an ok
     refusal: str | None = None  # the printer's line saying it did not run this command (locked, not executed)
-    mangled: bool = False  # the printer echoed a damaged copy as an unknown command: its ok means "not counted"
     placeholder: bool = False  # an `M110 N<n>` that takes the number of a line that must not run (again)
     state: LineState = LineState.QUEUED  # moved only by `move`, through `marlin_aio.states.LINE_TRANSITIONS`
 

@@ -49,9 +49,11 @@ def wanted(line: Command) -> bool:
     gave up, nor if it belongs to a print that stopped or is being cancelled: nothing of a stopped print runs
     after the stop. Probes and placeholders run nothing that matters, so they may go again.
     """
+    if line.state not in (LineState.TO_RESEND, LineState.ON_WIRE, LineState.IN_DOUBT):
+        return False
     if line.placeholder or line.probe:
         return True
-    if line.state not in (LineState.TO_RESEND, LineState.ON_WIRE, LineState.IN_DOUBT) or line.orphan:
+    if line.orphan:
         return False
     job = line.job
     return job is None or (job.active and not job.cancelling)

@@ -28,9 +28,10 @@ printer (`_printer.SimulatedPrinter`) owns the ring and decides when lines may m
   and the echo shows the text as cut (`echo:Unknown command: "?15 G1 X0.1"`).
 - M110 sets the counter when it runs (`gcode/host/M110.cpp`), unnumbered or numbered alike; a numbered one set it
   on reading too. Here every line of a burst arrives at the same instant, where on the wire the next line takes
-  longer to come in than an idle board needs to run an M110; so a line behind an M110 that runs at once is read
-  after it has run, as on the board. An M110 queued behind other commands lets the lines behind it in first, and
-  resets the counter under them when its turn comes, as Marlin does.
+  longer to come in than an idle board needs to run an M110 (and the quick commands before it); so while no
+  command is running, the lines behind an M110 are read after it has run, as on the board. An M110 that waits
+  behind a running command (G28, M109, a dwell) lets the lines behind it in first, and resets the counter under
+  them when its turn comes, as Marlin does.
 - The emergency parser sees bytes as they arrive, before the receive buffer, so M108/M112/M410 act even when the
   buffer is full; the line itself is still queued and later answered with an `ok` (Marlin's no-op case).
 - `Faults.corrupt_rx_ratio` draws from a random stream of its own (derived from the seed), so which lines are
@@ -237,15 +238,21 @@ class WireFlips:
             start = match.end()
 
     def _judge(self, line: bytes, flips: list[tuple[int, int]]) -> None:
-        if len(flips) < 2:
+        """Count `line` (as sent) in `unseen` if its `flips` leave a numbered line that still passes its checksum,
+        or a line made unnumbered by `N` -> `n` (run unchecked) with more damage behind it."""
+        if len(flips) < 2 or line[:1] != b"N":
             return
-        star = line.rfind(b"*")
-        checked = [mask for offset, mask in flips if offset < star]
-        masks = 0
-        for mask in checked:
-            masks ^= mask
-        n_to_n = line[:1] == b"N" and (0, 0x20) in flips
-        if (len(checked) >= 2 and masks == 0) or n_to_n:
+        damaged = bytearray(line)
+        for offset, mask in flips:
+            if offset < len(damaged):
+                damaged[offset] ^= mask
+        if damaged == line or b"\n" in damaged or b"\r" in damaged:
+            return  # a flip on the line end, or one that made a new one: the pieces meet the checks on their own
+        if damaged[:1] == b"n":
+            self.unseen += 1
+            return
+        star = damaged.rfind(b"*")
+        if damaged[:1] == b"N" and star >= 0 and _strtol(bytes(damaged), star + 1) == _xor(bytes(damaged[:star])):
             self.unseen += 1
 
     def _flip_targeted(self, sent: bytes, data: bytes, faults: Faults) -> bytes:
@@ -350,8 +357,9 @@ class LineReader:
             return ()  # the common case: no candidate at all, no per-line work
         return [match.group(1) for line in complete.splitlines() if (match := _EMERGENCY_LINE.match(line))]
 
-    def take_lines(self, ring: deque[Command], faults: Faults) -> None:
-        """Move lines from the receive buffer into the command `ring` while it has a free slot."""
+    def take_lines(self, ring: deque[Command], faults: Faults, *, busy: bool) -> None:
+        """Move lines from the receive buffer into the command `ring` while it has a free slot; `busy` says a
+        command is running (so the ring's first command is not waiting to start)."""
         slots = self._config.command_buffer_size
         rx = self.rx
         while rx and len(ring) < slots:
@@ -376,7 +384,7 @@ class LineReader:
             if command is None:
                 continue
             ring.append(command)
-            if command.code == "M110" and len(ring) == 1:
+            if command.code == "M110" and not busy:
                 return  # it runs before the next line is read (see the module's docstring)
 
     def run_m110(self, command: Command) -> None:

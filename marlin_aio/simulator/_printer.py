@@ -128,6 +128,12 @@ class SimulatedPrinter:
         return self._wire.count
 
     @property
+    def unseen_damage(self) -> int:
+        """How many lines the wire damaged in a way no check of Marlin's can see (`WireFlips.unseen`): the 8-bit
+        XOR's blind spot. No host can keep such a line from running as it arrived."""
+        return self._wire.unseen
+
+    @property
     def booting(self) -> bool:
         """True while the board is in its bootloader after power-up or `reset()` (`boot_delay_s`): deaf and mute."""
         return self._booting_until is not None
@@ -346,7 +352,7 @@ class SimulatedPrinter:
     def _intake(self) -> None:
         """Move whole lines from the receive buffer into the command ring while it has room."""
         if not (self.halted or self.stalled):
-            self._reader.take_lines(self._ring, self.faults)
+            self._reader.take_lines(self._ring, self.faults, busy=self._task is not None)
 
     def _count_overflow(self, dropped: int) -> None:
         if dropped > 0:
