@@ -302,6 +302,11 @@ def test_lines_sent_right_behind_an_m110_are_checked_against_the_new_counter() -
     printer.receive(burst.encode(), 0.0)
     assert lines(printer) == ["ok", "ok", "ok"]
     assert list(printer.executed_line_numbers) == [42, 43, 0, 1, 2]
+    # Also behind commands that finish at once: on the wire they would have run before the M110 came in.
+    burst = "M400\nM105\nG92 X1\nM110 N7\n" + number_command("M400", 8) + "\n"
+    printer.receive(burst.encode(), 0.0)
+    assert lines(printer) == ["ok", IDLE_M105, "ok", "ok", "ok"]
+    assert printer.executed_line_numbers[-1] == 8
 
 
 def test_an_m110_queued_behind_a_long_command_sets_the_counter_when_it_runs() -> None:

@@ -316,6 +316,7 @@ class LineReader:
         self._state = _NORMAL
         self._emergency_tail = b""
         self._number_word = _LINE_NUMBER_WORD_ANY_CASE if config.case_insensitive else _LINE_NUMBER_WORD
+        self._m110_queued = False  # an M110 went into the ring (and may not have run yet)
         self.last_line_number = 0
         """The line counter: the number of the last numbered line taken (M110 sets it)."""
 
@@ -360,6 +361,10 @@ class LineReader:
     def take_lines(self, ring: deque[Command], faults: Faults, *, busy: bool) -> None:
         """Move lines from the receive buffer into the command `ring` while it has a free slot; `busy` says a
         command is running (so the ring's first command is not waiting to start)."""
+        if self._m110_queued and not busy:
+            if any(command.code == "M110" for command in ring):
+                return  # it runs before the next line is read (see the module's docstring)
+            self._m110_queued = False
         slots = self._config.command_buffer_size
         rx = self.rx
         while rx and len(ring) < slots:
@@ -384,8 +389,10 @@ class LineReader:
             if command is None:
                 continue
             ring.append(command)
-            if command.code == "M110" and not busy:
-                return  # it runs before the next line is read (see the module's docstring)
+            if command.code == "M110":
+                self._m110_queued = True
+                if not busy:
+                    return  # it runs before the next line is read (see the module's docstring)
 
     def run_m110(self, command: Command) -> None:
         """M110 as it runs (`gcode/host/M110.cpp`): `N<n>` sets the line counter, for any M110 line."""
