@@ -42,8 +42,8 @@ from marlin_aio.matching import answer_stays_distinct
 from marlin_aio.printjob import PrintJob
 from marlin_aio.receiving import Receiving
 from marlin_aio.replies import MAX_REPLY_LINES, Command, Reply
-from marlin_aio.resends import CALM_LINES
-from marlin_aio.states import LineEvent, LinkEvent
+from marlin_aio.resends import CALM_LINES, wanted
+from marlin_aio.states import LineEvent, LineState, LinkEvent
 from marlin_aio.stats import LinkStats
 
 __all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "Reply"]
@@ -306,6 +306,14 @@ class Connection(Receiving, Deadlines):
         resends = self._resends
         if resends.drain_over(now):
             return b""
+        held = resends.held
+        if held is not None:
+            # The printer has been quiet and the line it asked for again was not answered: it did not run.
+            resends.held = None
+            if held.state is LineState.ON_WIRE:
+                self._in_flight.remove(held, now)
+                held.move(LineEvent.RESEND)
+                self._queue.appendleft(held if wanted(held) else resends.placeholder_for([held]))
         chunks: list[bytes] = []
         feed = self._feed
         flight = self._in_flight

@@ -113,7 +113,7 @@ class CoreState:
         feed = self._feed
         if feed.job is not None:
             # Nothing is replayed into a board that reset or halted: the print ends here, at the line it reached.
-            feed.job.fail(feed.job_error(error), self._now)
+            feed.job.fail(feed.job_error(error, self._in_flight), self._now)
         feed.detach()
         for command in (*self._in_flight, *self._queue):
             if command.state not in FINAL_LINE_STATES:

@@ -232,6 +232,10 @@ class Deadlines(CoreState):
         job = feed.job or head.job
         summary = self.describe_stall(head, now)
         where = f"line {head.source_line} of {job.name}" if head.job is not None and job else "a probe"
+        if job is not None:
+            maybe = [c.source_line for c in self._in_flight if c.job is job]
+            where += f" (line {job.last_source_line} surely ran"
+            where += f"; lines up to {max(maybe)} may have run)" if maybe else ")"
         error = PrintStalledError(
             f"print stalled at {where}: {summary}", command=head.text, trace=self.trace.format(now)
         )

@@ -90,6 +90,9 @@ class Receiving(CoreState):
         # An ok leaves the "last line was a line error" mark alone: only other lines are between an error and
         # its `Resend:`.
         is_line_error = None if type(event) is Ok else isinstance(event, ErrorMessage) and event.kind is ErrorKind.LINE
+        if is_line_error:
+            assert isinstance(event, ErrorMessage)
+            self._resends.sequence_error = event.message.startswith("Line Number")
         after_line_error = self._resends.note_line(is_line_error, now, self._feed.quiet_s)
         head = self._in_flight.head
         match event:
@@ -223,6 +226,11 @@ class Receiving(CoreState):
         `proof` (the answer of a command behind it) shows."""
         if command.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
             command.move(LineEvent.REFUSED if command.refusal is not None else LineEvent.OK)
+        if command is self._resends.held:
+            self._resends.held = None
+            if ok is not None and command.refusal is None:
+                # The line the printer asked for again had run, unnumbered: a placeholder takes its number.
+                self._queue.appendleft(self._resends.placeholder_for([command]))
         if command.code == "M110" and ok is not None and command.refusal is None:
             self._resends.m110_answered(command)
             if command.sends > 1:

@@ -49,6 +49,8 @@ def wanted(line: Command) -> bool:
     gave up, nor if it belongs to a print that stopped or is being cancelled: nothing of a stopped print runs
     after the stop. Probes and placeholders run nothing that matters, so they may go again.
     """
+    if line.placeholder and line.state is LineState.QUEUED:
+        return True  # the placeholder of an earlier request, not written yet
     if line.state not in (LineState.TO_RESEND, LineState.ON_WIRE, LineState.IN_DOUBT):
         return False
     if line.placeholder or line.probe:
@@ -57,6 +59,12 @@ def wanted(line: Command) -> bool:
         return False
     job = line.job
     return job is None or (job.active and not job.cancelling)
+
+
+def _after(flight: InFlight, command: Command) -> list[Command]:
+    """The commands written after `command`."""
+    commands = list(flight)
+    return commands[commands.index(command) + 1 :]
 
 
 class Resends:
@@ -88,6 +96,8 @@ class Resends:
         self.fragment_wires: list[tuple[str, str]] = []  # (wire, text) of lines a flush may have cut in two
         self._fragment_oks = 0  # oks still due for fragments the firmware reported as unknown commands
         self.spare_oks = 0  # oks that may still come for copies of an M110 written more than once
+        self.sequence_error = False  # the last line error was `Line Number is not Last Line Number+1`
+        self.held: Command | None = None  # a line asked for again that may have run unnumbered (see `resend`)
         self.nudge_pending = False  # let the next resend out past the window, as a probe
         # Builds the `M110 N<n>` that takes the number n of lines that must not run (set by the connection).
         self.make_placeholder: Callable[[int], Command] = _no_placeholders
@@ -225,14 +235,14 @@ class Resends:
             self._stale -= 1
             return None
         if flight.barriers and rejected:
+            # An M110 goes alone, so this rejection is its own: it was damaged into an ordinary numbered line,
+            # and the firmware's counter did not move (nor did ours). Write it again; it sets the counter whatever
+            # its own number and whatever the printer's counter is.
             m110 = next(c for c in reversed(flight) if c.code == "M110")
-            if line_number == self.next_line or m110.line_number == line_number:
-                # The M110 itself was damaged: an ordinary numbered line to the firmware, whose counter did not
-                # move (and neither did ours). Write it again; it sets the counter whatever its own number.
-                flight.remove(m110, now)
-                m110.move(LineEvent.RESEND)
-                queue.appendleft(m110)
-                return self._limit_error(m110, line_number)
+            flight.remove(m110, now)
+            m110.move(LineEvent.RESEND)
+            queue.appendleft(m110)
+            return self._limit_error(m110, line_number)
         if line_number == self.next_line:
             # The printer has every line we sent (M999 asks this way): nothing to write again.
             return None
@@ -257,19 +267,26 @@ class Resends:
         # the wire will be rejected or lost. Take them out of the in-flight FIFO (all but the one this rejection
         # answers will each send a stale rejection, or nothing) and write every line from N on again, in order,
         # ahead of new commands.
+        # A line-number error means a *later* line was rejected: the line asked for was not counted. If it is in
+        # flight with lines behind it, the printer may have taken it unnumbered (its `N` damaged): then its ok
+        # comes before anything the flush let through, and it ran. Hold it in flight until the printer is quiet.
+        held = first if self.sequence_error and first.state is LineState.ON_WIRE and first in flight else None
+        if held is not None and not any(c.line_number is not None and c is not held for c in _after(flight, held)):
+            held = None
         keep: list[Command] = []
         removed = 0
         behind: list[Command] = []  # written after the rejected line: on the wire when the firmware flushed
         for command in flight:
             if removed:
                 behind.append(command)
-            if command.line_number is not None and command.line_number >= line_number:
+            if command is not held and command.line_number is not None and command.line_number >= line_number:
                 removed += 1
             else:
                 keep.append(command)
+        self.held = held
         self._stale = max(removed - 1, 0)
         self._calm_left = CALM_LINES
-        if behind:
+        if behind or held is not None:
             # One of those lines may have been cut in two by the flush; its tail arrives as a line of its own. Hold
             # every write until the printer has answered all of them, so nothing new is cut, and recognise the
             # pieces (`is_fragment`).
@@ -279,19 +296,19 @@ class Resends:
         unwanted: list[Command] = []  # a run of lines that must not run: one placeholder takes their numbers
         for number in range(line_number, self.next_line):
             resend = self._history.get(number)
-            if resend is None:
+            if resend is None or resend is held:
                 continue
             if resend.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
                 resend.move(LineEvent.RESEND)
             if wanted(resend):
                 if unwanted:
-                    again.append(self._placeholder_for(unwanted))
+                    again.append(self.placeholder_for(unwanted))
                     unwanted = []
                 again.append(resend)
             else:
                 unwanted.append(resend)
         if unwanted:
-            again.append(self._placeholder_for(unwanted))
+            again.append(self.placeholder_for(unwanted))
         flight.keep_only(keep, now, restart_head=False)
         self.resend_from = line_number
         # Every line from N on goes out again in order, ahead of everything else, including the lines an earlier
@@ -303,7 +320,7 @@ class Resends:
         queue.extend(rest)
         return None
 
-    def _placeholder_for(self, lines: list[Command]) -> Command:
+    def placeholder_for(self, lines: list[Command]) -> Command:
         """A numbered `M110 N<n>` that takes the numbers of `lines` (n the last of them) without running any.
 
         Every line of a stopped print, of a caller who gave up, or one that already ran (taken unnumbered after
@@ -415,4 +432,5 @@ class Resends:
         self.drain_until = None
         self._fragment_oks = 0
         self.spare_oks = 0
+        self.held = None
         self.fragment_wires = []

@@ -9,7 +9,7 @@ whole timeout, with no busy keepalive, stalls the print with a diagnosis (`marli
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 from marlin_aio.commands import command_code
 from marlin_aio.errors import (
@@ -129,10 +129,18 @@ class JobFeed:
             self._median_rtt = ordered[len(ordered) // 2]
         return self._median_rtt
 
-    def job_error(self, error: MarlinError) -> MarlinError:
-        """`error` with the print's position added, for the job it ends."""
+    def job_error(self, error: MarlinError, on_the_way: Iterable[Command] = ()) -> MarlinError:
+        """`error` with the print's position added, for the job it ends: the last line surely run, and the lines
+        that were `on_the_way` (written, unanswered), which may have run too."""
         job = self.job
         if job is None:
             return error
         where = f"{job.name}, after line {job.last_source_line} ({job.lines_acked} commands acknowledged)"
+        maybe = [c.source_line for c in on_the_way if c.job is job]
+        if maybe:
+            where += (
+                f"; line {max(maybe)} was on its way and may have run"
+                if len(maybe) == 1
+                else f"; {len(maybe)} commands up to line {max(maybe)} were on their way and may have run"
+            )
         return type(error)(f"{error} [print stopped: {where}]") if type(error) in _PLAIN_ERRORS else error

@@ -34,6 +34,7 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 
+from marlin_aio.commands import number_command
 from marlin_aio.connection import Command, Connection, Output, Reply
 from marlin_aio.errors import MarlinError
 from marlin_aio.printjob import PrintJob, PrintState
@@ -69,6 +70,8 @@ class Scenario:
     timeout_s: float = 2.0
     time_limit_s: float = 600.0
     chunk_bytes: int | None = None  # deliver the host's bytes in pieces this size (16: a USB bridge's FIFO)
+    flip_once: tuple[tuple[str, int, int], ...] = ()  # targeted flips (`Faults.flip_once`): (substring, byte, bit)
+    previous_lines: int = 0  # numbered lines an earlier session left the firmware's counter at
 
 
 @dataclass
@@ -118,7 +121,13 @@ def run_print(scenario: Scenario) -> CampaignResult:
     faults = Faults(corrupt_rx_ratio=scenario.corrupt, drop_ok_ratio=scenario.drop_ok, noise_ratio=scenario.noise)
     if scenario.flip_bits:
         faults.flip_bit_ratio = scenario.flip_bits
+    faults.flip_once = list(scenario.flip_once)
     printer = SimulatedPrinter(config, faults, now=0.0, boot=False)
+    if scenario.previous_lines:
+        # An earlier session's lines: the firmware's counter stands where they left it.
+        earlier = "".join(f"{number_command('M400', n)}\n" for n in range(1, scenario.previous_lines + 1))
+        printer.receive(earlier.encode("ascii"), 0.0)
+        printer.take_output()
     conn = Connection(numbered=True, max_in_flight=64 if scenario.send_ahead else 1)
     lines = print_lines(scenario.lines, relative=scenario.relative)
     rng = random.Random(f"{scenario.seed}:campaign")
@@ -345,7 +354,7 @@ def _check_record(printer: SimulatedPrinter, lines: list[str], job: PrintJob, re
     if job.state in (PrintState.FAILED, PrintState.CANCELLED) and result.executed_in_order:
         # Never one more: the lines it says ran, plus at most those it names as possibly run.
         said = job.last_source_line
-        maybe = job.may_have_run if hasattr(job, "may_have_run") else 0
+        maybe = job.in_flight  # written and never answered: the lines it names as possibly run
         if not said <= len(executed) <= said + maybe:
             result.problems.append(
                 f"the print says {said} lines ran (and {maybe} may have), but the firmware ran {len(executed)}"
