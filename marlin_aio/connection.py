@@ -297,7 +297,7 @@ class Connection(Receiving, Deadlines):
     @property
     def has_data_to_send(self) -> bool:
         """True when `data_to_send()` may return something (a queued command or a print job to feed)."""
-        return bool(self._queue) or self._feed.job is not None
+        return bool(self._queue) or self._feed.job is not None or self._send_eol
 
     def data_to_send(self, now: float) -> bytes:
         """Return the bytes to write now: resends first, then queued commands, then print job lines, as far as the
@@ -315,19 +315,30 @@ class Connection(Receiving, Deadlines):
                 held.move(LineEvent.RESEND)
                 self._queue.appendleft(held if wanted(held) else resends.placeholder_for([held]))
         chunks: list[bytes] = []
+        if self._send_eol:
+            self._send_eol = False
+            chunks.append(b"\n")
+            self.trace.sent(now, "(a bare line end)")
         feed = self._feed
         flight = self._in_flight
         # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.
         limit = self._rx_buffer_bytes - (self.probe_reserve_bytes if feed.job is not None else 0)
         calm = resends.calm
         while True:
-            if self._queue:
+            # Commands never written go before the print's next line, but not two in a row while it streams: a
+            # flood of commands must not starve the print (nor a print the commands).
+            fresh = bool(self._queue) and not (self._queue[0].wire or self._queue[0].probe or self._queue[0].orphan)
+            if self._queue and not (fresh and self._after_command and feed.job is not None):
                 command = self._queue[0]
             else:
                 job_command = feed.next_command(self._new_id, self._numbered, now)
                 if job_command is None:
-                    break
-                command = job_command
+                    if not self._queue:
+                        break
+                    command = self._queue[0]
+                else:
+                    command = job_command
+            self._after_command = command.job is None and not command.wire
             # After a probe deadline, the lines waiting to be resent and the probe behind them go out together.
             nudge = resends.nudge_pending and (bool(command.wire) or command.probe)
             if not nudge:

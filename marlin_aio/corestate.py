@@ -57,6 +57,10 @@ class CoreState:
             max_resends=max_resends, ok_after_resend=ok_after_resend, resend_timeout_s=resend_timeout_s
         )
         self._feed = JobFeed()
+        self._after_command = False  # the last command written was a user's, written for the first time
+        # Write a bare line end next: it completes a line whose own end was damaged on the way (the printer then
+        # answers or rejects it), and on its own it is an empty line, which Marlin ignores.
+        self._send_eol = False
         self._resends.make_placeholder = self._new_placeholder
         self._queue: deque[Command] = deque()  # accepted, not yet written
         self._in_flight = InFlight()  # written, waiting for an ok, in the order they were written

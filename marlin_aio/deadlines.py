@@ -35,8 +35,17 @@ class Deadlines(CoreState):
             return drain_until
         due = min(self._deadlines(head))
         if head.state is LineState.IN_DOUBT:
-            due = min(due, self._waiting_bound())
+            due = min(due, self._waiting_bound(), self._silence_bound())
         return due if drain_until is None else min(due, drain_until)
+
+    def _silence_bound(self) -> float:
+        """While a print streams behind a line in doubt: when the printer's silence stalls it."""
+        if not self._feed.active:
+            return math.inf
+        last_in = self.trace.last_received
+        head = self._in_flight.head
+        since = max(last_in.time_s if last_in is not None else 0.0, 0.0 if head is None else head.head_since_s or 0.0)
+        return since + self._feed.timeout_s
 
     def _deadlines(self, head: Command) -> tuple[float, float, float]:
         """(time out, write again, probe) for the oldest command; inf where that step does not apply."""
@@ -66,7 +75,8 @@ class Deadlines(CoreState):
         return start + head.timeout_s, resend_at, probe_at
 
     def _probes_out(self) -> int:
-        return sum(c.probe for c in self._in_flight) + sum(c.probe for c in self._queue)
+        """Probes written and unanswered (a queued one may wait behind lines held back, and tells nothing)."""
+        return sum(c.probe for c in self._in_flight)
 
     def _may_probe_doubt(self) -> bool:
         """May an M105 go behind a line in doubt? Not while one is on its way (it will tell), nor while draining."""
@@ -139,6 +149,7 @@ class Deadlines(CoreState):
             # Marlin may still answer it (a long G28), and that late ok must land on it, never on the next
             # caller's command, which waits (see `answer_stays_distinct`) or goes out behind it.
             was_orphan = head.orphan
+            self._send_eol = True  # in case its line end was damaged and the printer still waits for it
             head.orphan = True
             head.move(LineEvent.OVERDUE)
             head.head_since_s = now
@@ -153,12 +164,16 @@ class Deadlines(CoreState):
             return
 
     def _settle_doubt(self, head: Command, now: float, timeout_at: float, probe_at: float) -> None:
-        """The oldest command is in doubt: probe behind it, let an M105 go, fail callers past their bound."""
+        """The oldest command is in doubt: probe behind it, let an M105 go, fail callers past their bound, stall a
+        print the printer has been silent for."""
         if now >= timeout_at:
             self._in_flight.popleft(now)  # an M105 in doubt (see `_deadlines`)
             return
+        if now >= self._silence_bound():
+            self._stall_job(head, now)
         if now >= probe_at:
             self._feed.probed_s = now
+            self._send_eol = True
             self._queue.appendleft(self._feed.new_probe(self._new_id(), now))
         if now >= self._waiting_bound():
             since = head.head_since_s or now
@@ -181,6 +196,7 @@ class Deadlines(CoreState):
 
     def _probe(self, now: float) -> None:
         self._feed.probed_s = now
+        self._send_eol = True
         if self._queue and self._queue[0].wire:
             # Lines wait to be written again, one at a time, behind this one, whose ok may be lost. With plain oks
             # only an M105's `ok T:` can prove that, so the probe goes behind those lines (its number comes after
@@ -231,7 +247,12 @@ class Deadlines(CoreState):
         feed = self._feed
         job = feed.job or head.job
         summary = self.describe_stall(head, now)
-        where = f"line {head.source_line} of {job.name}" if head.job is not None and job else "a probe"
+        if head.job is not None and job:
+            where = f"line {head.source_line} of {job.name}"
+        elif job is not None and not head.probe:
+            where = f"{job.name} behind {head.text!r}, which the printer has not answered,"
+        else:
+            where = "a probe"
         if job is not None:
             maybe = [c.source_line for c in self._in_flight if c.job is job]
             where += f" (line {job.last_source_line} surely ran"

@@ -117,13 +117,12 @@ def match_ok(flight: InFlight, ok: Ok, *, exact_oks: bool) -> int | None:
         # Only M105 answers `ok T:...`.
         return next((i for i, c in enumerate(flight) if c.code == "M105"), None)
     if exact_oks:
-        # This printer names the line in the ok of every numbered command: a plain ok is an unnumbered one's,
-        # or that of a numbered line whose `N` was damaged on the way, which the printer took as unnumbered.
-        unnumbered = next(
+        # This printer names the line in the ok of every numbered command: a plain ok is an unnumbered one's.
+        # (Or that of a numbered line whose `N` was damaged on the way, which the printer took as unnumbered, or
+        # of the tail of a line cut by a flush: the connection tells those apart, `Receiving._on_ok`.)
+        return next(
             (i for i, c in enumerate(flight) if c.line_number is None and (c.code != "M105" or c.refusal)), None
         )
-        if unnumbered is not None:
-            return unnumbered
     # A plain ok: the oldest command that answers with a plain ok (not M105, whose answer carries temperatures;
     # a refused one is answered plainly whatever it was).
     return next((i for i, c in enumerate(flight) if c.code != "M105" or c.refusal is not None), None)

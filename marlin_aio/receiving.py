@@ -149,6 +149,8 @@ class Receiving(CoreState):
         # Which in-flight command does this ok answer? The oldest one whose answer can look like it; every command
         # ahead of that one was processed (Marlin answers in order) but its own ok was lost.
         index = match_ok(self._in_flight, ok, exact_oks=self._exact_oks) if self._in_flight else None
+        if index is None and self._exact_oks and ok.line_number is None and ok.temperatures is None:
+            index = self._taken_unnumbered()
         if index is None:
             self._stray_oks += 1
             _log.warning("an ok that answers no command waiting: %r", ok)
@@ -160,10 +162,12 @@ class Receiving(CoreState):
         skipped = [self._in_flight.popleft(now) for _ in range(index)]
         command = self._in_flight.popleft(now)
         lines = attribute(skipped, command)
-        for lost in skipped:
+        for at, lost in enumerate(skipped):
             self._lost_oks += 1
             _log.info("the ok of %r was lost; %r was answered after it", lost.text, command.text)
-            self._settle(lost, None, None, now, proof=ok)
+            # Its lines are its own if every command after it printed nothing but its ok (a bare M105).
+            quiet = all(c.text == "M105" or c.probe for c in (*skipped[at + 1 :], command))
+            self._settle(lost, None, tuple(lost.lines) if quiet else None, now, proof=ok)
         self._settle(command, ok, lines, now)
 
     def _damaged_copy(self, echoed: str, *, body: bool = False) -> Command | None:
@@ -192,6 +196,19 @@ class Receiving(CoreState):
                 best, fewest = command, changed
         return best
 
+    def _taken_unnumbered(self) -> int | None:
+        """With ADVANCED_OK, a plain ok that no unnumbered command earned: the FIFO index of the numbered line the
+        printer took as unnumbered (its `N` damaged), or None for the tail of a line cut by a flush.
+
+        Tails arrive only after a flush, while nothing is written (`draining`); a line held after a flush was in
+        the printer before it, so the first such ok is its own. Otherwise it is the oldest plainly answered line.
+        """
+        held = self._resends.held
+        if self._resends.draining:
+            commands = list(self._in_flight)
+            return commands.index(held) if held is not None and held in commands else None
+        return next((i for i, c in enumerate(self._in_flight) if c.code != "M105" or c.refusal is not None), None)
+
     def _damaged_input(self, echoed: str, now: float) -> None:
         """The printer refused something we never sent as such: its ok answers nothing.
 
@@ -212,12 +229,12 @@ class Receiving(CoreState):
         if command is None:
             return
         at = list(self._in_flight).index(command)
-        if any(c.line_number is not None for c in list(self._in_flight)[at + 1 :]):
-            return
+        behind = any(c.line_number is not None for c in list(self._in_flight)[at + 1 :])
         self._in_flight.remove(command, now)
         command.move(LineEvent.MANGLED)
         _log.info("the printer received a damaged copy of %r and did not count it; it goes again", command.text)
-        self._queue.appendleft(command if wanted(command) else self._new_placeholder(command.line_number or 0))
+        if not behind:
+            self._queue.appendleft(command if wanted(command) else self._resends.placeholder_for([command]))
 
     def _settle(
         self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float, proof: Ok | None = None
@@ -261,7 +278,8 @@ class Receiving(CoreState):
             # never an error that would invite running it twice.
             sent = now if command.sent_s is None else command.sent_s
             answer = proof if proof is not None else Ok()
-            self._finish(command, Reply(command.text, (), answer, sent, now, command.lines_dropped, ok_lost=True))
+            own = lines or ()
+            self._finish(command, Reply(command.text, own, answer, sent, now, command.lines_dropped, ok_lost=True))
         elif lines is None:
             self._finish(
                 command,

@@ -167,7 +167,7 @@ class WireFlips:
         """Lines damaged in a way Marlin's checks cannot see (counted at the line's end, random flips only): two
         or more flips whose masks cancel in the 8-bit XOR before the `*`, or a leading `N` turned into `n` (an
         unnumbered line, run unchecked) with more damage behind it."""
-        self._line_sent = bytearray()  # the unfinished line as sent, kept only while it has random flips
+        self._line_sent = bytearray()  # the unfinished line as sent (random flips only)
         self._line_flips: list[tuple[int, int]] = []  # (offset in that line, mask) of its random flips
 
     def carry(self, data: bytes, faults: Faults) -> bytes:
@@ -178,8 +178,7 @@ class WireFlips:
         if self._gap_ratio > 0.0:
             if self._gap >= len(data):
                 self._gap -= len(data)
-                if self._line_flips:
-                    self._account(sent, [])
+                self._account(sent, [])
             else:
                 data = self._flip_random(data)
         if faults.flip_once or self._held_sent:
@@ -217,6 +216,14 @@ class WireFlips:
 
     def _account(self, sent: bytes, flips: list[tuple[int, int]]) -> None:
         """Follow the lines (as sent) that random flips hit, and count those damaged unseen (`unseen`)."""
+        if not flips and not self._line_flips:
+            # The common case: keep only the unfinished line as sent, in case a flip hits it later.
+            end = max(sent.rfind(b"\n"), sent.rfind(b"\r"))
+            if end < 0:
+                self._line_sent += sent
+            else:
+                self._line_sent[:] = sent[end + 1 :]
+            return
         start = 0
         index = 0
         while True:
@@ -227,14 +234,13 @@ class WireFlips:
                 offset, mask = flips[index]
                 self._line_flips.append((base + offset - start, mask))
                 index += 1
-            if self._line_flips:
-                self._line_sent += sent[start:end]
+            self._line_sent += sent[start:end]
             if match is None:
                 return
             if self._line_flips:
                 self._judge(bytes(self._line_sent), self._line_flips)
-                self._line_sent.clear()
                 self._line_flips = []
+            self._line_sent.clear()
             start = match.end()
 
     def _judge(self, line: bytes, flips: list[tuple[int, int]]) -> None:

@@ -74,6 +74,11 @@ class SimulatedPrinter:
         self.executed_line_numbers: BoundedRecord[int] = BoundedRecord(limit)
         """The number of each numbered line executed, in order (unnumbered commands add nothing): the last
         `SimulatorConfig.record_limit` of them (`executed_line_count` counts all)."""
+        self.unnumbered_runs = 0
+        """How many commands ran that came without a line number (`M110 N0`-style hosts number every line, so
+        for them each is a line whose `N` the wire damaged, or the tail of a line cut by a line error's flush)."""
+        self.unnumbered_m105_runs = 0
+        """Of those, how many were M105 (whose `ok T:` cannot show whether it was counted)."""
         self.rx_overflows = 0
         """How many arrivals of bytes found the receive buffer too full to hold them all."""
         self.rx_dropped_bytes = 0
@@ -387,6 +392,10 @@ class SimulatedPrinter:
             self._finish_command()
             return
         self.executed.append(command.text.rstrip(" "))  # a comment cut after a space leaves the space behind
+        if command.line_number is None and (command.code in self._handlers or command.code[:1] == "T"):
+            self.unnumbered_runs += 1
+            if command.code == "M105":
+                self.unnumbered_m105_runs += 1
         if command.line_number is not None:
             self.executed_line_numbers.append(command.line_number)
         handler = self._handlers.get(command.code)

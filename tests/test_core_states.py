@@ -1,0 +1,115 @@
+"""The state tables (`marlin_aio.states`): every move is in the table, final states stay final, and the core's
+link state is moved by the table (no flags behind it)."""
+
+from __future__ import annotations
+
+import pytest
+
+from marlin_aio.connection import Connection
+from marlin_aio.printjob import PrintJob
+from marlin_aio.states import (
+    FINAL_LINE_STATES,
+    LINE_TRANSITIONS,
+    LINK_TRANSITIONS,
+    ImpossibleTransitionError,
+    LineEvent,
+    LineState,
+    LinkEvent,
+    LinkState,
+    next_line_state,
+    next_link_state,
+)
+
+M105_OK = "ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0"
+
+
+def test_every_state_has_a_row_and_every_move_leads_to_a_state() -> None:
+    assert set(LINK_TRANSITIONS) == set(LinkState)
+    assert set(LINE_TRANSITIONS) == set(LineState)
+    for moves in (*LINK_TRANSITIONS.values(), *LINE_TRANSITIONS.values()):
+        for target in moves.values():
+            assert isinstance(target, LinkState | LineState)
+
+
+def test_final_line_states_have_no_way_out() -> None:
+    # Nothing that ended can run again: ACCEPTED, REJECTED, WITHDRAWN and FAILED are final.
+    assert {LineState.ACCEPTED, LineState.REJECTED, LineState.WITHDRAWN, LineState.FAILED} == FINAL_LINE_STATES
+    for state in FINAL_LINE_STATES:
+        for event in LineEvent:
+            with pytest.raises(ImpossibleTransitionError):
+                next_line_state(state, event)
+
+
+def test_a_line_is_written_only_from_queued_or_to_resend() -> None:
+    writable = {state for state in LineState if LineEvent.WRITTEN in LINE_TRANSITIONS[state]}
+    assert writable == {LineState.QUEUED, LineState.TO_RESEND}
+
+
+def test_a_line_in_doubt_is_settled_only_by_the_printer() -> None:
+    # No time-based move takes a line out of doubt: only an answer (OK, REFUSED, MANGLED), a resend request, or
+    # the end of everything (FAILED).
+    moves = LINE_TRANSITIONS[LineState.IN_DOUBT]
+    assert LineEvent.WITHDRAWN not in moves and LineEvent.WRITTEN not in moves
+    assert moves[LineEvent.OVERDUE] is LineState.IN_DOUBT
+
+
+def test_the_link_table_keeps_a_kill_final_until_a_reset() -> None:
+    assert next_link_state(LinkState.STOPPED, LinkEvent.HALTED) is LinkState.HALTED
+    assert next_link_state(LinkState.HALTED, LinkEvent.STOPPED) is LinkState.HALTED  # a stop never softens a kill
+    assert next_link_state(LinkState.HALTED, LinkEvent.RESET) is LinkState.READY
+    with pytest.raises(ImpossibleTransitionError):
+        next_link_state(LinkState.HALTED, LinkEvent.RESUMED)
+    with pytest.raises(ImpossibleTransitionError):
+        next_link_state(LinkState.LOST, LinkEvent.RESET)
+
+
+def test_a_print_moves_the_link_through_printing_and_stopping() -> None:
+    conn = Connection(max_in_flight=4, advanced_ok=True)
+    conn.submit("M110 N0", timeout_s=5.0, now=0.0)
+    conn.data_to_send(0.0)
+    conn.receive(b"ok N0 P15 B3\n", 0.0)
+    assert conn.state is LinkState.READY
+    conn.attach(PrintJob(["G1 X1", "G1 X2", "G1 X3", "G1 X4"], name="t"), timeout_s=5.0)
+    output = conn.tick(0.0)
+    assert output.data.count(b"\n") == 4
+    assert conn.state is LinkState.PRINTING
+    # The printer refuses line 1 (locked): the print stops, its other lines are still on the wire.
+    conn.receive(b"echo:Printer locked! (Unlock with M511 or LCD)\nok N1 P15 B3\n", 0.1)
+    assert conn.state is LinkState.LOCKED
+    conn.receive(b"echo:Printer locked! (Unlock with M511 or LCD)\nok N2 P15 B3\n", 0.2)
+    assert conn.state is LinkState.LOCKED and conn.job is None
+
+
+def test_a_print_that_stops_with_lines_on_the_wire_is_stopping_until_they_are_answered() -> None:
+    conn = Connection(max_in_flight=4, advanced_ok=True)
+    job = PrintJob(["G1 X1", "G1 X2", "G1 X3"], name="t")
+    conn.attach(job, timeout_s=5.0)
+    conn.tick(0.0)
+    conn.receive(b'echo:Unknown command: "G1 X1"\nok N1 P15 B3\n', 0.1)  # refused as such: the print stops
+    assert conn.state is LinkState.STOPPING
+    conn.receive(b"ok N2 P15 B3\n", 0.2)
+    assert conn.state is LinkState.STOPPING
+    conn.receive(b"ok N3 P15 B3\n", 0.3)
+    assert conn.state is LinkState.READY
+
+
+def test_an_impossible_move_asked_by_the_printer_is_ignored_not_raised() -> None:
+    conn = Connection()
+    conn.submit("M105", timeout_s=5.0, now=0.0)
+    conn.data_to_send(0.0)
+    conn.receive(b"Error:Printer halted. kill() called!\n", 0.1)
+    assert conn.state is LinkState.HALTED
+    conn.receive(b"echo:Printer locked! (Unlock with M511 or LCD)\nok\n", 0.2)  # nonsense now: logged, ignored
+    assert conn.state is LinkState.HALTED
+
+
+def test_lines_carry_their_state() -> None:
+    conn = Connection()
+    command = conn.submit("M105", timeout_s=5.0, now=0.0)
+    assert command.state is LineState.QUEUED
+    conn.data_to_send(0.0)
+    assert command.state is LineState.ON_WIRE
+    conn.receive(f"{M105_OK}\n".encode(), 0.1)
+    assert command.state is LineState.ACCEPTED
+    withdrawn = conn.submit("M114", timeout_s=5.0, now=0.2)
+    assert conn.cancel(withdrawn) and withdrawn.state is LineState.WITHDRAWN
