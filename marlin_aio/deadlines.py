@@ -61,12 +61,12 @@ class Deadlines(CoreState):
         else:
             resend_at = math.inf
         if head.state is LineState.IN_DOUBT:
-            # Only the printer settles it: a late ok, or the answer to an M105 behind it. An M105 in doubt is let
-            # go after one more timeout, as only another M105 could take its late `ok T:`, and that answer would
-            # be as true for it.
+            # Only the printer settles it: a late ok, or the answer to an M105 behind it (not a resend: the probe
+            # finds out whether it is needed). An M105 in doubt is let go after one more timeout, as only another
+            # M105 could take its late `ok T:`, and that answer would be as true for it.
             probe_at = start if self._may_probe_doubt() else math.inf
             timeout_at = start + head.timeout_s if head.code == "M105" else math.inf
-            return timeout_at, resend_at, probe_at
+            return timeout_at, math.inf, probe_at
         # While a job streams: outside prints a lost ok is found by the timeout, then probed (above).
         # A probe whose own line end was damaged waits in the printer for a line end: another probe behind it
         # brings it out (as a line error), so an unanswered probe is followed by another, two at most.
@@ -80,7 +80,7 @@ class Deadlines(CoreState):
 
     def _may_probe_doubt(self) -> bool:
         """May an M105 go behind a line in doubt? Not while one is on its way (it will tell), nor while draining."""
-        if self._feed.probe is not None or self._resends.draining or self._in_flight.barriers:
+        if self._resends.draining or self._in_flight.barriers:
             return False
         return not any(c.code == "M105" for c in self._in_flight) and not any(c.code == "M105" for c in self._queue)
 

@@ -15,6 +15,23 @@ from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve
 # Simulated seconds per real second: heating and homing finish quickly, yet the client sees Marlin's timing shapes.
 TIME_SCALE = 20.0
 
+_CAMPAIGN_REPORT = pytest.StashKey[list[str]]()
+
+
+@pytest.fixture
+def campaign_report(pytestconfig: pytest.Config) -> list[str]:
+    """Lines the fault campaign reports (run counts, failing seeds); printed at the end of the test session."""
+    return pytestconfig.stash.setdefault(_CAMPAIGN_REPORT, [])
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter, config: pytest.Config) -> None:
+    """Print what the fault campaign counted, pass or fail, so every CI log keeps its run counts and seeds."""
+    lines = config.stash.get(_CAMPAIGN_REPORT, [])
+    if lines:
+        terminalreporter.section("fault campaign")
+        for line in lines:
+            terminalreporter.write_line(line)
+
 
 @pytest.fixture(params=["pty", "tcp"])
 async def sim(request: pytest.FixtureRequest) -> AsyncIterator[SimulatorServer]:

@@ -1,207 +1,228 @@
-"""The seeded fault campaign (issue 8), in simulated time: the protocol core against the simulated firmware.
+"""The model-based fault campaign, in simulated time: the protocol core against the simulated Marlin, whose line
+intake is Marlin's own (`queue.cpp`), with bit flips anywhere in what the host sends.
 
-Every run prints a generated file with 100 Hz polling and a user's commands going on, under a seeded mix of
-corrupted lines, lost oks and noise, in send-ahead and ping-pong, with and without ADVANCED_OK; see
-`marlin_aio.simulator._campaign` for what each run checks.
+Each run (`marlin_aio.simulator._campaign.run_print`) checks the invariants on the simulator's record of what it
+executed: each file line at most once and in file order (exactly once, at the exact position, when the print
+reports done); never one more than the print says ran; each reply to its own caller; every wait bounded. The run
+counts and any failing seed are printed in the "fault campaign" section of the test output.
 """
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from marlin_aio.printjob import PrintState
-from marlin_aio.simulator._campaign import CampaignResult, Scenario, run_print
+from marlin_aio.simulator._campaign import CampaignResult, Scenario, mixed_scenario, run_print
 
-SEEDS = range(200)
-CORRUPT = (0.0, 0.005, 0.02, 0.05)
-DROP_OK = (0.0, 0.005, 0.01, 0.02)
-NOISE = (0.0, 0.01, 0.05)
+MIXED_RUNS = 2_000
+FLIP_SEEDS = range(25)
 
 
-def scenarios() -> list[Scenario]:
-    """200 seeds; each seed picks its mode (send-ahead or ping-pong, plain ok or ADVANCED_OK, 50 seeds each) and
-    its fault mix; one seed in ten also resets the board or silences it mid-print, which must end the print with
-    a diagnosis."""
-    runs = []
-    for seed in SEEDS:
-        mishap = (seed // 4) % 10  # across all four modes
-        runs.append(
-            Scenario(
-                seed=seed,
-                send_ahead=seed % 2 == 0,
-                advanced_ok=(seed // 2) % 2 == 1,
-                corrupt=CORRUPT[(seed // 4) % 4],
-                drop_ok=DROP_OK[(seed // 16) % 4],
-                noise=NOISE[seed % 3],
-                reset_at_line=150 + seed if mishap == 3 else None,
-                silent_at_line=150 + seed if mishap == 7 else None,
-                chunk_bytes=16,  # bytes reach the firmware as a USB-serial bridge hands them over
-            )
-        )
-    return runs
+def _failures(results: list[CampaignResult]) -> list[str]:
+    return [f"seed {r.scenario.seed}: {problem}" for r in results for problem in r.problems]
 
 
 @pytest.fixture(scope="module")
-def campaign() -> list[CampaignResult]:
-    return [run_print(scenario) for scenario in scenarios()]
+def mixed() -> list[CampaignResult]:
+    # The core logs every recovery; thousands of runs' worth would only slow the capture down.
+    log = logging.getLogger("marlin_aio")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    try:
+        return [run_print(mixed_scenario(seed)) for seed in range(MIXED_RUNS)]
+    finally:
+        log.setLevel(level)
 
 
-def test_the_campaign_covers_every_mode_and_mishap(campaign: list[CampaignResult]) -> None:
-    modes = Counter((r.scenario.send_ahead, r.scenario.advanced_ok) for r in campaign)
-    assert len(campaign) == 200 and set(modes.values()) == {50}
-    assert sum(r.scenario.reset_at_line is not None for r in campaign) == 20
-    assert sum(r.scenario.silent_at_line is not None for r in campaign) == 20
-    # Polls and user commands ran alongside every print (but one that stopped at its first lines).
-    assert all(r.poll_replies > 0 and r.user_replies > 0 for r in campaign if r.lines_executed > 50)
-    assert sum(r.lines_executed > 50 for r in campaign) > 190
+@pytest.mark.timeout(600)
+def test_two_thousand_mixed_runs_hold_every_invariant(mixed: list[CampaignResult], campaign_report: list[str]) -> None:
+    failures = _failures(mixed)
+    states = Counter(r.state.value for r in mixed)
+    campaign_report.append(
+        f"mixed: {len(mixed)} runs ({', '.join(f'{n} {s}' for s, n in sorted(states.items()))}); "
+        f"{sum(r.user_replies for r in mixed)} user replies checked, {sum(r.users_gave_up for r in mixed)} callers "
+        f"gave up, {sum(r.bits_flipped for r in mixed)} bits flipped, {sum(r.blind_spot for r in mixed)} runs hit "
+        f"the checksum's blind spot; {len(failures)} broken invariants"
+    )
+    campaign_report.extend(failures[:50])
+    assert failures == []
 
 
-def test_every_line_runs_exactly_once_in_order_or_the_print_stops_with_a_diagnosis(
-    campaign: list[CampaignResult],
+def test_the_mixed_runs_cover_every_mode_fault_and_mishap(mixed: list[CampaignResult]) -> None:
+    scenarios = [r.scenario for r in mixed]
+    modes = Counter((s.send_ahead, s.advanced_ok) for s in scenarios)
+    assert len(modes) == 4 and min(modes.values()) > 400
+    assert sum(s.flip_bits > 0 for s in scenarios) > 1_000
+    assert sum(s.reset_at_line is not None for s in scenarios) > 100
+    assert sum(s.silent_at_line is not None for s in scenarios) > 100
+    assert sum(s.cancel_at_line is not None for s in scenarios) > 300
+    assert sum(s.pause_at_line is not None for s in scenarios) > 400
+    assert sum(s.users >= 4 for s in scenarios) > 800
+    assert sum(r.users_gave_up for r in mixed) > 1_000
+    assert sum(r.user_replies for r in mixed) > 100_000
+    assert sum(r.poll_replies for r in mixed) > 10_000
+    # Every way a print ends happened, and every one was checked against what the firmware ran.
+    states = Counter(r.state for r in mixed)
+    assert all(states[state] > 100 for state in (PrintState.DONE, PrintState.FAILED, PrintState.CANCELLED))
+    assert sum(r.position_checked for r in mixed) > 300
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("advanced_ok", [False, True], ids=["plain-ok", "advanced-ok"])
+@pytest.mark.parametrize("send_ahead", [False, True], ids=["ping-pong", "send-ahead"])
+def test_two_thousand_relative_moves_through_flipped_bits_end_exact_or_stop_saying_what_ran(
+    send_ahead: bool, advanced_ok: bool, campaign_report: list[str]
 ) -> None:
-    assert [(r.scenario, problem) for r in campaign for problem in r.problems] == []
-    for result in campaign:
-        if result.fragments_run:
-            # Send-ahead only: a flush cut a line and the firmware ran its tail; the print stopped, saying so.
-            assert result.scenario.send_ahead and result.state is PrintState.FAILED
-            continue
-        assert result.executed_in_order or result.tail_ran_after_reset
-        if result.scenario.reset_at_line is not None:
-            assert result.state is PrintState.FAILED and result.error is not None and "reset" in result.error
-        elif result.scenario.silent_at_line is not None:
-            assert result.state is PrintState.FAILED and result.error is not None and "stalled" in result.error
-        else:
-            assert result.state is PrintState.DONE and result.lines_executed == result.scenario.lines
-
-
-def test_no_reply_is_ever_handed_to_the_wrong_command_and_nothing_hangs(campaign: list[CampaignResult]) -> None:
-    assert sum(r.wrong_replies for r in campaign) == 0
-    assert sum(r.unfinished_commands for r in campaign) == 0
-    assert sum(r.user_replies for r in campaign) > 1000  # the check had plenty to look at
-
-
-@pytest.mark.parametrize("send_ahead", [True, False])
-def test_a_reset_mid_print_stops_it_with_a_diagnosis_and_replays_nothing(send_ahead: bool) -> None:
-    result = run_print(Scenario(seed=3, send_ahead=send_ahead, reset_at_line=200, drop_ok=0.01, corrupt=0.01))
-    assert result.state is PrintState.FAILED
-    assert result.error is not None and "reset" in result.error and "print stopped" in result.error
-    assert result.executed_in_order
-    assert result.unfinished_commands == 0
-
-
-@pytest.mark.parametrize("send_ahead", [True, False])
-def test_a_printer_that_falls_silent_stalls_the_print_with_a_diagnosis(send_ahead: bool) -> None:
-    result = run_print(Scenario(seed=4, send_ahead=send_ahead, silent_at_line=200))
-    assert result.state is PrintState.FAILED
-    assert result.error is not None and "stalled" in result.error
-    assert result.executed_in_order
-    assert result.unfinished_commands == 0
-    # Everything the user had queued failed at once instead of one timeout after another.
-    assert result.end_s < 200 * 0.01 + 3 * result.scenario.timeout_s
-    assert Counter(result.failures_by_kind)["CommandTimeoutError"] > 0
-
-
-def test_ping_pong_runs_every_line_exactly_once_on_any_link(campaign: list[CampaignResult]) -> None:
-    # Ping-pong never has a line on the wire behind one the firmware may reject, so no flush can cut one in two.
-    ping_pong = [r for r in campaign if not r.scenario.send_ahead]
-    assert sum(r.fragments + r.fragments_run for r in ping_pong) == 0
-    assert all(r.executed_in_order or r.tail_ran_after_reset for r in ping_pong)
-
-
-def test_send_ahead_carries_a_noisy_link_or_stops_saying_a_cut_line_ran() -> None:
-    # Defect 7: send-ahead gave up with ResendLimitError after ~210 lines at 0.5% corruption. Now a line error sends
-    # it one line at a time until the link is clean again, the tails of lines a flush cut in two are recognised, and
-    # the one thing no host can prevent with lines on the wire (the firmware running such a tail) stops the print
-    # with a diagnosis.
-    results = [
-        run_print(Scenario(seed=seed, corrupt=corrupt, chunk_bytes=16, poll_interval_s=None, user_interval_s=None))
-        for seed in range(20)
-        for corrupt in (0.005, 0.02)
-    ]
-    assert [r.problems for r in results if r.problems] == []
-    assert sum(r.state is PrintState.DONE for r in results) >= 30
-    assert sum(r.fragments for r in results) > 0  # cut lines happened and were recognised
-    for result in results:
-        if result.state is not PrintState.DONE:
-            assert result.fragments_run == 1 and result.error is not None and "send_ahead=False" in result.error
-        assert result.failures_by_kind["ResendLimitError"] == 0
-
-
-def test_ping_pong_survives_a_noisy_link_when_bytes_arrive_as_a_uart_delivers_them() -> None:
-    results = [
-        run_print(Scenario(seed=seed, corrupt=0.02, send_ahead=False, chunk_bytes=16, user_interval_s=None))
-        for seed in range(20)
-    ]
-    assert [r.problems for r in results if r.problems] == []
-    assert all(r.state is PrintState.DONE for r in results)
-
-
-@pytest.mark.parametrize("send_ahead", [True, False], ids=["send-ahead", "ping-pong"])
-def test_long_prints_on_a_faulty_link_run_every_line_once_in_order(send_ahead: bool) -> None:
-    # The real-time runs of 17,000 lines this replaces took 68 s; in simulated time 3 x 5,000 lines take seconds.
+    # 0.5 % of the host's bytes get one flipped bit: about one line in ten is damaged somewhere (its N, its M110,
+    # its *, its line end). Every run finishes at the exact position (M114), or stops with a clear error and
+    # exactly the lines it says ran (or that it names as possibly run), never one more. A run in which two flips
+    # cancel in the 8-bit XOR (the checksum's blind spot) is counted apart: no host can see that damage.
     results = [
         run_print(
             Scenario(
                 seed=seed,
+                lines=2_000,
+                send_ahead=send_ahead,
+                advanced_ok=advanced_ok,
+                flip_bits=0.005,
+                relative=True,
+                poll_interval_s=None,
+                user_interval_s=None,
+            )
+        )
+        for seed in FLIP_SEEDS
+    ]
+    clean = [r for r in results if not r.blind_spot]
+    noticed = sum(r.state is PrintState.FAILED for r in results if r.blind_spot)
+    campaign_report.append(
+        f"2,000 relative moves at 0.5 % flipped bytes, {'send-ahead' if send_ahead else 'ping-pong'}, "
+        f"{'ADVANCED_OK' if advanced_ok else 'plain ok'}: {len(results)} runs, "
+        f"{sum(r.bits_flipped for r in results)} bits flipped; {len(clean)} without a blind spot, of which "
+        f"{sum(r.state is PrintState.DONE for r in clean)} exact (M114 checked) and "
+        f"{sum(r.state is PrintState.FAILED for r in clean)} stopped saying why; "
+        f"{len(results) - len(clean)} hit the blind spot ({noticed} of them noticed it and stopped)"
+    )
+    assert _failures(results) == []
+    for result in clean:
+        assert result.state in (PrintState.DONE, PrintState.FAILED)
+        if result.state is PrintState.DONE:
+            assert result.position_checked
+        else:
+            assert result.error is not None
+    assert sum(r.state is PrintState.DONE for r in clean) >= len(clean) // 2
+
+
+# ------------------------------------------------------------------------------------------------ each case
+
+
+MODES = [(False, False), (False, True), (True, False), (True, True)]
+MODE_IDS = ["ping-pong", "ping-pong-advanced-ok", "send-ahead", "send-ahead-advanced-ok"]
+
+
+def _exact(**kwargs: object) -> list[CampaignResult]:
+    return [
+        run_print(
+            Scenario(
+                seed=1,
+                lines=100,
+                send_ahead=send_ahead,
+                advanced_ok=advanced_ok,
+                relative=True,
+                poll_interval_s=None,
+                user_interval_s=None,
+                **kwargs,  # type: ignore[arg-type]
+            )
+        )
+        for send_ahead, advanced_ok in MODES
+    ]
+
+
+@pytest.mark.parametrize("bit", [0, 7], ids=["N-to-O", "N-to-0xCE"])
+def test_a_line_whose_n_was_damaged_is_sent_again_inside_the_print_and_runs_once(bit: int) -> None:
+    # Before: `echo:Unknown command: "?15 G1 X0.1"` stopped the print ("the printer did not run ..."), and the
+    # next numbered command's `Resend: 15` sent line 15 of the stopped print, which ran.
+    for result in _exact(flip_once=(("N15 ", 0, bit),)):
+        assert result.problems == [] and result.bits_flipped == 1
+        assert result.state is PrintState.DONE and result.position_checked
+
+
+def test_a_line_whose_n_became_n_ran_unnumbered_and_is_not_run_again() -> None:
+    # `n15 G1 X0.1` runs (Marlin reads G-code case-insensitively) but is not counted: the printer then asks for
+    # line 15, and a placeholder (`M110 N15`) takes its number instead of running the move twice.
+    for result in _exact(flip_once=(("N15 ", 0, 5),)):
+        assert result.problems == []
+        assert result.state is PrintState.DONE and result.position_checked
+
+
+@pytest.mark.parametrize("previous_lines", [0, 1, 2, 5], ids=["last-0", "last-1", "last-2", "last-5"])
+def test_a_damaged_m110_leaves_the_counter_alone_and_the_link_alive(previous_lines: int) -> None:
+    # `N0 M110 N0*125` arriving as `N0 M010 N0*125` is an ordinary numbered line to Marlin: rejected, or dropped
+    # without a word when 0 is the printer's last line or the one before. Before: a 60 s timeout, or a print
+    # "done" whose G91 never ran. Now the host moves its counter only on the M110's own ok, and writes it again.
+    for result in _exact(flip_once=(("M110", 4, 0),), previous_lines=previous_lines):
+        assert result.problems == []
+        assert result.state is PrintState.DONE and result.position_checked
+
+
+def test_a_probe_whose_n_was_damaged_is_not_taken_for_a_stall() -> None:
+    # A line with a damaged line end waits in the printer for the next one; the probe behind it gets its own N
+    # damaged (`?N M105`). Before: PrintStalledError after 10 s while the printer answered.
+    for result in _exact(flip_once=(("N15 ", 23, 1), ("M105", 0, 0))):
+        assert result.problems == []
+        assert result.state is PrintState.DONE and result.position_checked
+
+
+@pytest.mark.parametrize("send_ahead", [True, False], ids=["send-ahead", "ping-pong"])
+def test_a_reset_mid_print_names_the_lines_surely_run_and_those_that_may_have_run(send_ahead: bool) -> None:
+    # Before: "after line N" could be one short with send-ahead, so `--from-line N+1` ran a line twice.
+    results = [
+        run_print(Scenario(seed=seed, send_ahead=send_ahead, reset_at_line=200, drop_ok=0.01, corrupt=0.01))
+        for seed in range(10)
+    ]
+    assert _failures(results) == []
+    for result in results:
+        assert result.state is PrintState.FAILED and result.error is not None
+        assert "reset" in result.error and "after line" in result.error
+        # The firmware ran exactly the lines the print says ran, or those plus lines it names as possibly run.
+        assert result.lines_said_run <= result.lines_executed
+    assert any("may have run" in (r.error or "") for r in results)
+
+
+@pytest.mark.parametrize("send_ahead", [True, False], ids=["send-ahead", "ping-pong"])
+def test_a_printer_that_falls_silent_stalls_the_print_and_fails_the_callers_at_their_bound(send_ahead: bool) -> None:
+    result = run_print(Scenario(seed=4, send_ahead=send_ahead, silent_at_line=200, users=4))
+    assert result.problems == []
+    assert result.state is PrintState.FAILED
+    assert result.error is not None and "stalled" in result.error
+    assert result.unfinished_commands == 0
+    assert result.failures_by_kind["CommandTimeoutError"] > 0
+
+
+def test_a_flood_of_commands_does_not_starve_the_print() -> None:
+    result = run_print(Scenario(seed=8, lines=300, users=8, user_interval_s=0.003, give_up=0.2, poll_interval_s=0.01))
+    # Before, the users' commands always went first and the print never got a line out.
+    assert result.problems == [] and result.state is PrintState.DONE
+    assert result.user_replies > 0
+
+
+def test_long_prints_on_a_faulty_link_run_every_line_once_in_order() -> None:
+    # The real-time runs of 17,000 lines this replaces took 68 s; in simulated time 5,000 lines take a second.
+    for send_ahead in (True, False):
+        result = run_print(
+            Scenario(
+                seed=3,
                 lines=5_000,
                 send_ahead=send_ahead,
                 corrupt=0.02,
+                flip_bits=0.001,
                 drop_ok=0.005,
                 noise=0.01,
                 chunk_bytes=16,
                 user_interval_s=0.2,
             )
         )
-        for seed in (1, 2, 3)
-    ]
-    assert [r.problems for r in results if r.problems] == []
-    assert all(r.poll_replies > 100 for r in results if r.state is PrintState.DONE)
-    if not send_ahead:
-        assert all(r.state is PrintState.DONE and r.lines_executed == 5_000 for r in results)
-
-
-@settings(max_examples=60, deadline=None)
-@given(
-    seed=st.integers(0, 10**6),
-    send_ahead=st.booleans(),
-    advanced_ok=st.booleans(),
-    corrupt=st.floats(0.0, 0.08),
-    drop_ok=st.floats(0.0, 0.05),
-    noise=st.floats(0.0, 0.08),
-    user_interval_s=st.sampled_from([0.003, 0.02, 0.05]),
-)
-def test_any_mix_of_lost_oks_noise_and_resends_hands_no_command_another_ones_reply(
-    seed: int,
-    send_ahead: bool,
-    advanced_ok: bool,
-    corrupt: float,
-    drop_ok: float,
-    noise: float,
-    user_interval_s: float,
-) -> None:
-    result = run_print(
-        Scenario(
-            seed=seed,
-            lines=80,
-            send_ahead=send_ahead,
-            advanced_ok=advanced_ok,
-            corrupt=corrupt,
-            drop_ok=drop_ok,
-            noise=noise,
-            user_interval_s=user_interval_s,
-        )
-    )
-    assert result.wrong_replies == 0, result.problems
-    assert result.executed_in_order
-    assert result.unfinished_commands == 0
-    assert result.state is PrintState.DONE, result.error
-
-
-def test_a_lost_ok_followed_by_a_line_rejected_twice_does_not_stall_the_print() -> None:
-    # Found by the property above (hypothesis): seed 188388, send-ahead, plain oks.
-    result = run_print(Scenario(seed=188388, lines=80, corrupt=0.0625, drop_ok=0.03125, noise=0.0))
-    assert result.state is PrintState.DONE, result.error
+        assert result.problems == []
+        assert result.poll_replies > 50

@@ -5,12 +5,13 @@
 (`/dev/pts/N` with pyserial, or `socket://127.0.0.1:PORT`). `marlin-sim` (or `python -m marlin_aio.simulator`)
 does the same from a shell. With `baud_rate` (`--baud`) the link runs at a UART's speed in both directions.
 `generate_moves()` writes a reproducible file of short moves for streaming tests and benchmarks. `run_print()`
-runs one print of the fault campaign (a `Scenario`) in simulated time and checks the protocol's invariants.
+runs one print of the fault campaign (a `Scenario`; `mixed_scenario(seed)` draws one) in simulated time and
+checks the protocol's invariants.
 """
 
 from __future__ import annotations
 
-from marlin_aio.simulator._campaign import CampaignResult, Scenario, run_print
+from marlin_aio.simulator._campaign import CampaignResult, Scenario, mixed_scenario, run_print
 from marlin_aio.simulator._config import Faults, SimulatorConfig
 from marlin_aio.simulator._printer import SimulatedPrinter
 from marlin_aio.simulator._record import BoundedRecord
@@ -26,6 +27,7 @@ __all__ = [
     "SimulatorConfig",
     "SimulatorServer",
     "generate_moves",
+    "mixed_scenario",
     "run_print",
     "serve_pty",
     "serve_tcp",

@@ -325,12 +325,15 @@ class LineReader:
         self._m110_queued = False  # an M110 went into the ring (and may not have run yet)
         self.last_line_number = 0
         """The line counter: the number of the last numbered line taken (M110 sets it)."""
+        self.dropped_since_counted = 0
+        """Numbered lines dropped without a word (as repeats of the last two) since the last one counted."""
 
     def reset(self) -> None:
         """Power-on state: buffers empty, line counter 0. The fault stream carries on."""
         self.clear()
         self._emergency_tail = b""
         self.last_line_number = 0
+        self.dropped_since_counted = 0
 
     def clear(self) -> None:
         """Throw away the receive buffer and the line being read (kill(), or a line error)."""
@@ -428,6 +431,7 @@ class LineReader:
             last = self.last_line_number
             if number != last + 1 and not is_m110:
                 if self._config.ignore_duplicate_lines and last - 1 <= number <= last:
+                    self.dropped_since_counted += 1
                     return None  # "A request-for-resend line was already in transit so we got two"
                 self._line_error("Line Number is not Last Line Number+1, Last Line: ")
                 return None
@@ -439,6 +443,7 @@ class LineReader:
                 self._line_error("checksum mismatch, Last Line: ")
                 return None
             self.last_line_number = number
+            self.dropped_since_counted = 0
             line_number = number if not is_m110 else _strtol(command, 1)
             label = _OK_LABEL.match(raw)  # None after leading spaces
             if label is not None:

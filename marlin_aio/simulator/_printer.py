@@ -78,7 +78,8 @@ class SimulatedPrinter:
         """How many commands ran that came without a line number (`M110 N0`-style hosts number every line, so
         for them each is a line whose `N` the wire damaged, or the tail of a line cut by a line error's flush)."""
         self.unnumbered_m105_runs = 0
-        """Of those, how many were M105 (whose `ok T:` cannot show whether it was counted)."""
+        """Of those, how many were an M105 (whose `ok T:` cannot show whether it was counted) run while a line
+        before it had been dropped without a word: its answer then seems to prove that line ran."""
         self.rx_overflows = 0
         """How many arrivals of bytes found the receive buffer too full to hold them all."""
         self.rx_dropped_bytes = 0
@@ -394,7 +395,7 @@ class SimulatedPrinter:
         self.executed.append(command.text.rstrip(" "))  # a comment cut after a space leaves the space behind
         if command.line_number is None and (command.code in self._handlers or command.code[:1] == "T"):
             self.unnumbered_runs += 1
-            if command.code == "M105":
+            if command.code == "M105" and self._reader.dropped_since_counted:
                 self.unnumbered_m105_runs += 1
         if command.line_number is not None:
             self.executed_line_numbers.append(command.line_number)
