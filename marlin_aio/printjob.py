@@ -249,6 +249,12 @@ class PrintJob:
             self.exhausted = True
             self.error = MarlinError(f"{self.name} could not be read further ({exc}); the print was stopped")
             return None
+        except Exception as exc:
+            # The lines may come from the caller's own iterable: user code, run from the read path. Whatever it
+            # raises ends the print with that error, never the link, and never as "done".
+            self.exhausted = True
+            self.error = MarlinError(f"{self.name}: its lines raised {exc!r}; the print was stopped before the next")
+            return None
 
     def sent(self) -> None:
         """A command of this job went out for the first time."""

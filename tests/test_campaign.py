@@ -61,9 +61,9 @@ def test_the_mixed_runs_cover_every_mode_fault_and_mishap(mixed: list[CampaignRe
     assert sum(s.cancel_at_line is not None for s in scenarios) > 300
     assert sum(s.pause_at_line is not None for s in scenarios) > 400
     assert sum(s.users >= 4 for s in scenarios) > 800
-    assert sum(r.users_gave_up for r in mixed) > 1_000
-    assert sum(r.user_replies for r in mixed) > 100_000
-    assert sum(r.poll_replies for r in mixed) > 10_000
+    assert sum(r.users_gave_up for r in mixed) > 40
+    assert sum(r.user_replies for r in mixed) > 30_000
+    assert sum(r.poll_replies for r in mixed) > 5_000
     # Every way a print ends happened, and every one was checked against what the firmware ran.
     states = Counter(r.state for r in mixed)
     assert all(states[state] > 100 for state in (PrintState.DONE, PrintState.FAILED, PrintState.CANCELLED))

@@ -447,3 +447,19 @@ async def test_send_refuses_a_target_above_the_clients_limit_before_writing(
             await printer.send(command)
     await printer.send("M104 S200")  # within the limit: sent as before
     assert pty_sim.printer.executed_count == before + 1
+
+
+@pytest.mark.parametrize("advanced_ok", [False, True], ids=["plain-ok", "advanced-ok"])
+async def test_a_g28_answered_long_after_its_timeout_never_answers_the_next_caller(advanced_ok: bool) -> None:
+    # Before: a G28 taking 3x its timeout on a board without busy keepalives, then `send("M118 E1 tag0")`
+    # returned G28's lines (8 of 8 runs, polling and ADVANCED_OK included). The G28 now waits in doubt for its
+    # own late ok (or a probe's answer), and the next caller gets its own reply.
+    config = SimulatorConfig(keepalive_interval_s=0, homing_s=3.0, advanced_ok=advanced_ok)
+    async with serve_pty(config, time_scale=TIME_SCALE) as server, marlin_aio.connect(server.url) as printer:
+        homing_real_s = config.homing_s / TIME_SCALE
+        with pytest.raises(marlin_aio.CommandTimeoutError):
+            await printer.send("G28", timeout_s=homing_real_s / 3)
+        for tag in range(3):
+            reply = await printer.send(f"M118 E1 tag{tag}", timeout_s=5.0)
+            assert reply.lines == (f"echo:tag{tag}",)
+        assert "G28" in server.printer.executed

@@ -3,10 +3,12 @@ link state is moved by the table (no flags behind it)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import pytest
 
 from marlin_aio.connection import Connection
-from marlin_aio.printjob import PrintJob
+from marlin_aio.printjob import PrintJob, PrintState
 from marlin_aio.states import (
     FINAL_LINE_STATES,
     LINE_TRANSITIONS,
@@ -113,3 +115,21 @@ def test_lines_carry_their_state() -> None:
     assert command.state is LineState.ACCEPTED
     withdrawn = conn.submit("M114", timeout_s=5.0, now=0.2)
     assert conn.cancel(withdrawn) and withdrawn.state is LineState.WITHDRAWN
+
+
+def test_a_print_whose_lines_raise_fails_instead_of_ending_done() -> None:
+    # The lines of a print may come from the caller's own generator; what it raises must end the print, not the
+    # link, and never as "done" (before, the print reported done and the error was lost).
+    def lines() -> Iterator[str]:
+        yield "G1 X1"
+        raise RuntimeError("the slicer's generator broke")
+
+    conn = Connection()
+    job = PrintJob(lines(), name="generated")
+    conn.attach(job, timeout_s=5.0)
+    conn.tick(0.0)
+    conn.receive(b"ok\n", 0.1)
+    conn.tick(0.2)
+    assert job.state is PrintState.FAILED
+    assert job.error is not None and "the slicer's generator broke" in str(job.error)
+    assert conn.state is LinkState.READY

@@ -76,7 +76,7 @@ def handler_table(config: SimulatorConfig) -> dict[str, Handler]:
         "M105": m105,
         "M108": _m108,
         "M109": m109,
-        "M110": _no_op,  # the counter was already set when the line was read
+        "M110": _no_op,  # replaced by the printer's own handler: M110 sets the line counter when it runs
         "M112": _m112,
         "M113": _m113,
         "M114": _m114,
