@@ -251,7 +251,8 @@ class OrderCheck:
     Pure bookkeeping with no I/O, fed by `_check_order`. The library never hands a command an answer it cannot
     prove to be its own: when an `ok` is lost, a later answer that names its command (`ok N<line>` with
     ADVANCED_OK, or an M105's `ok T:`) shows that the commands before it ran, and each of those whose reply
-    lines cannot be told apart fails with `LostReplyError`. Such a reply is withheld, not reordered. What is left
+    lines cannot be told apart fails with `LostReplyError` (or, its own ok lost, gets a reply marked `ok_lost` with
+    no lines). Such a reply is withheld, not reordered. What is left
     for this check is what the library trusted: a reply must carry exactly its own echo, after every earlier one.
     """
 
@@ -333,7 +334,11 @@ async def _check_order(printer: marlin_aio.Printer, settings: BenchSettings) -> 
             return
         finally:
             slots.release()
-        numbered_oks = numbered_oks or reply.ok.line_number is not None
+        if reply.ok_lost and not reply.lines:
+            # It ran (a later answer proves it) but its own ok was lost, and its lines cannot be told apart.
+            check.lost_reply()
+            return
+        numbered_oks = numbered_oks or (reply.ok.line_number is not None and not reply.ok_lost)
         # Tasks resume in the order their futures were resolved, which is the order the oks were read.
         check.answered(n, _echo_numbers(reply.lines))
 

@@ -346,7 +346,7 @@ class Connection(Receiving, Deadlines):
             if flight and (
                 # An M110 goes alone: Marlin sets its counter when it *runs* it, so a line taken in behind it
                 # would be counted twice (and a damaged one may be dropped without a word).
-                flight.barriers
+                (flight.barriers and not (command.probe and resends.unanswered_m110 is not None))
                 or command.code == "M110"
                 or (len(flight) >= self._max_in_flight and not command.probe)
                 or (calm and not (command.probe or nudge) and resends.rejectable(flight))

@@ -52,7 +52,12 @@ class Deadlines(CoreState):
         start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
         resends = self._resends
         feed = self._feed
-        if head.code == "M110" and head.numbered and head.state is LineState.ON_WIRE:
+        if (
+            head.code == "M110"
+            and head.numbered
+            and head.state is LineState.ON_WIRE
+            and self._resends.unanswered_m110 is None  # not while a probe behind it asks
+        ):
             # An M110 goes alone and sets what it sets however often it runs: unanswered, it is written again
             # soon (a damaged one may be dropped without a word), not after a whole timeout.
             resend_at = start + feed.probe_delay_s()
@@ -82,7 +87,8 @@ class Deadlines(CoreState):
         """May an M105 go behind a line in doubt? Not while one is on its way (it will tell), nor while draining."""
         if self._resends.draining or self._in_flight.barriers:
             return False
-        return not any(c.code == "M105" for c in self._in_flight) and not any(c.code == "M105" for c in self._queue)
+        # A user's M105 still queued does not count: one at a time, nothing but a probe goes behind a line in doubt.
+        return not any(c.code == "M105" for c in self._in_flight) and not any(c.probe for c in self._queue)
 
     def _waiting_bound(self) -> float:
         """The earliest bound of a caller waiting behind a line in doubt (its own timeout from when it began
@@ -118,6 +124,14 @@ class Deadlines(CoreState):
             last_in = self.trace.last_received
             talking = last_in is not None and last_in.time_s > (head.head_since_s or 0.0)
             if now >= resend_at and head.code == "M110" and head.state is LineState.ON_WIRE:
+                if head.sends >= 2 and not head.placeholder and len(self._in_flight) == 1:
+                    # Written twice and still no ok: its oks may be the ones being lost. An M105 numbered as if
+                    # it took effect asks (it has long run by now, so the counter it set is the one checked).
+                    self._resends.unanswered_m110 = head.line_number
+                    head.head_since_s = now
+                    self._send_eol = True
+                    self._queue.appendleft(self._feed.new_probe(self._new_id(), now))
+                    return
                 self._in_flight.popleft(now)
                 head.move(LineEvent.RESEND)
                 self._queue.appendleft(head)
@@ -144,6 +158,27 @@ class Deadlines(CoreState):
             if (head.job is not None or head.probe) and not head.orphan:
                 self._stall_job(head, now)
                 continue
+            if head.code == "M110" and head.numbered and not head.placeholder:
+                # It sets what it sets however often it runs: written again (alone: what went behind it, a
+                # probe, is withdrawn), until the resend limit says the link is too noisy.
+                self._timeouts += 1
+                if not head.orphan:
+                    head.orphan = True  # its caller is told now; the link keeps trying to set the counter
+                    self._finish(head, CommandTimeoutError(self.describe_stall(head, now), command=head.text))
+                behind = list(self._in_flight)[1:]
+                self._in_flight.clear()
+                for probe in behind:
+                    if probe.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
+                        probe.move(LineEvent.RESEND)
+                    if probe.state is LineState.TO_RESEND:
+                        probe.move(LineEvent.WITHDRAWN)
+                head.move(LineEvent.RESEND)
+                self._queue.appendleft(head)
+                self._resends.unanswered_m110 = None
+                error = self._resends.m110_unanswered(head)
+                if error is not None:
+                    self._fail_everything(error)
+                return
             summary = self.describe_stall(head, now)
             # Its caller is told now, but the command keeps its place, in doubt, until the printer settles it:
             # Marlin may still answer it (a long G28), and that late ok must land on it, never on the next

@@ -8,6 +8,7 @@ and a firmware that runs only numbered lines is synchronised with the one number
 from __future__ import annotations
 
 import asyncio
+import contextlib
 
 from marlin_aio.errors import (
     ChecksumRequiredError,
@@ -101,6 +102,12 @@ async def send_until_processed(link: Link, command: str, *, timeout_s: float) ->
     Raises:
         CommandTimeoutError: the printer answered nothing for `timeout_s`.
     """
+    if command.startswith("M110"):
+        # The connection itself writes an unanswered M110 again, then asks with a probe numbered as if it took
+        # effect (nothing else may go behind an M110): one wait covers it, and its reply says whether it ran.
+        with contextlib.suppress(LostReplyError):
+            await link.send(command, timeout_s=timeout_s)
+        return
     deadline = link.now() + timeout_s
     while True:
         step = max(min(2.0, timeout_s / 4, deadline - link.now()), 0.05)

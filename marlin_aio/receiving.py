@@ -58,6 +58,8 @@ _REPLY_LINES = (UnrecognisedLine, EchoMessage, FirmwareInfo, Capability)
 def _changed(sent: str, echoed: str) -> int:
     """How many bytes of `sent` differ in `echoed`, if one or two (else 3 or more). The printer drops trailing
     spaces from what it echoes, so a byte damaged into a space at the end shows as a shorter echo."""
+    if len(echoed) == len(sent) + 1:
+        echoed = echoed[1:]  # a damaged byte before the line (a bare line end sent ahead of it)
     if sent == echoed or not 0 <= len(sent) - len(echoed) <= 2:
         return 3
     padded = echoed.ljust(len(sent))
@@ -144,7 +146,7 @@ class Receiving(CoreState):
                 head.add_line(text)
 
     def _on_ok(self, ok: Ok, now: float) -> None:
-        if self._resends.take_ok():
+        if self._resends.take_ok(ok.temperatures is None):
             return
         # Which in-flight command does this ok answer? The oldest one whose answer can look like it; every command
         # ahead of that one was processed (Marlin answers in order) but its own ok was lost.
@@ -248,7 +250,7 @@ class Receiving(CoreState):
             if ok is not None and command.refusal is None:
                 # The line the printer asked for again had run, unnumbered: a placeholder takes its number.
                 self._queue.appendleft(self._resends.placeholder_for([command]))
-        if command.code == "M110" and ok is not None and command.refusal is None:
+        if command.code == "M110" and (ok is not None or proof is not None) and command.refusal is None:
             self._resends.m110_answered(command)
             if command.sends > 1:
                 self._resends.m110_repeated(command, now, self._feed.quiet_s())

@@ -97,6 +97,7 @@ class Resends:
         self._fragment_oks = 0  # oks still due for fragments the firmware reported as unknown commands
         self.spare_oks = 0  # oks that may still come for copies of an M110 written more than once
         self.sequence_error = False  # the last line error was `Line Number is not Last Line Number+1`
+        self.unanswered_m110: int | None = None  # the value of an M110 written twice and still unanswered
         self.held: Command | None = None  # a line asked for again that may have run unnumbered (see `resend`)
         self.nudge_pending = False  # let the next resend out past the window, as a probe
         # Builds the `M110 N<n>` that takes the number n of lines that must not run (set by the connection).
@@ -114,6 +115,9 @@ class Resends:
             # M110 sets the counter: number the line with the value it sets, as Marlin's own hosts do.
             words = command.text.split()
             return next((int(w[1:]) for w in words[1:] if w[:1] in "Nn" and w[1:].isdigit()), 0)
+        if command.probe and self.unanswered_m110 is not None:
+            # A probe behind an M110 whose ok has not come: numbered as if it took effect, so its answer proves it.
+            return self.unanswered_m110 + 1
         return self.next_line
 
     def wire_size(self, command: Command) -> int:
@@ -149,6 +153,9 @@ class Resends:
         A placeholder only takes the number of lines that must not run; a user's `M110 N<n>` (the handshake's
         `M110 N0`) starts the numbering again from n + 1.
         """
+        # A probe written behind it was numbered as if it took effect (and moved our counter past itself).
+        probed = self.unanswered_m110 is not None and self.next_line == self.unanswered_m110 + 2
+        self.unanswered_m110 = None
         number = command.line_number
         if number is None:
             number = self.line_number_for(command)
@@ -157,7 +164,7 @@ class Resends:
             return
         self.forget_history()
         self.accepted_through = number
-        self.next_line = number + 1
+        self.next_line = number + 2 if probed else number + 1
 
     def m110_unanswered(self, command: Command) -> MarlinError | None:
         """An M110 went unanswered and is written again; return the error that ends everything, if it must.
@@ -200,15 +207,16 @@ class Resends:
             self._after_line_error = is_line_error
         return after_line_error
 
-    def take_ok(self) -> bool:
-        """True if the `ok` just received answers nothing (it follows a `Resend:`, or a refused fragment)."""
+    def take_ok(self, plain: bool = True) -> bool:
+        """True if the `ok` just received answers nothing (it follows a `Resend:`, or a refused fragment, or is a
+        spare of a repeated M110; `plain`: it carries no temperatures, as only an M105's ok does)."""
         if self._swallow_ok:
             self._swallow_ok = False
             return True
         if self._fragment_oks:
             self._fragment_oks -= 1
             return True
-        if self.spare_oks and self.drain_until is not None:
+        if self.spare_oks and self.drain_until is not None and plain:
             self.spare_oks -= 1
             return True
         return False
@@ -239,9 +247,14 @@ class Resends:
             # and the firmware's counter did not move (nor did ours). Write it again; it sets the counter whatever
             # its own number and whatever the printer's counter is.
             m110 = next(c for c in reversed(flight) if c.code == "M110")
-            flight.remove(m110, now)
+            behind = _after(flight, m110)
+            flight.keep_only([c for c in flight if c is not m110 and c not in behind], now, restart_head=False)
+            for probe in behind:  # only a probe goes behind an M110; it went with the M110's rejection
+                probe.move(LineEvent.RESEND)
+                probe.move(LineEvent.WITHDRAWN)
             m110.move(LineEvent.RESEND)
             queue.appendleft(m110)
+            self.unanswered_m110 = None
             return self._limit_error(m110, line_number)
         if line_number == self.next_line:
             # The printer has every line we sent (M999 asks this way): nothing to write again.
@@ -433,4 +446,5 @@ class Resends:
         self._fragment_oks = 0
         self.spare_oks = 0
         self.held = None
+        self.unanswered_m110 = None
         self.fragment_wires = []

@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from enum import Enum
 from types import MappingProxyType
+from typing import TypeVar
 
 __all__ = [
     "FINAL_LINE_STATES",
@@ -42,6 +43,10 @@ __all__ = [
     "next_line_state",
     "next_link_state",
 ]
+
+
+_S = TypeVar("_S", bound=Enum)
+_E = TypeVar("_E", bound=Enum)
 
 
 class ImpossibleTransitionError(RuntimeError):
@@ -126,16 +131,20 @@ LINK_TRANSITIONS: Mapping[LinkState, Mapping[LinkEvent, LinkState]] = MappingPro
 )
 
 
+def _look_up(table: Mapping[_S, Mapping[_E, _S]], state: _S, event: _E, what: str) -> _S:
+    try:
+        return table[state][event]
+    except KeyError:
+        raise ImpossibleTransitionError(f"{what} cannot go from {state.name} on {event.name}") from None
+
+
 def next_link_state(state: LinkState, event: LinkEvent) -> LinkState:
     """The state `event` moves the link to from `state`.
 
     Raises:
         ImpossibleTransitionError: the table has no such move.
     """
-    try:
-        return LINK_TRANSITIONS[state][event]
-    except KeyError:
-        raise ImpossibleTransitionError(f"the link cannot go from {state.name} on {event.name}") from None
+    return _look_up(LINK_TRANSITIONS, state, event, "the link")
 
 
 class LineState(Enum):
@@ -217,7 +226,4 @@ def next_line_state(state: LineState, event: LineEvent) -> LineState:
     Raises:
         ImpossibleTransitionError: the table has no such move.
     """
-    try:
-        return LINE_TRANSITIONS[state][event]
-    except KeyError:
-        raise ImpossibleTransitionError(f"a line cannot go from {state.name} on {event.name}") from None
+    return _look_up(LINE_TRANSITIONS, state, event, "a line")

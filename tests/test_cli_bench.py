@@ -163,7 +163,9 @@ async def test_lost_oks_are_told_apart_from_reordering_and_are_not_a_failure(adv
         int(row_value(result.stdout, "oks in order")),
         int(row_value(result.stdout, "replies withheld")),
     )
-    assert in_order + withheld == 300 and withheld >= lost
+    # A line whose own ok was lost is proven to have run; its reply keeps its echo when nothing after it printed
+    # any (then it counts in order), else it is withheld. Either way no line is counted twice or lost.
+    assert in_order + withheld == 300
     warning = one_line(result.stderr.split("\n", 1)[1])  # after the "bench on ..." line
     assert warning.startswith(f"warning: {lost} oks lost (recovered), 0 out of order:"), warning
     assert "error" not in result.stderr
