@@ -9,16 +9,17 @@ rooms, each in its own module:
 - `marlin_aio.resends`: line numbers, the history of lines sent, `Resend:` recovery, and the cut lines a flush
   leaves (and why a print line runs exactly once, in order);
 - `marlin_aio.streaming`: a print job fed line by line, its round trips and probes;
-- `marlin_aio.linkstate`: READY, LOCKED, STOPPED, HALTED as one value;
-- `marlin_aio.corestate`: the state those rooms share, declared in one place;
+- `marlin_aio.states`: the link's state and each line's, every allowed move in one table each;
+- `marlin_aio.corestate`: the one state record, declared in one place;
 - `marlin_aio.receiving`: what each line from the printer means (the dispatch of every received event);
 - `marlin_aio.deadlines`: what happens when nothing comes (timeouts, probes, stalls, who waits for whom);
-- this module: `Connection`, the public face: commands in, bytes out, state and counters.
+- this module: `Connection`, the public face: commands in, bytes out, state and counters. It holds the state
+  record and composes `Receiving` and `Deadlines` over it (parts, not base classes).
 
 A command that gets no `ok` at all (Marlin's `M105 T9` prints an error and nothing more) times out; it keeps its
-place for one more timeout, so its late ok lands on it and not on the next caller's command, and everything queued
-behind it fails at once. A print line unanswered for the whole timeout, with no busy keepalive, stalls the print
-with a diagnosis of who waits for whom.
+place, in doubt, until the printer settles it (its late ok, or the answer to a probe behind it), so a late ok lands
+on it and not on the next caller's command. A print line unanswered for the whole timeout, with no busy keepalive,
+stalls the print with a diagnosis of who waits for whom.
 
 Time never comes from a clock here: every call takes `now` (seconds, monotonic), so tests drive it directly.
 Nothing here imports asyncio or serial; `marlin_aio.client` is the thin layer that does I/O.
@@ -29,7 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from marlin_aio.commands import MAX_COMMAND_BYTES, command_code, encode_command, validate_command
-from marlin_aio.corestate import check_window
+from marlin_aio.corestate import CoreState, check_window
 from marlin_aio.deadlines import Deadlines
 from marlin_aio.errors import (
     MarlinError,
@@ -45,6 +46,7 @@ from marlin_aio.replies import MAX_REPLY_LINES, Command, Reply
 from marlin_aio.resends import CALM_LINES, wanted
 from marlin_aio.states import LineEvent, LineState, LinkEvent
 from marlin_aio.stats import LinkStats
+from marlin_aio.trace import Trace
 
 __all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "Reply"]
 
@@ -73,7 +75,7 @@ class Output:
     """When to call `tick()` next, unless bytes arrive first."""
 
 
-class Connection(Receiving, Deadlines):
+class Connection:
     """Bookkeeping for one link to a Marlin printer, with no I/O.
 
     Use by an I/O layer: `submit()` commands, then `tick(now)`; feed the bytes read to `receive(data, now)`; and
@@ -95,53 +97,116 @@ class Connection(Receiving, Deadlines):
             share the line from the start; otherwise this is learnt from the first `ok N<line>`.
     """
 
+    __slots__ = ("_core", "_deadlines", "_receiving")
+
+    def __init__(
+        self,
+        *,
+        numbered: bool = True,
+        max_in_flight: int = 1,
+        rx_buffer_bytes: int = 128,
+        trace_size: int = 64,
+        max_resends: int = 10,
+        resend_timeout_s: float = 3.0,
+        ok_after_resend: bool = True,
+        advanced_ok: bool = False,
+    ) -> None:
+        """A connection that has sent nothing yet.
+
+        Raises:
+            ValueError: `max_in_flight` below 1 or `rx_buffer_bytes` below 16.
+        """
+        # One state record, and the parts that act on it: what each line from the printer means, and what happens
+        # when nothing comes. (Composed, not inherited: each part is read on its own, over the same state.)
+        self._core = CoreState(
+            numbered=numbered,
+            max_in_flight=max_in_flight,
+            rx_buffer_bytes=rx_buffer_bytes,
+            trace_size=trace_size,
+            max_resends=max_resends,
+            resend_timeout_s=resend_timeout_s,
+            ok_after_resend=ok_after_resend,
+            advanced_ok=advanced_ok,
+        )
+        self._receiving = Receiving(self._core)
+        self._deadlines = Deadlines(self._core)
+
+    @property
+    def trace(self) -> Trace:
+        """The last lines sent and received, with their times (for diagnosing a stall)."""
+        return self._core.trace
+
+    def receive_data(self, data: bytes, now: float) -> list[Event]:
+        """Feed bytes read from the printer; return the events of the lines they complete (see `receive`)."""
+        return self._receiving.receive_data(data, now)
+
+    def discard_partial_input(self) -> None:
+        """Forget an unfinished line (call after flushing the port's input: its end will never arrive)."""
+        self._receiving.discard_partial_input()
+
+    def check_timeouts(self, now: float) -> None:
+        """Act on the deadlines that have passed (timeouts, probes, stalls; see `marlin_aio.deadlines`)."""
+        self._deadlines.check_timeouts(now)
+
+    def next_deadline(self) -> float | None:
+        """When `check_timeouts` must next be called, unless bytes arrive first; None: nothing to wait for."""
+        return self._deadlines.next_deadline()
+
+    def describe_stall(self, command: Command, now: float) -> str:
+        """One line saying who waits for whom: the command, for how long, and what each side last said."""
+        return self._deadlines.describe_stall(command, now)
+
+    def probe_delay_s(self) -> float:
+        """How long a streamed line may wait before a probe asks whether its `ok` was lost."""
+        return self._deadlines.probe_delay_s()
+
     # ----------------------------------------------------------------------------------------------- state
 
     @property
     def state(self) -> LinkState:
         """READY, PRINTING, STOPPING (a stopped print's last lines are answered), LOCKED (refusing commands until
         unlocked), STOPPED (M999 resumes) or HALTED (needs a reset): one value, moved by `marlin_aio.states`."""
-        return self._state
+        return self._core.state
 
     @property
     def halted(self) -> PrinterHaltedError | None:
         """Why the printer halted or stopped (the error new commands fail with), or None while it runs."""
-        return self._halt
+        return self._core.halt
 
     @property
     def locked(self) -> bool:
         """True while the printer refuses commands as locked (PASSWORD_FEATURE)."""
-        return self._state is LinkState.LOCKED
+        return self._core.state is LinkState.LOCKED
 
     @property
     def job(self) -> PrintJob | None:
         """The print job being streamed, if any."""
-        return self._feed.job
+        return self._core.feed.job
 
     @property
     def numbered(self) -> bool:
         """Commands get a line number and checksum unless submitted with `numbered=False`."""
-        return self._numbered
+        return self._core.numbered
 
     @property
     def requires_numbers(self) -> bool:
         """The printer refused an unnumbered command (`Missing checksum`): every command is numbered now."""
-        return self._requires_numbers
+        return self._core.requires_numbers
 
     @property
     def max_in_flight(self) -> int:
         """How many commands may be written before their `ok` (1 is ping-pong)."""
-        return self._max_in_flight
+        return self._core.max_in_flight
 
     @property
     def rx_buffer_bytes(self) -> int:
         """The printer's receive buffer: unanswered bytes never exceed it."""
-        return self._rx_buffer_bytes
+        return self._core.rx_buffer_bytes
 
     @property
     def window(self) -> tuple[int, int]:
         """(max_in_flight, rx_buffer_bytes): how many commands and unanswered bytes may be on the wire."""
-        return self._max_in_flight, self._rx_buffer_bytes
+        return self._core.max_in_flight, self._core.rx_buffer_bytes
 
     def set_window(self, max_in_flight: int, rx_buffer_bytes: int) -> None:
         """Change how many commands and unanswered bytes may be on the wire (a print's send-ahead, a benchmark);
@@ -151,43 +216,43 @@ class Connection(Receiving, Deadlines):
             ValueError: `max_in_flight` below 1 or `rx_buffer_bytes` below 16.
         """
         check_window(max_in_flight, rx_buffer_bytes)
-        self._max_in_flight = max_in_flight
-        self._rx_buffer_bytes = rx_buffer_bytes
+        self._core.max_in_flight = max_in_flight
+        self._core.rx_buffer_bytes = rx_buffer_bytes
 
     def stats(self) -> LinkStats:
         """A frozen snapshot of the counters."""
         return LinkStats(
-            submitted=self._submitted,
-            answered=self._answered,
-            failed=self._failed,
-            cancelled=self._cancelled,
-            in_flight=len(self._in_flight),
-            queued=len(self._queue),
-            timeouts=self._timeouts,
-            resend_requests=self._resends.requests,
-            resets=self._resets,
-            lost_oks=self._lost_oks,
-            stray_oks=self._stray_oks,
-            garbage_lines=self._garbage_lines,
-            probes=self._feed.probes,
-            fragments=self._resends.fragments,
-            fragments_run=self._resends.fragments_run,
-            bytes_received=self._bytes_received,
+            submitted=self._core.submitted,
+            answered=self._core.answered,
+            failed=self._core.failed,
+            cancelled=self._core.cancelled,
+            in_flight=len(self._core.in_flight),
+            queued=len(self._core.queue),
+            timeouts=self._core.timeouts,
+            resend_requests=self._core.resends.requests,
+            resets=self._core.resets,
+            lost_oks=self._core.lost_oks,
+            stray_oks=self._core.stray_oks,
+            garbage_lines=self._core.garbage_lines,
+            probes=self._core.feed.probes,
+            fragments=self._core.resends.fragments,
+            fragments_run=self._core.resends.fragments_run,
+            bytes_received=self._core.bytes_received,
         )
 
     @property
     def in_flight(self) -> int:
         """How many commands were written and wait for their `ok`."""
-        return len(self._in_flight)
+        return len(self._core.in_flight)
 
     @property
     def queued(self) -> int:
         """How many accepted commands wait to be written."""
-        return len(self._queue)
+        return len(self._core.queue)
 
     def oldest_waiting(self) -> Command | None:
         """The command the printer should answer next, if any."""
-        return self._in_flight.head
+        return self._core.in_flight.head
 
     @property
     def probe_reserve_bytes(self) -> int:
@@ -195,7 +260,7 @@ class Connection(Receiving, Deadlines):
 
         "N<line> M105*<checksum>\\n" is 11 bytes plus the digits of the line number.
         """
-        return 11 + len(str(self._resends.next_line))
+        return 11 + len(str(self._core.resends.next_line))
 
     # ----------------------------------------------------------------------------------------------- commands
 
@@ -211,13 +276,13 @@ class Connection(Receiving, Deadlines):
             ValueError: the command is not valid (line break, non-ASCII, too long, empty).
             PrinterHaltedError: the printer halted and answers nothing until it is reset.
         """
-        use_numbers = (self._numbered if numbered is None else numbered) or self._requires_numbers
+        use_numbers = (self._core.numbered if numbered is None else numbered) or self._core.requires_numbers
         if checked:
             # Validate now, so a bad command never reaches the queue: as given (the clearest message), then its
             # length with a line number comfortably larger than any it can get while queued.
             text = validate_command(text)
             if use_numbers:
-                longest_number = self._resends.next_line + len(self._queue) + len(self._in_flight) + 1000
+                longest_number = self._core.resends.next_line + len(self._core.queue) + len(self._core.in_flight) + 1000
                 if len(text) + len(str(longest_number)) + 6 > MAX_COMMAND_BYTES:
                     raise ValueError(
                         f"command {text[:40]!r}... is too long: with its line number and checksum it would exceed "
@@ -226,11 +291,11 @@ class Connection(Receiving, Deadlines):
             if timeout_s <= 0:
                 raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         code = command_code(text)
-        if self._halt is not None and code != "M999":
-            raise self._halt
-        self._submitted += 1
-        command = Command(self._new_id(), text, code, use_numbers, timeout_s, now)
-        self._queue.append(command)
+        if self._core.halt is not None and code != "M999":
+            raise self._core.halt
+        self._core.submitted += 1
+        command = Command(self._core.new_id(), text, code, use_numbers, timeout_s, now)
+        self._core.queue.append(command)
         return command
 
     def emergency(self, text: str, *, now: float) -> bytes:
@@ -245,16 +310,16 @@ class Connection(Receiving, Deadlines):
         wire = encode_command(text)
         if command_code(text) not in EMERGENCY_COMMANDS:
             raise ValueError(f"{text!r} is not an emergency command (M108, M112, M410, M876)")
-        self.trace.sent(now, wire.decode("ascii").rstrip("\n"))
+        self._core.trace.sent(now, wire.decode("ascii").rstrip("\n"))
         return wire
 
     def emergency_stop(self, now: float) -> bytes:
         """Return M112's bytes, to write at once ahead of anything queued; from now on the printer is halted (it
         needs a reset), and every command still waiting fails with `PrinterHaltedError`."""
         wire = self.emergency("M112", now=now)
-        self._halt = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
-        self._move(LinkEvent.HALTED)
-        self._fail_everything(self._halt)
+        self._core.halt = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
+        self._core.move(LinkEvent.HALTED)
+        self._core.fail_everything(self._core.halt)
         return wire
 
     def attach(self, job: PrintJob, *, timeout_s: float) -> None:
@@ -265,12 +330,12 @@ class Connection(Receiving, Deadlines):
             PrinterHaltedError: the printer halted or stopped.
             PrinterLockedError: the printer is locked.
         """
-        if self._halt is not None:
-            raise self._halt
-        if self._state is LinkState.LOCKED:
+        if self._core.halt is not None:
+            raise self._core.halt
+        if self._core.state is LinkState.LOCKED:
             raise PrinterLockedError("the printer is locked: unlock it (M511 P<password>) before printing")
-        self._feed.attach(job, timeout_s)
-        self._move(LinkEvent.PRINT_STARTED)
+        self._core.feed.attach(job, timeout_s)
+        self._core.move(LinkEvent.PRINT_STARTED)
 
     def cancel(self, command: Command) -> bool:
         """Withdraw a command whose caller gave up; return True if it was never written (so it never will be).
@@ -279,31 +344,31 @@ class Connection(Receiving, Deadlines):
         """
         if command.sends == 0:
             try:
-                self._queue.remove(command)
+                self._core.queue.remove(command)
             except ValueError:
                 return False
             command.move(LineEvent.WITHDRAWN)
-            self._cancelled += 1
+            self._core.cancelled += 1
             return True
         command.orphan = True
         return False
 
     def fail_all(self, error: MarlinError) -> None:
         """Fail every queued and in-flight command with `error` (the link is gone, or the client closes)."""
-        self._fail_everything(error)
+        self._core.fail_everything(error)
 
     # ----------------------------------------------------------------------------------------------- sending
 
     @property
     def has_data_to_send(self) -> bool:
         """True when `data_to_send()` may return something (a queued command or a print job to feed)."""
-        return bool(self._queue) or self._feed.job is not None or self._send_eol
+        return bool(self._core.queue) or self._core.feed.job is not None or self._core.send_eol
 
     def data_to_send(self, now: float) -> bytes:
         """Return the bytes to write now: resends first, then queued commands, then print job lines, as far as the
         window allows."""
-        self._now = now
-        resends = self._resends
+        self._core.now = now
+        resends = self._core.resends
         if resends.drain_over(now):
             return b""
         held = resends.held
@@ -311,34 +376,36 @@ class Connection(Receiving, Deadlines):
             # The printer has been quiet and the line it asked for again was not answered: it did not run.
             resends.held = None
             if held.state is LineState.ON_WIRE:
-                self._in_flight.remove(held, now)
+                self._core.in_flight.remove(held, now)
                 held.move(LineEvent.RESEND)
-                self._queue.appendleft(held if wanted(held) else resends.placeholder_for([held]))
+                self._core.queue.appendleft(held if wanted(held) else resends.placeholder_for([held]))
         chunks: list[bytes] = []
-        if self._send_eol:
-            self._send_eol = False
+        if self._core.send_eol:
+            self._core.send_eol = False
             chunks.append(b"\n")
-            self.trace.sent(now, "(a bare line end)")
-        feed = self._feed
-        flight = self._in_flight
+            self._core.trace.sent(now, "(a bare line end)")
+        feed = self._core.feed
+        flight = self._core.in_flight
         # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.
-        limit = self._rx_buffer_bytes - (self.probe_reserve_bytes if feed.job is not None else 0)
+        limit = self._core.rx_buffer_bytes - (self.probe_reserve_bytes if feed.job is not None else 0)
         calm = resends.calm
         while True:
             # Commands never written go before the print's next line, but not two in a row while it streams: a
             # flood of commands must not starve the print (nor a print the commands).
-            fresh = bool(self._queue) and not (self._queue[0].wire or self._queue[0].probe or self._queue[0].orphan)
-            if self._queue and not (fresh and self._after_command and feed.job is not None):
-                command = self._queue[0]
+            fresh = bool(self._core.queue) and not (
+                self._core.queue[0].wire or self._core.queue[0].probe or self._core.queue[0].orphan
+            )
+            if self._core.queue and not (fresh and self._core.after_command and feed.job is not None):
+                command = self._core.queue[0]
             else:
-                job_command = feed.next_command(self._new_id, self._numbered, now)
+                job_command = feed.next_command(self._core.new_id, self._core.numbered, now)
                 if job_command is None:
-                    if not self._queue:
+                    if not self._core.queue:
                         break
-                    command = self._queue[0]
+                    command = self._core.queue[0]
                 else:
                     command = job_command
-            self._after_command = command.job is None and not command.wire
+            self._core.after_command = command.job is None and not command.wire
             # After a probe deadline, the lines waiting to be resent and the probe behind them go out together.
             nudge = resends.nudge_pending and (bool(command.wire) or command.probe)
             if not nudge:
@@ -348,23 +415,23 @@ class Connection(Receiving, Deadlines):
                 # would be counted twice (and a damaged one may be dropped without a word).
                 (flight.barriers and not (command.probe and resends.unanswered_m110 is not None))
                 or command.code == "M110"
-                or (len(flight) >= self._max_in_flight and not command.probe)
+                or (len(flight) >= self._core.max_in_flight and not command.probe)
                 or (calm and not (command.probe or nudge) and resends.rejectable(flight))
-                or flight.bytes + resends.wire_size(command) > (self._rx_buffer_bytes if command.probe else limit)
-                or not answer_stays_distinct(command, flight, exact_oks=self._exact_oks)
+                or flight.bytes + resends.wire_size(command) > (self._core.rx_buffer_bytes if command.probe else limit)
+                or not answer_stays_distinct(command, flight, exact_oks=self._core.exact_oks)
             ):
                 break
             if command is feed.next:
                 feed.next = None
             else:
-                self._queue.popleft()
+                self._core.queue.popleft()
             if not command.wire:
                 if resends.wire_size(command) - 1 > MAX_COMMAND_BYTES:
                     # Only possible if the line numbers grew by over a thousand while it waited in the queue.
-                    self._finish(command, MarlinError(f"{command.text!r} grew too long for Marlin once numbered"))
+                    self._core.finish(command, MarlinError(f"{command.text!r} grew too long for Marlin once numbered"))
                     continue
                 # Keep enough history for everything that can be in flight, with a wide margin.
-                resends.assign_wire(command, max(256, 4 * self._max_in_flight))
+                resends.assign_wire(command, max(256, 4 * self._core.max_in_flight))
             if command.job is not None and command.sends == 0:
                 command.job.sent()
             command.move(LineEvent.WRITTEN)
@@ -373,7 +440,7 @@ class Connection(Receiving, Deadlines):
                 command.sent_s = now
             command.written_s = now
             flight.append(command, now)
-            self.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
+            self._core.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
             chunks.append(command.wire)
         return b"".join(chunks)
 
@@ -381,7 +448,7 @@ class Connection(Receiving, Deadlines):
 
     def take_results(self) -> list[tuple[Command, Reply | MarlinError]]:
         """Return and forget the commands finished since the last call, with their reply or error."""
-        results, self._results = self._results, []
+        results, self._core.results = self._core.results, []
         return results
 
     # ----------------------------------------------------------------------------------------------- one output
@@ -397,5 +464,5 @@ class Connection(Receiving, Deadlines):
 
     def _output(self, events: tuple[Event, ...], now: float) -> Output:
         data = self.data_to_send(now) if self.has_data_to_send else b""
-        self._sync_print_state()
+        self._core.sync_print_state()
         return Output(events, data, tuple(self.take_results()), self.next_deadline())

@@ -66,8 +66,13 @@ def _changed(sent: str, echoed: str) -> int:
     return sum(a != b for a, b in zip(sent, padded, strict=True))
 
 
-class Receiving(CoreState):
-    """The receiving side of `Connection`."""
+class Receiving:
+    """The receiving side of `Connection`: a part composed over the core's one state record (`CoreState`)."""
+
+    __slots__ = ("_core",)
+
+    def __init__(self, core: CoreState) -> None:
+        self._core = core
 
     def receive_data(self, data: bytes, now: float) -> list[Event]:
         """Feed bytes read from the printer; return the events of the lines they complete.
@@ -75,18 +80,18 @@ class Receiving(CoreState):
         Results (answered and failed commands) collect in `take_results()`; call `data_to_send()` afterwards,
         as an answer may open the window for more.
         """
-        self._now = now
-        self._bytes_received += len(data)
+        self._core.now = now
+        self._core.bytes_received += len(data)
         events: list[Event] = []
-        for text, event in self._parser.receive_data(data):
-            self.trace.received(now, text)
+        for text, event in self._core.parser.receive_data(data):
+            self._core.trace.received(now, text)
             self._handle(text, event, now)
             events.append(event)
         return events
 
     def discard_partial_input(self) -> None:
         """Forget an unfinished line (call after flushing the port's input: its end will never arrive)."""
-        self._parser.clear()
+        self._core.parser.clear()
 
     def _handle(self, text: str, event: Event, now: float) -> None:
         # An ok leaves the "last line was a line error" mark alone: only other lines are between an error and
@@ -94,9 +99,9 @@ class Receiving(CoreState):
         is_line_error = None if type(event) is Ok else isinstance(event, ErrorMessage) and event.kind is ErrorKind.LINE
         if is_line_error:
             assert isinstance(event, ErrorMessage)
-            self._resends.sequence_error = event.message.startswith("Line Number")
-        after_line_error = self._resends.note_line(is_line_error, now, self._feed.quiet_s)
-        head = self._in_flight.head
+            self._core.resends.sequence_error = event.message.startswith("Line Number")
+        after_line_error = self._core.resends.note_line(is_line_error, now, self._core.feed.quiet_s)
+        head = self._core.in_flight.head
         match event:
             case Ok():
                 self._on_ok(event, now)
@@ -108,14 +113,14 @@ class Receiving(CoreState):
                 if head is not None:
                     head.alive_s = now
             case ResendRequest():
-                self._check(
-                    self._resends.on_request(
+                self._core.check(
+                    self._core.resends.on_request(
                         event.line_number,
-                        self._in_flight,
-                        self._queue,
+                        self._core.in_flight,
+                        self._core.queue,
                         now,
                         rejected=after_line_error,
-                        quiet_s=self._feed.quiet_s(),
+                        quiet_s=self._core.feed.quiet_s(),
                     )
                 )
             case ErrorMessage():
@@ -123,10 +128,10 @@ class Receiving(CoreState):
             case Start():
                 self._on_start()
             case OverlongLine():
-                self._garbage_lines += 1  # noise from the link (a baud glitch, a reset) is nobody's reply
+                self._core.garbage_lines += 1  # noise from the link (a baud glitch, a reset) is nobody's reply
             case UnrecognisedLine() if is_noise(text):
-                self._garbage_lines += 1
-            case UnknownCommand() if not any(c.text == event.command for c in self._in_flight):
+                self._core.garbage_lines += 1
+            case UnknownCommand() if not any(c.text == event.command for c in self._core.in_flight):
                 # Not the text of any command of ours: something damaged on the way (a line whose `N` was hit, which
                 # the printer took as unnumbered and did not count, or the tail of a line cut in two by a flush).
                 # The firmware refused it, and its ok answers nothing.
@@ -137,35 +142,35 @@ class Receiving(CoreState):
                     if isinstance(event, PrinterLocked):
                         # The ok that follows answers a command that was refused, not run.
                         head.refusal = text
-                        if self._state is not LinkState.LOCKED:
+                        if self._core.state is not LinkState.LOCKED:
                             _log.warning("the printer is locked: %s", text)
-                        self._move(LinkEvent.LOCKED, remote=True)
+                        self._core.move(LinkEvent.LOCKED, remote=True)
                     elif head.job is not None:
                         head.refusal = text  # a print line the firmware did not understand was not printed
             case _ if head is not None and isinstance(event, _REPLY_LINES):
                 head.add_line(text)
 
     def _on_ok(self, ok: Ok, now: float) -> None:
-        if self._resends.take_ok(ok.temperatures is None):
+        if self._core.resends.take_ok(ok.temperatures is None):
             return
         # Which in-flight command does this ok answer? The oldest one whose answer can look like it; every command
         # ahead of that one was processed (Marlin answers in order) but its own ok was lost.
-        index = match_ok(self._in_flight, ok, exact_oks=self._exact_oks) if self._in_flight else None
-        if index is None and self._exact_oks and ok.line_number is None and ok.temperatures is None:
+        index = match_ok(self._core.in_flight, ok, exact_oks=self._core.exact_oks) if self._core.in_flight else None
+        if index is None and self._core.exact_oks and ok.line_number is None and ok.temperatures is None:
             index = self._taken_unnumbered()
         if index is None:
-            self._stray_oks += 1
+            self._core.stray_oks += 1
             _log.warning("an ok that answers no command waiting: %r", ok)
-            if self._resends.draining and ok.temperatures is None:
+            if self._core.resends.draining and ok.temperatures is None:
                 self._fragment_ran(now)
             return
         if ok.line_number is not None:
-            self._exact_oks = True
-        skipped = [self._in_flight.popleft(now) for _ in range(index)]
-        command = self._in_flight.popleft(now)
+            self._core.exact_oks = True
+        skipped = [self._core.in_flight.popleft(now) for _ in range(index)]
+        command = self._core.in_flight.popleft(now)
         lines = attribute(skipped, command)
         for at, lost in enumerate(skipped):
-            self._lost_oks += 1
+            self._core.lost_oks += 1
             _log.info("the ok of %r was lost; %r was answered after it", lost.text, command.text)
             # Its lines are its own if every command after it printed nothing but its ok (a bare M105).
             quiet = all(c.text == "M105" or c.probe for c in (*skipped[at + 1 :], command))
@@ -182,7 +187,7 @@ class Receiving(CoreState):
         """
         best: Command | None = None
         fewest = 3
-        for command in self._in_flight:
+        for command in self._core.in_flight:
             wire = command.wire
             if command.line_number is None:
                 continue
@@ -205,11 +210,11 @@ class Receiving(CoreState):
         Tails arrive only after a flush, while nothing is written (`draining`); a line held after a flush was in
         the printer before it, so the first such ok is its own. Otherwise it is the oldest plainly answered line.
         """
-        held = self._resends.held
-        if self._resends.draining:
-            commands = list(self._in_flight)
+        held = self._core.resends.held
+        if self._core.resends.draining:
+            commands = list(self._core.in_flight)
             return commands.index(held) if held is not None and held in commands else None
-        return next((i for i, c in enumerate(self._in_flight) if c.code != "M105" or c.refusal is not None), None)
+        return next((i for i, c in enumerate(self._core.in_flight) if c.code != "M105" or c.refusal is not None), None)
 
     def _damaged_input(self, echoed: str, now: float) -> None:
         """The printer refused something we never sent as such: its ok answers nothing.
@@ -226,17 +231,17 @@ class Receiving(CoreState):
                 f"echo:Unknown command: {echoed!r} (it arrived damaged in a way its checksum could not show)"
             )
             return
-        self._resends.fragment_refused()
+        self._core.resends.fragment_refused()
         command = self._damaged_copy(echoed)
         if command is None:
             return
-        at = list(self._in_flight).index(command)
-        behind = any(c.line_number is not None for c in list(self._in_flight)[at + 1 :])
-        self._in_flight.remove(command, now)
+        at = list(self._core.in_flight).index(command)
+        behind = any(c.line_number is not None for c in list(self._core.in_flight)[at + 1 :])
+        self._core.in_flight.remove(command, now)
         command.move(LineEvent.MANGLED)
         _log.info("the printer received a damaged copy of %r and did not count it; it goes again", command.text)
         if not behind:
-            self._queue.appendleft(command if wanted(command) else self._resends.placeholder_for([command]))
+            self._core.queue.appendleft(command if wanted(command) else self._core.resends.placeholder_for([command]))
 
     def _settle(
         self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float, proof: Ok | None = None
@@ -245,34 +250,34 @@ class Receiving(CoreState):
         `proof` (the answer of a command behind it) shows."""
         if command.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
             command.move(LineEvent.REFUSED if command.refusal is not None else LineEvent.OK)
-        if command is self._resends.held:
-            self._resends.held = None
+        if command is self._core.resends.held:
+            self._core.resends.held = None
             if ok is not None and command.refusal is None:
                 # The line the printer asked for again had run, unnumbered: a placeholder takes its number.
-                self._queue.appendleft(self._resends.placeholder_for([command]))
+                self._core.queue.appendleft(self._core.resends.placeholder_for([command]))
         if command.code == "M110" and (ok is not None or proof is not None) and command.refusal is None:
-            self._resends.m110_answered(command)
+            self._core.resends.m110_answered(command)
             if command.sends > 1:
-                self._resends.m110_repeated(command, now, self._feed.quiet_s())
+                self._core.resends.m110_repeated(command, now, self._core.feed.quiet_s())
         refused = command.refusal is not None and not command.orphan and not command.probe
-        self._resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
-        state = self._state
+        self._core.resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
+        state = self._core.state
         if command.code == "M999" and state is LinkState.STOPPED:
             # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
-            self._halt = None
-            self._move(LinkEvent.RESUMED)
+            self._core.halt = None
+            self._core.move(LinkEvent.RESUMED)
         elif state is LinkState.LOCKED and command.refusal is None and not command.orphan and command.code != "M511":
-            self._move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
+            self._core.move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
         if refused:
             self._refused(command, now)
         elif command.job is not None:
             # A print line needs no reply: a later answer proves it ran, whether its own ok came or not.
             if ok is not None:
-                self._feed.answered(command, now)
+                self._core.feed.answered(command, now)
             command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
         elif command.probe:
-            if self._feed.probe is command:
-                self._feed.probe = None
+            if self._core.feed.probe is command:
+                self._core.feed.probe = None
         elif command.orphan:
             return
         elif ok is None:
@@ -281,9 +286,9 @@ class Receiving(CoreState):
             sent = now if command.sent_s is None else command.sent_s
             answer = proof if proof is not None else Ok()
             own = lines or ()
-            self._finish(command, Reply(command.text, own, answer, sent, now, command.lines_dropped, ok_lost=True))
+            self._core.finish(command, Reply(command.text, own, answer, sent, now, command.lines_dropped, ok_lost=True))
         elif lines is None:
-            self._finish(
+            self._core.finish(
                 command,
                 LostReplyError(
                     f"{command.text!r} was processed but the ok of a command before it was lost, so which reply "
@@ -293,7 +298,7 @@ class Receiving(CoreState):
             )
         else:
             sent = now if command.sent_s is None else command.sent_s
-            self._finish(command, Reply(command.text, lines, ok, sent, now, command.lines_dropped))
+            self._core.finish(command, Reply(command.text, lines, ok, sent, now, command.lines_dropped))
 
     def _refused(self, command: Command, now: float) -> None:
         """The printer answered `command` with an ok but said it did not run it."""
@@ -311,34 +316,34 @@ class Receiving(CoreState):
             job.in_flight -= 1
             where = f"line {command.source_line} of {job.name}"
             # Nothing after the refused line may run in its place: the print stops here, with the printer's words.
-            self._stop_job(type(error)(f"print stopped at {where}: {error}"), now)
+            self._core.stop_job(type(error)(f"print stopped at {where}: {error}"), now)
             return
-        self._finish(command, error)
+        self._core.finish(command, error)
 
     def _fragment_ran(self, now: float) -> None:
         """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own."""
-        self._resends.fragments_run += 1
+        self._core.resends.fragments_run += 1
         _log.warning("after a line error the tail of a cut line ran as a command of its own")
-        job = self._feed.job
+        job = self._core.feed.job
         if job is None or not job.active:
             return
-        pieces = ", ".join(repr(text) for _, text in self._resends.fragment_wires[:3])
+        pieces = ", ".join(repr(text) for _, text in self._core.resends.fragment_wires[:3])
         message = (
             f"print stopped after line {job.last_source_line} of {job.name}: after a line error the printer threw "
             "away its receive buffer in the middle of a line and ran the rest of it as a command of its own (an ok "
             f"that no command earned; the line was one of {pieces}), so a line ran out of place; "
             "send-ahead cannot rule this out on this link: print with send_ahead=False (ping-pong)"
         )
-        self._stop_job(RemoteProtocolError(message), now)
+        self._core.stop_job(RemoteProtocolError(message), now)
 
     def _on_error(self, event: ErrorMessage, now: float) -> None:
-        head = self._in_flight.head
+        head = self._core.in_flight.head
         match event.kind:
             case ErrorKind.THERMAL:
-                self._thermal_message = event.message
+                self._core.thermal_message = event.message
                 self._halt_with(ThermalRunawayError(f"thermal protection tripped: {event.message}"), stopped=False)
-            case ErrorKind.HALTED | ErrorKind.STOPPED if self._thermal_message is not None:
-                message = f"thermal protection tripped: {self._thermal_message} ({event.message})"
+            case ErrorKind.HALTED | ErrorKind.STOPPED if self._core.thermal_message is not None:
+                message = f"thermal protection tripped: {self._core.thermal_message} ({event.message})"
                 self._halt_with(ThermalRunawayError(message), stopped=False)
             case ErrorKind.HALTED | ErrorKind.STOPPED:
                 halted = PrinterHaltedError(f"the printer halted: {event.message}")
@@ -354,34 +359,36 @@ class Receiving(CoreState):
     def _on_checksum_required(self, message: str, now: float) -> None:
         # The firmware ran nothing and will send no ok for the oldest unnumbered command: fail it now, and number
         # every command from here on.
-        self._requires_numbers = True
-        command = next((c for c in self._in_flight if c.line_number is None), None)
+        self._core.requires_numbers = True
+        command = next((c for c in self._core.in_flight if c.line_number is None), None)
         if command is None:
             return
-        self._in_flight.remove(command, now)
+        self._core.in_flight.remove(command, now)
         if not command.orphan and command.job is None and not command.probe:
             error = ChecksumRequiredError(
                 f"the printer refused {command.text!r} without a line number and checksum "
                 f"('Error:{message}'); it needs numbered commands"
             )
-            self._finish(command, error)
+            self._core.finish(command, error)
 
     def _halt_with(self, error: PrinterHaltedError, *, stopped: bool) -> None:
         """The printer halted (`stopped`: a stop() that M999 clears; otherwise it needs a reset)."""
         _log.warning("%s", error)
-        if self._halt is None or isinstance(error, ThermalRunawayError):
-            self._halt = error
+        if self._core.halt is None or isinstance(error, ThermalRunawayError):
+            self._core.halt = error
         # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill()
         # (the table: HALTED stays HALTED on a stop).
-        self._move(LinkEvent.STOPPED if stopped else LinkEvent.HALTED)
-        self._fail_everything(self._halt)
+        self._core.move(LinkEvent.STOPPED if stopped else LinkEvent.HALTED)
+        self._core.fail_everything(self._core.halt)
 
     def _on_start(self) -> None:
-        self._resets += 1
+        self._core.resets += 1
         _log.warning("the printer reset (it printed 'start')")
         # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
-        self._fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
-        self._halt = None
-        self._move(LinkEvent.RESET)
-        self._thermal_message = None
-        self._resends.restart_numbering()
+        self._core.fail_everything(
+            PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost")
+        )
+        self._core.halt = None
+        self._core.move(LinkEvent.RESET)
+        self._core.thermal_message = None
+        self._core.resends.restart_numbering()

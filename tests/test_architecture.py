@@ -31,6 +31,7 @@ CORE = (
     "receiving",
     "replies",
     "resends",
+    "states",
     "stats",
     "streaming",
     "temperatures",
