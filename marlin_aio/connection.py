@@ -221,23 +221,24 @@ class Connection:
 
     def stats(self) -> LinkStats:
         """A frozen snapshot of the counters."""
+        core = self._core
         return LinkStats(
-            submitted=self._core.submitted,
-            answered=self._core.answered,
-            failed=self._core.failed,
-            cancelled=self._core.cancelled,
-            in_flight=len(self._core.in_flight),
-            queued=len(self._core.queue),
-            timeouts=self._core.timeouts,
-            resend_requests=self._core.resends.requests,
-            resets=self._core.resets,
-            lost_oks=self._core.lost_oks,
-            stray_oks=self._core.stray_oks,
-            garbage_lines=self._core.garbage_lines,
-            probes=self._core.feed.probes,
-            fragments=self._core.resends.fragments,
-            fragments_run=self._core.resends.fragments_run,
-            bytes_received=self._core.bytes_received,
+            submitted=core.submitted,
+            answered=core.answered,
+            failed=core.failed,
+            cancelled=core.cancelled,
+            in_flight=len(core.in_flight),
+            queued=len(core.queue),
+            timeouts=core.timeouts,
+            resend_requests=core.resends.requests,
+            resets=core.resets,
+            lost_oks=core.lost_oks,
+            stray_oks=core.stray_oks,
+            garbage_lines=core.garbage_lines,
+            probes=core.feed.probes,
+            fragments=core.resends.fragments,
+            fragments_run=core.resends.fragments_run,
+            bytes_received=core.bytes_received,
         )
 
     @property
@@ -276,13 +277,14 @@ class Connection:
             ValueError: the command is not valid (line break, non-ASCII, too long, empty).
             PrinterHaltedError: the printer halted and answers nothing until it is reset.
         """
-        use_numbers = (self._core.numbered if numbered is None else numbered) or self._core.requires_numbers
+        core = self._core
+        use_numbers = (core.numbered if numbered is None else numbered) or core.requires_numbers
         if checked:
             # Validate now, so a bad command never reaches the queue: as given (the clearest message), then its
             # length with a line number comfortably larger than any it can get while queued.
             text = validate_command(text)
             if use_numbers:
-                longest_number = self._core.resends.next_line + len(self._core.queue) + len(self._core.in_flight) + 1000
+                longest_number = core.resends.next_line + len(core.queue) + len(core.in_flight) + 1000
                 if len(text) + len(str(longest_number)) + 6 > MAX_COMMAND_BYTES:
                     raise ValueError(
                         f"command {text[:40]!r}... is too long: with its line number and checksum it would exceed "
@@ -291,11 +293,11 @@ class Connection:
             if timeout_s <= 0:
                 raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         code = command_code(text)
-        if self._core.halt is not None and code != "M999":
-            raise self._core.halt
-        self._core.submitted += 1
-        command = Command(self._core.new_id(), text, code, use_numbers, timeout_s, now)
-        self._core.queue.append(command)
+        if core.halt is not None and code != "M999":
+            raise core.halt
+        core.submitted += 1
+        command = Command(core.new_id(), text, code, use_numbers, timeout_s, now)
+        core.queue.append(command)
         return command
 
     def emergency(self, text: str, *, now: float) -> bytes:
@@ -316,10 +318,11 @@ class Connection:
     def emergency_stop(self, now: float) -> bytes:
         """Return M112's bytes, to write at once ahead of anything queued; from now on the printer is halted (it
         needs a reset), and every command still waiting fails with `PrinterHaltedError`."""
+        core = self._core
         wire = self.emergency("M112", now=now)
-        self._core.halt = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
-        self._core.move(LinkEvent.HALTED)
-        self._core.fail_everything(self._core.halt)
+        core.halt = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
+        core.move(LinkEvent.HALTED)
+        core.fail_everything(core.halt)
         return wire
 
     def attach(self, job: PrintJob, *, timeout_s: float) -> None:
@@ -330,12 +333,13 @@ class Connection:
             PrinterHaltedError: the printer halted or stopped.
             PrinterLockedError: the printer is locked.
         """
-        if self._core.halt is not None:
-            raise self._core.halt
-        if self._core.state is LinkState.LOCKED:
+        core = self._core
+        if core.halt is not None:
+            raise core.halt
+        if core.state is LinkState.LOCKED:
             raise PrinterLockedError("the printer is locked: unlock it (M511 P<password>) before printing")
-        self._core.feed.attach(job, timeout_s)
-        self._core.move(LinkEvent.PRINT_STARTED)
+        core.feed.attach(job, timeout_s)
+        core.move(LinkEvent.PRINT_STARTED)
 
     def cancel(self, command: Command) -> bool:
         """Withdraw a command whose caller gave up; return True if it was never written (so it never will be).
@@ -362,13 +366,15 @@ class Connection:
     @property
     def has_data_to_send(self) -> bool:
         """True when `data_to_send()` may return something (a queued command or a print job to feed)."""
-        return bool(self._core.queue) or self._core.feed.job is not None or self._core.send_eol
+        core = self._core
+        return bool(core.queue) or core.feed.job is not None or core.send_eol
 
     def data_to_send(self, now: float) -> bytes:
         """Return the bytes to write now: resends first, then queued commands, then print job lines, as far as the
         window allows."""
-        self._core.now = now
-        resends = self._core.resends
+        core = self._core
+        core.now = now
+        resends = core.resends
         if resends.drain_over(now):
             return b""
         held = resends.held
@@ -376,36 +382,35 @@ class Connection:
             # The printer has been quiet and the line it asked for again was not answered: it did not run.
             resends.held = None
             if held.state is LineState.ON_WIRE:
-                self._core.in_flight.remove(held, now)
+                core.in_flight.remove(held, now)
                 held.move(LineEvent.RESEND)
-                self._core.queue.appendleft(held if wanted(held) else resends.placeholder_for([held]))
+                core.queue.appendleft(held if wanted(held) else resends.placeholder_for([held]))
         chunks: list[bytes] = []
-        if self._core.send_eol:
-            self._core.send_eol = False
+        if core.send_eol:
+            core.send_eol = False
             chunks.append(b"\n")
-            self._core.trace.sent(now, "(a bare line end)")
-        feed = self._core.feed
-        flight = self._core.in_flight
+            core.trace.sent(now, "(a bare line end)")
+        feed = core.feed
+        flight = core.in_flight
         # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.
-        limit = self._core.rx_buffer_bytes - (self.probe_reserve_bytes if feed.job is not None else 0)
+        limit = core.rx_buffer_bytes - (self.probe_reserve_bytes if feed.job is not None else 0)
         calm = resends.calm
         while True:
             # Commands never written go before the print's next line, but not two in a row while it streams: a
             # flood of commands must not starve the print (nor a print the commands).
-            fresh = bool(self._core.queue) and not (
-                self._core.queue[0].wire or self._core.queue[0].probe or self._core.queue[0].orphan
-            )
-            if self._core.queue and not (fresh and self._core.after_command and feed.job is not None):
-                command = self._core.queue[0]
+            first = core.queue[0] if core.queue else None
+            fresh = first is not None and not (first.wire or first.probe or first.orphan)
+            if first is not None and not (fresh and core.after_command and feed.job is not None):
+                command = first
             else:
-                job_command = feed.next_command(self._core.new_id, self._core.numbered, now)
+                job_command = feed.next_command(core.new_id, core.numbered, now)
                 if job_command is None:
-                    if not self._core.queue:
+                    if not core.queue:
                         break
-                    command = self._core.queue[0]
+                    command = core.queue[0]
                 else:
                     command = job_command
-            self._core.after_command = command.job is None and not command.wire
+            core.after_command = command.job is None and not command.wire
             # After a probe deadline, the lines waiting to be resent and the probe behind them go out together.
             nudge = resends.nudge_pending and (bool(command.wire) or command.probe)
             if not nudge:
@@ -415,23 +420,23 @@ class Connection:
                 # would be counted twice (and a damaged one may be dropped without a word).
                 (flight.barriers and not (command.probe and resends.unanswered_m110 is not None))
                 or command.code == "M110"
-                or (len(flight) >= self._core.max_in_flight and not command.probe)
+                or (len(flight) >= core.max_in_flight and not command.probe)
                 or (calm and not (command.probe or nudge) and resends.rejectable(flight))
-                or flight.bytes + resends.wire_size(command) > (self._core.rx_buffer_bytes if command.probe else limit)
-                or not answer_stays_distinct(command, flight, exact_oks=self._core.exact_oks)
+                or flight.bytes + resends.wire_size(command) > (core.rx_buffer_bytes if command.probe else limit)
+                or not answer_stays_distinct(command, flight, exact_oks=core.exact_oks)
             ):
                 break
             if command is feed.next:
                 feed.next = None
             else:
-                self._core.queue.popleft()
+                core.queue.popleft()
             if not command.wire:
                 if resends.wire_size(command) - 1 > MAX_COMMAND_BYTES:
                     # Only possible if the line numbers grew by over a thousand while it waited in the queue.
-                    self._core.finish(command, MarlinError(f"{command.text!r} grew too long for Marlin once numbered"))
+                    core.finish(command, MarlinError(f"{command.text!r} grew too long for Marlin once numbered"))
                     continue
                 # Keep enough history for everything that can be in flight, with a wide margin.
-                resends.assign_wire(command, max(256, 4 * self._core.max_in_flight))
+                resends.assign_wire(command, max(256, 4 * core.max_in_flight))
             if command.job is not None and command.sends == 0:
                 command.job.sent()
             command.move(LineEvent.WRITTEN)
@@ -440,7 +445,7 @@ class Connection:
                 command.sent_s = now
             command.written_s = now
             flight.append(command, now)
-            self._core.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
+            core.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
             chunks.append(command.wire)
         return b"".join(chunks)
 

@@ -45,23 +45,25 @@ class Deadlines:
 
     def _silence_bound(self) -> float:
         """While a print streams behind a line in doubt: when the printer's silence stalls it."""
-        if not self._core.feed.active:
+        core = self._core
+        if not core.feed.active:
             return math.inf
-        last_in = self._core.trace.last_received
-        head = self._core.in_flight.head
+        last_in = core.trace.last_received
+        head = core.in_flight.head
         since = max(last_in.time_s if last_in is not None else 0.0, 0.0 if head is None else head.head_since_s or 0.0)
-        return since + self._core.feed.timeout_s
+        return since + core.feed.timeout_s
 
     def _deadlines(self, head: Command) -> tuple[float, float, float]:
         """(time out, write again, probe) for the oldest command; inf where that step does not apply."""
+        core = self._core
         start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
-        resends = self._core.resends
-        feed = self._core.feed
+        resends = core.resends
+        feed = core.feed
         if (
             head.code == "M110"
             and head.numbered
             and head.state is LineState.ON_WIRE
-            and self._core.resends.unanswered_m110 is None  # not while a probe behind it asks
+            and core.resends.unanswered_m110 is None  # not while a probe behind it asks
         ):
             # An M110 goes alone and sets what it sets however often it runs: unanswered, it is written again
             # soon (a damaged one may be dropped without a word), not after a whole timeout.
@@ -80,7 +82,7 @@ class Deadlines:
         # While a job streams: outside prints a lost ok is found by the timeout, then probed (above).
         # A probe whose own line end was damaged waits in the printer for a line end: another probe behind it
         # brings it out (as a line error), so an unanswered probe is followed by another, two at most.
-        may_probe = feed.active and self._core.numbered and not resends.draining and self._probes_out() < 2
+        may_probe = feed.active and core.numbered and not resends.draining and self._probes_out() < 2
         probe_at = max(start, feed.probed_s) + feed.probe_delay_s() if may_probe else math.inf
         return start + head.timeout_s, resend_at, probe_at
 
@@ -90,19 +92,21 @@ class Deadlines:
 
     def _may_probe_doubt(self) -> bool:
         """May an M105 go behind a line in doubt? Not while one is on its way (it will tell), nor while draining."""
-        if self._core.resends.draining or self._core.in_flight.barriers:
+        core = self._core
+        if core.resends.draining or core.in_flight.barriers:
             return False
         # A user's M105 still queued does not count: one at a time, nothing but a probe goes behind a line in doubt.
-        return not any(c.code == "M105" for c in self._core.in_flight) and not any(c.probe for c in self._core.queue)
+        return not any(c.code == "M105" for c in core.in_flight) and not any(c.probe for c in core.queue)
 
     def _waiting_bound(self) -> float:
         """The earliest bound of a caller waiting behind a line in doubt (its own timeout from when it began
         waiting there)."""
-        head = self._core.in_flight.head
+        core = self._core
+        head = core.in_flight.head
         since = 0.0 if head is None or head.head_since_s is None else head.head_since_s
         bounds = [
             max(c.submitted_s, since) + c.timeout_s
-            for c in (*self._core.in_flight, *self._core.queue)
+            for c in (*core.in_flight, *core.queue)
             if not c.orphan and c.job is None and not c.probe
         ]
         return min(bounds, default=math.inf)
@@ -118,31 +122,27 @@ class Deadlines:
         every older line was processed, so a lost `ok` costs a moment, not the print). A line that still gets no
         answer within the timeout, with no busy keepalive, stalls the print: the job fails with a diagnosis.
         """
-        self._core.now = now
-        resends = self._core.resends
+        core = self._core
+        core.now = now
+        resends = core.resends
         resends.drain_over(now)
-        while (head := self._core.in_flight.head) is not None:
+        while (head := core.in_flight.head) is not None:
             deadline = self.next_deadline()
             if deadline is None or now < deadline:
                 return
             timeout_at, resend_at, probe_at = self._deadlines(head)
-            last_in = self._core.trace.last_received
+            last_in = core.trace.last_received
             talking = last_in is not None and last_in.time_s > (head.head_since_s or 0.0)
             if now >= resend_at and head.code == "M110" and head.state is LineState.ON_WIRE:
-                if head.sends >= 2 and not head.placeholder and len(self._core.in_flight) == 1:
+                if head.sends >= 2 and not head.placeholder and len(core.in_flight) == 1:
                     # Written twice and still no ok: its oks may be the ones being lost. An M105 numbered as if
                     # it took effect asks (it has long run by now, so the counter it set is the one checked).
-                    self._core.resends.unanswered_m110 = head.line_number
+                    core.resends.unanswered_m110 = head.line_number
                     head.head_since_s = now
-                    self._core.send_eol = True
-                    self._core.queue.appendleft(self._core.feed.new_probe(self._core.new_id(), now))
+                    core.send_eol = True
+                    core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
                     return
-                self._core.in_flight.popleft(now)
-                head.move(LineEvent.RESEND)
-                self._core.queue.appendleft(head)
-                error = self._core.resends.m110_unanswered(head)
-                if error is not None:
-                    self._core.fail_everything(error)
+                core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
                 return
             if head.state is LineState.IN_DOUBT:
                 self._settle_doubt(head, now, timeout_at, probe_at)
@@ -150,9 +150,7 @@ class Deadlines:
             if now >= resend_at and head.line_number is not None and talking:
                 # A resent line went unanswered while the printer talked: its rejection was probably taken for a
                 # stale one. (A silent printer is not helped by resends: it times out below.)
-                self._core.check(
-                    resends.resend_overdue(head, self._core.in_flight, self._core.queue, now, self._core.feed.quiet_s())
-                )
+                core.check(resends.resend_overdue(head, core.in_flight, core.queue, now, core.feed.quiet_s()))
                 continue
             if now < timeout_at:
                 if now >= probe_at:
@@ -160,44 +158,30 @@ class Deadlines:
                 return
             # No stale rejection can still be on its way after this much silence.
             resends.forget_stale()
-            self._core.timeouts += 1
+            core.timeouts += 1
             _log.warning("no answer to %r within %g s", head.text, head.timeout_s)
             if (head.job is not None or head.probe) and not head.orphan:
                 self._stall_job(head, now)
                 continue
             if head.code == "M110" and head.numbered and not head.placeholder:
-                # It sets what it sets however often it runs: written again (alone: what went behind it, a
-                # probe, is withdrawn), until the resend limit says the link is too noisy.
-                self._core.timeouts += 1
+                # Written again until the resend limit says the link is too noisy; its caller is told now.
                 if not head.orphan:
-                    head.orphan = True  # its caller is told now; the link keeps trying to set the counter
-                    self._core.finish(head, CommandTimeoutError(self.describe_stall(head, now), command=head.text))
-                behind = list(self._core.in_flight)[1:]
-                self._core.in_flight.clear()
-                for probe in behind:
-                    if probe.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
-                        probe.move(LineEvent.RESEND)
-                    if probe.state is LineState.TO_RESEND:
-                        probe.move(LineEvent.WITHDRAWN)
-                head.move(LineEvent.RESEND)
-                self._core.queue.appendleft(head)
-                self._core.resends.unanswered_m110 = None
-                error = self._core.resends.m110_unanswered(head)
-                if error is not None:
-                    self._core.fail_everything(error)
+                    head.orphan = True
+                    core.finish(head, CommandTimeoutError(self.describe_stall(head, now), command=head.text))
+                core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
                 return
             summary = self.describe_stall(head, now)
             # Its caller is told now, but the command keeps its place, in doubt, until the printer settles it:
             # Marlin may still answer it (a long G28), and that late ok must land on it, never on the next
             # caller's command, which waits (see `answer_stays_distinct`) or goes out behind it.
             was_orphan = head.orphan
-            self._core.send_eol = True  # in case its line end was damaged and the printer still waits for it
+            core.send_eol = True  # in case its line end was damaged and the printer still waits for it
             head.orphan = True
             head.move(LineEvent.OVERDUE)
             head.head_since_s = now
             head.alive_s = None
             if not was_orphan:
-                self._core.finish(head, CommandTimeoutError(summary, command=head.text))
+                core.finish(head, CommandTimeoutError(summary, command=head.text))
             silent = last_in is None or now - last_in.time_s >= head.timeout_s
             if silent:
                 # The printer has said nothing for the whole timeout: what waits behind it fails now, not one
@@ -208,18 +192,19 @@ class Deadlines:
     def _settle_doubt(self, head: Command, now: float, timeout_at: float, probe_at: float) -> None:
         """The oldest command is in doubt: probe behind it, let an M105 go, fail callers past their bound, stall a
         print the printer has been silent for."""
+        core = self._core
         if now >= timeout_at:
-            self._core.in_flight.popleft(now)  # an M105 in doubt (see `_deadlines`)
+            core.in_flight.popleft(now)  # an M105 in doubt (see `_deadlines`)
             return
         if now >= self._silence_bound():
             self._stall_job(head, now)
         if now >= probe_at:
-            self._core.feed.probed_s = now
-            self._core.send_eol = True
-            self._core.queue.appendleft(self._core.feed.new_probe(self._core.new_id(), now))
+            core.feed.probed_s = now
+            core.send_eol = True
+            core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
         if now >= self._waiting_bound():
             since = head.head_since_s or now
-            for command in (*self._core.in_flight, *self._core.queue):
+            for command in (*core.in_flight, *core.queue):
                 if command.orphan or command.job is not None or command.probe:
                     continue
                 if now >= max(command.submitted_s, since) + command.timeout_s:
@@ -229,32 +214,33 @@ class Deadlines:
                         command=command.text,
                     )
                     if command.sends == 0:
-                        self._core.queue.remove(command)
+                        core.queue.remove(command)
                         command.move(LineEvent.WITHDRAWN)
                     else:
                         command.orphan = True  # it keeps its place: its late ok must land on it
-                    self._core.timeouts += 1
-                    self._core.finish(command, error)
+                    core.timeouts += 1
+                    core.finish(command, error)
 
     def _probe(self, now: float) -> None:
-        self._core.feed.probed_s = now
-        self._core.send_eol = True
-        if self._core.queue and self._core.queue[0].wire:
+        core = self._core
+        core.feed.probed_s = now
+        core.send_eol = True
+        if core.queue and core.queue[0].wire:
             # Lines wait to be written again, one at a time, behind this one, whose ok may be lost. With plain oks
             # only an M105's `ok T:` can prove that, so the probe goes behind those lines (its number comes after
             # theirs) and they all go out now. One at a time (ping-pong) the next of them is the probe.
-            if self._core.max_in_flight > 1:
+            if core.max_in_flight > 1:
                 at = 0
-                while at < len(self._core.queue) and self._core.queue[at].wire:
+                while at < len(core.queue) and core.queue[at].wire:
                     at += 1
-                self._core.resends.forget_stale()
-                self._core.queue.insert(at, self._core.feed.new_probe(self._core.new_id(), now))
-            self._core.resends.nudge_pending = True
+                core.resends.forget_stale()
+                core.queue.insert(at, core.feed.new_probe(core.new_id(), now))
+            core.resends.nudge_pending = True
             return
         # A probe follows several round trips of silence: no rejection of a line written before the last resend
         # can still be on its way, so whatever the printer asks for next is a fresh request, acted on at once.
-        self._core.resends.forget_stale()
-        self._core.queue.appendleft(self._core.feed.new_probe(self._core.new_id(), now))
+        core.resends.forget_stale()
+        core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
 
     def _give_up_behind(self, dead: Command, summary: str) -> None:
         """The oldest command got no answer for its whole timeout: fail everything behind it at once.
@@ -264,29 +250,31 @@ class Deadlines:
         FIFO (their late `ok`s must land on them, not on a newer command), but their callers are told now instead
         of one timeout after another.
         """
-        last_in = self._core.trace.last_received
-        silent = last_in is None or self._core.now - last_in.time_s >= dead.timeout_s
-        for command in self._core.in_flight if silent else ():
+        core = self._core
+        last_in = core.trace.last_received
+        silent = last_in is None or core.now - last_in.time_s >= dead.timeout_s
+        for command in core.in_flight if silent else ():
             if not command.orphan and command.job is None and not command.probe:
                 command.orphan = True
-                self._core.finish(
+                core.finish(
                     command, CommandTimeoutError(f"gave up behind {dead.text!r}: {summary}", command=command.text)
                 )
         kept: list[Command] = []
-        for command in self._core.queue:
+        for command in core.queue:
             if command.job is None and not command.probe:
                 error = CommandTimeoutError(
                     f"not sent: the printer stopped answering ({summary})", command=command.text
                 )
-                self._core.finish(command, error)
+                core.finish(command, error)
             else:
                 kept.append(command)
-        self._core.queue.clear()
-        self._core.queue.extend(kept)
+        core.queue.clear()
+        core.queue.extend(kept)
 
     def _stall_job(self, head: Command, now: float) -> None:
         """The stream got no answer within the timeout: end the print with a diagnosis, drop its lines."""
-        feed = self._core.feed
+        core = self._core
+        feed = core.feed
         job = feed.job or head.job
         summary = self.describe_stall(head, now)
         if head.job is not None and job:
@@ -296,11 +284,11 @@ class Deadlines:
         else:
             where = "a probe"
         if job is not None:
-            maybe = [c.source_line for c in self._core.in_flight if c.job is job]
+            maybe = [c.source_line for c in core.in_flight if c.job is job]
             where += f" (line {job.last_source_line} surely ran"
             where += f"; lines up to {max(maybe)} may have run)" if maybe else ")"
         error = PrintStalledError(
-            f"print stalled at {where}: {summary}", command=head.text, trace=self._core.trace.format(now)
+            f"print stalled at {where}: {summary}", command=head.text, trace=core.trace.format(now)
         )
         if job is not None:
             job.fail(error, now)
@@ -308,31 +296,32 @@ class Deadlines:
         # The stream's lines on the wire keep their places, in doubt: a printer that answers late must not hand
         # their oks to whatever the user sends next. Unwritten ones are withdrawn.
         head.head_since_s = now
-        for command in self._core.in_flight:
+        for command in core.in_flight:
             if command.job is not None or command.probe:
                 command.orphan = True
                 if command.state is LineState.ON_WIRE:
                     command.move(LineEvent.OVERDUE)
         kept = []
-        for command in self._core.queue:
+        for command in core.queue:
             if command.job is None and not command.probe:
                 kept.append(command)
             elif command.state not in FINAL_LINE_STATES:
                 command.move(LineEvent.WITHDRAWN)
-        self._core.queue.clear()
-        self._core.queue.extend(kept)
+        core.queue.clear()
+        core.queue.extend(kept)
 
     def describe_stall(self, command: Command, now: float) -> str:
         """One line saying who waits for whom: the command, for how long, and what each side last said."""
+        core = self._core
         waited = now - (command.submitted_s if command.head_since_s is None else command.head_since_s)
         parts = [f"no 'ok' for {command.text!r} after {waited:.1f} s"]
         if command.line_number is not None:
             parts[0] += f" (line {command.line_number})"
-        behind = len(self._core.in_flight) - 1 + len(self._core.queue)
+        behind = len(core.in_flight) - 1 + len(core.queue)
         if behind:
             parts.append(f"{behind} more command{'s' if behind != 1 else ''} waiting behind it")
-        last_in = self._core.trace.last_received
-        last_out = self._core.trace.last_sent
+        last_in = core.trace.last_received
+        last_out = core.trace.last_sent
         if last_out is not None:
             parts.append(f"last sent {last_out.text!r} {now - last_out.time_s:.1f} s ago")
         if last_in is None:

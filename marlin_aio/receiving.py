@@ -80,11 +80,12 @@ class Receiving:
         Results (answered and failed commands) collect in `take_results()`; call `data_to_send()` afterwards,
         as an answer may open the window for more.
         """
-        self._core.now = now
-        self._core.bytes_received += len(data)
+        core = self._core
+        core.now = now
+        core.bytes_received += len(data)
         events: list[Event] = []
-        for text, event in self._core.parser.receive_data(data):
-            self._core.trace.received(now, text)
+        for text, event in core.parser.receive_data(data):
+            core.trace.received(now, text)
             self._handle(text, event, now)
             events.append(event)
         return events
@@ -94,14 +95,15 @@ class Receiving:
         self._core.parser.clear()
 
     def _handle(self, text: str, event: Event, now: float) -> None:
+        core = self._core
         # An ok leaves the "last line was a line error" mark alone: only other lines are between an error and
         # its `Resend:`.
         is_line_error = None if type(event) is Ok else isinstance(event, ErrorMessage) and event.kind is ErrorKind.LINE
         if is_line_error:
             assert isinstance(event, ErrorMessage)
-            self._core.resends.sequence_error = event.message.startswith("Line Number")
-        after_line_error = self._core.resends.note_line(is_line_error, now, self._core.feed.quiet_s)
-        head = self._core.in_flight.head
+            core.resends.sequence_error = event.message.startswith("Line Number")
+        after_line_error = core.resends.note_line(is_line_error, now, core.feed.quiet_s)
+        head = core.in_flight.head
         match event:
             case Ok():
                 self._on_ok(event, now)
@@ -113,14 +115,14 @@ class Receiving:
                 if head is not None:
                     head.alive_s = now
             case ResendRequest():
-                self._core.check(
-                    self._core.resends.on_request(
+                core.check(
+                    core.resends.on_request(
                         event.line_number,
-                        self._core.in_flight,
-                        self._core.queue,
+                        core.in_flight,
+                        core.queue,
                         now,
                         rejected=after_line_error,
-                        quiet_s=self._core.feed.quiet_s(),
+                        quiet_s=core.feed.quiet_s(),
                     )
                 )
             case ErrorMessage():
@@ -128,10 +130,10 @@ class Receiving:
             case Start():
                 self._on_start()
             case OverlongLine():
-                self._core.garbage_lines += 1  # noise from the link (a baud glitch, a reset) is nobody's reply
+                core.garbage_lines += 1  # noise from the link (a baud glitch, a reset) is nobody's reply
             case UnrecognisedLine() if is_noise(text):
-                self._core.garbage_lines += 1
-            case UnknownCommand() if not any(c.text == event.command for c in self._core.in_flight):
+                core.garbage_lines += 1
+            case UnknownCommand() if not any(c.text == event.command for c in core.in_flight):
                 # Not the text of any command of ours: something damaged on the way (a line whose `N` was hit, which
                 # the printer took as unnumbered and did not count, or the tail of a line cut in two by a flush).
                 # The firmware refused it, and its ok answers nothing.
@@ -142,35 +144,36 @@ class Receiving:
                     if isinstance(event, PrinterLocked):
                         # The ok that follows answers a command that was refused, not run.
                         head.refusal = text
-                        if self._core.state is not LinkState.LOCKED:
+                        if core.state is not LinkState.LOCKED:
                             _log.warning("the printer is locked: %s", text)
-                        self._core.move(LinkEvent.LOCKED, remote=True)
+                        core.move(LinkEvent.LOCKED, remote=True)
                     elif head.job is not None:
                         head.refusal = text  # a print line the firmware did not understand was not printed
             case _ if head is not None and isinstance(event, _REPLY_LINES):
                 head.add_line(text)
 
     def _on_ok(self, ok: Ok, now: float) -> None:
-        if self._core.resends.take_ok(ok.temperatures is None):
+        core = self._core
+        if core.resends.take_ok(ok.temperatures is None):
             return
         # Which in-flight command does this ok answer? The oldest one whose answer can look like it; every command
         # ahead of that one was processed (Marlin answers in order) but its own ok was lost.
-        index = match_ok(self._core.in_flight, ok, exact_oks=self._core.exact_oks) if self._core.in_flight else None
-        if index is None and self._core.exact_oks and ok.line_number is None and ok.temperatures is None:
+        index = match_ok(core.in_flight, ok, exact_oks=core.exact_oks) if core.in_flight else None
+        if index is None and core.exact_oks and ok.line_number is None and ok.temperatures is None:
             index = self._taken_unnumbered()
         if index is None:
-            self._core.stray_oks += 1
+            core.stray_oks += 1
             _log.warning("an ok that answers no command waiting: %r", ok)
-            if self._core.resends.draining and ok.temperatures is None:
+            if core.resends.draining and ok.temperatures is None:
                 self._fragment_ran(now)
             return
         if ok.line_number is not None:
-            self._core.exact_oks = True
-        skipped = [self._core.in_flight.popleft(now) for _ in range(index)]
-        command = self._core.in_flight.popleft(now)
+            core.exact_oks = True
+        skipped = [core.in_flight.popleft(now) for _ in range(index)]
+        command = core.in_flight.popleft(now)
         lines = attribute(skipped, command)
         for at, lost in enumerate(skipped):
-            self._core.lost_oks += 1
+            core.lost_oks += 1
             _log.info("the ok of %r was lost; %r was answered after it", lost.text, command.text)
             # Its lines are its own if every command after it printed nothing but its ok (a bare M105).
             quiet = all(c.text == "M105" or c.probe for c in (*skipped[at + 1 :], command))
@@ -210,11 +213,12 @@ class Receiving:
         Tails arrive only after a flush, while nothing is written (`draining`); a line held after a flush was in
         the printer before it, so the first such ok is its own. Otherwise it is the oldest plainly answered line.
         """
-        held = self._core.resends.held
-        if self._core.resends.draining:
-            commands = list(self._core.in_flight)
+        core = self._core
+        held = core.resends.held
+        if core.resends.draining:
+            commands = list(core.in_flight)
             return commands.index(held) if held is not None and held in commands else None
-        return next((i for i, c in enumerate(self._core.in_flight) if c.code != "M105" or c.refusal is not None), None)
+        return next((i for i, c in enumerate(core.in_flight) if c.code != "M105" or c.refusal is not None), None)
 
     def _damaged_input(self, echoed: str, now: float) -> None:
         """The printer refused something we never sent as such: its ok answers nothing.
@@ -223,6 +227,7 @@ class Receiving:
         meet the sequence check and bring a `Resend:` for it; with none behind it (one line at a time), it goes
         again at once, in its place.
         """
+        core = self._core
         damaged_body = self._damaged_copy(echoed, body=True)
         if damaged_body is not None:
             # The line was counted with a damaged body (two flips of one bit, which the 8-bit checksum cannot
@@ -231,64 +236,62 @@ class Receiving:
                 f"echo:Unknown command: {echoed!r} (it arrived damaged in a way its checksum could not show)"
             )
             return
-        self._core.resends.fragment_refused()
+        core.resends.fragment_refused()
         command = self._damaged_copy(echoed)
         if command is None:
             return
-        at = list(self._core.in_flight).index(command)
-        behind = any(c.line_number is not None for c in list(self._core.in_flight)[at + 1 :])
-        self._core.in_flight.remove(command, now)
+        at = list(core.in_flight).index(command)
+        behind = any(c.line_number is not None for c in list(core.in_flight)[at + 1 :])
+        core.in_flight.remove(command, now)
         command.move(LineEvent.MANGLED)
         _log.info("the printer received a damaged copy of %r and did not count it; it goes again", command.text)
         if not behind:
-            self._core.queue.appendleft(command if wanted(command) else self._core.resends.placeholder_for([command]))
+            core.queue.appendleft(command if wanted(command) else core.resends.placeholder_for([command]))
 
     def _settle(
         self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float, proof: Ok | None = None
     ) -> None:
         """Finish one command taken off the FIFO: answered by `ok`, or (ok None) processed with its ok lost, as
         `proof` (the answer of a command behind it) shows."""
+        core = self._core
         if command.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
             command.move(LineEvent.REFUSED if command.refusal is not None else LineEvent.OK)
-        if command is self._core.resends.held:
-            self._core.resends.held = None
+        if command is core.resends.held:
+            core.resends.held = None
             if ok is not None and command.refusal is None:
                 # The line the printer asked for again had run, unnumbered: a placeholder takes its number.
-                self._core.queue.appendleft(self._core.resends.placeholder_for([command]))
+                core.queue.appendleft(core.resends.placeholder_for([command]))
         if command.code == "M110" and (ok is not None or proof is not None) and command.refusal is None:
-            self._core.resends.m110_answered(command)
+            core.resends.m110_answered(command)
             if command.sends > 1:
-                self._core.resends.m110_repeated(command, now, self._core.feed.quiet_s())
+                core.resends.m110_repeated(command, now, core.feed.quiet_s())
         refused = command.refusal is not None and not command.orphan and not command.probe
-        self._core.resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
-        state = self._core.state
+        core.resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
+        state = core.state
         if command.code == "M999" and state is LinkState.STOPPED:
             # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
-            self._core.halt = None
-            self._core.move(LinkEvent.RESUMED)
+            core.halt = None
+            core.move(LinkEvent.RESUMED)
         elif state is LinkState.LOCKED and command.refusal is None and not command.orphan and command.code != "M511":
-            self._core.move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
+            core.move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
         if refused:
             self._refused(command, now)
         elif command.job is not None:
             # A print line needs no reply: a later answer proves it ran, whether its own ok came or not.
             if ok is not None:
-                self._core.feed.answered(command, now)
+                core.feed.answered(command, now)
             command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
-        elif command.probe:
-            if self._core.feed.probe is command:
-                self._core.feed.probe = None
-        elif command.orphan:
-            return
+        elif command.probe or command.orphan:
+            return  # nobody waits for its answer
         elif ok is None:
             # It ran (a later answer proves it), but its own ok was lost: its caller gets that, marked as such,
             # never an error that would invite running it twice.
             sent = now if command.sent_s is None else command.sent_s
             answer = proof if proof is not None else Ok()
             own = lines or ()
-            self._core.finish(command, Reply(command.text, own, answer, sent, now, command.lines_dropped, ok_lost=True))
+            core.finish(command, Reply(command.text, own, answer, sent, now, command.lines_dropped, ok_lost=True))
         elif lines is None:
-            self._core.finish(
+            core.finish(
                 command,
                 LostReplyError(
                     f"{command.text!r} was processed but the ok of a command before it was lost, so which reply "
@@ -298,7 +301,7 @@ class Receiving:
             )
         else:
             sent = now if command.sent_s is None else command.sent_s
-            self._core.finish(command, Reply(command.text, lines, ok, sent, now, command.lines_dropped))
+            core.finish(command, Reply(command.text, lines, ok, sent, now, command.lines_dropped))
 
     def _refused(self, command: Command, now: float) -> None:
         """The printer answered `command` with an ok but said it did not run it."""
@@ -322,28 +325,30 @@ class Receiving:
 
     def _fragment_ran(self, now: float) -> None:
         """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own."""
-        self._core.resends.fragments_run += 1
+        core = self._core
+        core.resends.fragments_run += 1
         _log.warning("after a line error the tail of a cut line ran as a command of its own")
-        job = self._core.feed.job
+        job = core.feed.job
         if job is None or not job.active:
             return
-        pieces = ", ".join(repr(text) for _, text in self._core.resends.fragment_wires[:3])
+        pieces = ", ".join(repr(text) for text in core.resends.fragment_texts[:3])
         message = (
             f"print stopped after line {job.last_source_line} of {job.name}: after a line error the printer threw "
             "away its receive buffer in the middle of a line and ran the rest of it as a command of its own (an ok "
             f"that no command earned; the line was one of {pieces}), so a line ran out of place; "
             "send-ahead cannot rule this out on this link: print with send_ahead=False (ping-pong)"
         )
-        self._core.stop_job(RemoteProtocolError(message), now)
+        core.stop_job(RemoteProtocolError(message), now)
 
     def _on_error(self, event: ErrorMessage, now: float) -> None:
-        head = self._core.in_flight.head
+        core = self._core
+        head = core.in_flight.head
         match event.kind:
             case ErrorKind.THERMAL:
-                self._core.thermal_message = event.message
+                core.thermal_message = event.message
                 self._halt_with(ThermalRunawayError(f"thermal protection tripped: {event.message}"), stopped=False)
-            case ErrorKind.HALTED | ErrorKind.STOPPED if self._core.thermal_message is not None:
-                message = f"thermal protection tripped: {self._core.thermal_message} ({event.message})"
+            case ErrorKind.HALTED | ErrorKind.STOPPED if core.thermal_message is not None:
+                message = f"thermal protection tripped: {core.thermal_message} ({event.message})"
                 self._halt_with(ThermalRunawayError(message), stopped=False)
             case ErrorKind.HALTED | ErrorKind.STOPPED:
                 halted = PrinterHaltedError(f"the printer halted: {event.message}")
@@ -357,38 +362,39 @@ class Receiving:
                 head.add_line(f"Error:{event.message}")
 
     def _on_checksum_required(self, message: str, now: float) -> None:
+        core = self._core
         # The firmware ran nothing and will send no ok for the oldest unnumbered command: fail it now, and number
         # every command from here on.
-        self._core.requires_numbers = True
-        command = next((c for c in self._core.in_flight if c.line_number is None), None)
+        core.requires_numbers = True
+        command = next((c for c in core.in_flight if c.line_number is None), None)
         if command is None:
             return
-        self._core.in_flight.remove(command, now)
+        core.in_flight.remove(command, now)
         if not command.orphan and command.job is None and not command.probe:
             error = ChecksumRequiredError(
                 f"the printer refused {command.text!r} without a line number and checksum "
                 f"('Error:{message}'); it needs numbered commands"
             )
-            self._core.finish(command, error)
+            core.finish(command, error)
 
     def _halt_with(self, error: PrinterHaltedError, *, stopped: bool) -> None:
         """The printer halted (`stopped`: a stop() that M999 clears; otherwise it needs a reset)."""
+        core = self._core
         _log.warning("%s", error)
-        if self._core.halt is None or isinstance(error, ThermalRunawayError):
-            self._core.halt = error
+        if core.halt is None or isinstance(error, ThermalRunawayError):
+            core.halt = error
         # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill()
         # (the table: HALTED stays HALTED on a stop).
-        self._core.move(LinkEvent.STOPPED if stopped else LinkEvent.HALTED)
-        self._core.fail_everything(self._core.halt)
+        core.move(LinkEvent.STOPPED if stopped else LinkEvent.HALTED)
+        core.fail_everything(core.halt)
 
     def _on_start(self) -> None:
-        self._core.resets += 1
+        core = self._core
+        core.resets += 1
         _log.warning("the printer reset (it printed 'start')")
         # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
-        self._core.fail_everything(
-            PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost")
-        )
-        self._core.halt = None
-        self._core.move(LinkEvent.RESET)
-        self._core.thermal_message = None
-        self._core.resends.restart_numbering()
+        core.fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
+        core.halt = None
+        core.move(LinkEvent.RESET)
+        core.thermal_message = None
+        core.resends.restart_numbering()

@@ -8,8 +8,9 @@ lines that were already on the wire ("stale") do not start more resends.
 Why a print line runs exactly once, in order. Every line is numbered, and Marlin runs a numbered line only if it
 follows the last one it ran, so a line written twice is never run twice. The exception is a firmware fact: when
 Marlin rejects a line it throws away its receive buffer, and a line that was half received is cut in two; its tail
-arrives later as an unnumbered line of its own. Marlin refuses most tails (`Unknown command`, recognised by
-`is_fragment`, whose ok then answers nothing), but a tail that begins at the command word runs, out of place. Only
+arrives later as an unnumbered line of its own. Marlin refuses most tails (an `Unknown command` whose text is none
+of ours, `Receiving._damaged_input`: its ok answers nothing), but a tail that begins at the command word runs, out
+of place. Only
 a line written behind an unanswered one can be cut, so ping-pong (one line in flight) is exact on any link. With
 send-ahead, after a line error nothing is written until the printer has been quiet (`draining`: every stale line and
 tail has arrived), then one line at a time for `CALM_LINES` lines while a line on the wire may still be rejected; a
@@ -93,7 +94,7 @@ class Resends:
         # been quiet this long (every stale line and fragment has arrived and been answered), then resend.
         self.drain_until: float | None = None
         self._calm_left = 0  # print lines still to be answered one at a time after the last line error
-        self.fragment_wires: list[tuple[str, str]] = []  # (wire, text) of lines a flush may have cut in two
+        self.fragment_texts: list[str] = []  # the commands of lines a flush may have cut in two (for the diagnosis)
         self._fragment_oks = 0  # oks still due for fragments the firmware reported as unknown commands
         self.spare_oks = 0  # oks that may still come for copies of an M110 written more than once
         self.sequence_error = False  # the last line error was `Line Number is not Last Line Number+1`
@@ -166,13 +167,27 @@ class Resends:
         self.accepted_through = number
         self.next_line = number + 2 if probed else number + 1
 
-    def m110_unanswered(self, command: Command) -> MarlinError | None:
-        """An M110 went unanswered and is written again; return the error that ends everything, if it must.
+    def write_m110_again(
+        self, m110: Command, flight: InFlight, queue: deque[Command], now: float
+    ) -> MarlinError | None:
+        """Take the M110 in flight (and a probe written behind it) off the wire and queue it to be written again,
+        alone; return the error that ends everything, if it must.
 
-        Its first copy may have been dropped without a word (damaged into an ordinary line numbered like the
-        printer's last), or its ok may only be late: the oks of copies beyond the first answer nothing.
+        It was rejected (damaged into an ordinary numbered line), or dropped without a word (numbered like the
+        printer's last line), or its ok is only late or lost: it sets what it sets however often it runs, and the
+        oks of copies beyond the first answer nothing (`m110_repeated`).
         """
-        return self._limit_error(command, command.line_number or 0)
+        behind = _after(flight, m110)
+        flight.keep_only([c for c in flight if c is not m110 and c not in behind], now, restart_head=False)
+        for probe in behind:  # only a probe goes behind an M110, numbered as if it took effect: withdrawn with it
+            if probe.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
+                probe.move(LineEvent.RESEND)
+            if probe.state is LineState.TO_RESEND:
+                probe.move(LineEvent.WITHDRAWN)
+        m110.move(LineEvent.RESEND)
+        queue.appendleft(m110)
+        self.unanswered_m110 = None
+        return self._limit_error(m110, m110.line_number or 0)
 
     def m110_repeated(self, command: Command, now: float, quiet_s: float) -> None:
         """A repeated M110 was answered: the oks of its other copies may still come. Write nothing until the
@@ -247,15 +262,7 @@ class Resends:
             # and the firmware's counter did not move (nor did ours). Write it again; it sets the counter whatever
             # its own number and whatever the printer's counter is.
             m110 = next(c for c in reversed(flight) if c.code == "M110")
-            behind = _after(flight, m110)
-            flight.keep_only([c for c in flight if c is not m110 and c not in behind], now, restart_head=False)
-            for probe in behind:  # only a probe goes behind an M110; it went with the M110's rejection
-                probe.move(LineEvent.RESEND)
-                probe.move(LineEvent.WITHDRAWN)
-            m110.move(LineEvent.RESEND)
-            queue.appendleft(m110)
-            self.unanswered_m110 = None
-            return self._limit_error(m110, line_number)
+            return self.write_m110_again(m110, flight, queue, now)
         if line_number == self.next_line:
             # The printer has every line we sent (M999 asks this way): nothing to write again.
             return None
@@ -302,9 +309,9 @@ class Resends:
         if behind or held is not None:
             # One of those lines may have been cut in two by the flush; its tail arrives as a line of its own. Hold
             # every write until the printer has answered all of them, so nothing new is cut, and recognise the
-            # pieces (`is_fragment`).
+            # pieces.
             self.drain_until = now + quiet_s
-            self.fragment_wires = [(c.wire.decode("ascii").rstrip("\n"), c.text) for c in behind]
+            self.fragment_texts = [c.text for c in behind]
         again: list[Command] = []
         unwanted: list[Command] = []  # a run of lines that must not run: one placeholder takes their numbers
         for number in range(line_number, self.next_line):
@@ -398,14 +405,6 @@ class Resends:
         through = self.accepted_through
         return any(c.line_number is not None and c.line_number > through for c in flight)
 
-    def is_fragment(self, piece: str) -> bool:
-        """Is `piece` (the text of an `Unknown command`) part of a line that a flush cut in two?
-
-        Its text is then part of a line written behind a rejected one, but not that line's whole command (a line
-        whose command the firmware does not know is refused with its own text, and that refusal stops a print).
-        """
-        return any(piece != text and piece in wire for wire, text in self.fragment_wires)
-
     def fragment_refused(self) -> None:
         """The firmware refused a fragment (`Unknown command`); the ok after it answers nothing."""
         _log.info("the printer refused the tail of a line cut in two by its flush")
@@ -447,4 +446,4 @@ class Resends:
         self.spare_oks = 0
         self.held = None
         self.unanswered_m110 = None
-        self.fragment_wires = []
+        self.fragment_texts = []

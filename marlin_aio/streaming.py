@@ -32,13 +32,12 @@ _PLAIN_ERRORS = (PrinterHaltedError, ThermalRunawayError, PrinterResetError, Res
 class JobFeed:
     """The print job being streamed, if any, with what the connection needs to pace and probe it."""
 
-    __slots__ = ("_median_rtt", "job", "next", "probe", "probed_s", "probes", "rtts", "timeout_s")
+    __slots__ = ("_median_rtt", "job", "next", "probed_s", "probes", "rtts", "timeout_s")
 
     def __init__(self) -> None:
         self.job: PrintJob | None = None
         self.next: Command | None = None  # the job's next line: read from the source, not yet written
         self.timeout_s = 10.0  # how long a line may go unanswered before the print stalls
-        self.probe: Command | None = None  # the probe in flight or queued
         self.rtts: deque[float] = deque(maxlen=32)  # round trips of recent lines answered at the first try
         self.probes = 0
         self.probed_s = 0.0  # when the last probe (an M105, or a resend let out early) was written
@@ -66,7 +65,6 @@ class JobFeed:
         """The job ended (done, failed or stalled): feed nothing more."""
         self.job = None
         self.next = None
-        self.probe = None
 
     def next_command(self, new_id: Callable[[], int], numbered: bool, now: float) -> Command | None:
         """The job's next line as a command (kept until it fits the window), or None."""
@@ -98,8 +96,7 @@ class JobFeed:
     def new_probe(self, command_id: int, now: float) -> Command:
         """A numbered M105 asking whether the oldest line's `ok` was lost."""
         self.probes += 1
-        self.probe = Command(command_id, "M105", "M105", True, self.timeout_s, now, probe=True)
-        return self.probe
+        return Command(command_id, "M105", "M105", True, self.timeout_s, now, probe=True)
 
     def answered(self, command: Command, now: float) -> None:
         """A line was answered by an ok: remember the round trip since it was last written (a resent line's too,
