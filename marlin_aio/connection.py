@@ -460,14 +460,17 @@ class Connection:
 
     def receive(self, data: bytes, now: float) -> Output:
         """Feed bytes read from the printer; return what they brought and what to do now."""
-        return self._output(tuple(self.receive_data(data, now)), now)
+        return self._output(tuple(self._receiving.receive_data(data, now)), now)
 
     def tick(self, now: float) -> Output:
         """Act on deadlines that have passed and on commands waiting to go out; return what to do now."""
-        self.check_timeouts(now)
+        self._deadlines.check_timeouts(now)
         return self._output((), now)
 
     def _output(self, events: tuple[Event, ...], now: float) -> Output:
+        # Twice per poll: the parts are called directly, and the print's state is looked at only while one runs.
         data = self.data_to_send(now) if self.has_data_to_send else b""
-        self._core.sync_print_state()
-        return Output(events, data, tuple(self.take_results()), self.next_deadline())
+        state = self._core.state
+        if state is LinkState.PRINTING or state is LinkState.STOPPING:
+            self._core.sync_print_state()
+        return Output(events, data, tuple(self.take_results()), self._deadlines.next_deadline())
