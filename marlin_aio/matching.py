@@ -55,6 +55,11 @@ class InFlight:
         """The command the printer should answer next."""
         return self._commands[0] if self._commands else None
 
+    def after(self, command: Command) -> list[Command]:
+        """The commands written after `command` (which is in flight)."""
+        commands = list(self._commands)
+        return commands[commands.index(command) + 1 :]
+
     def append(self, command: Command, now: float) -> None:
         """`command` was just written."""
         if not self._commands:

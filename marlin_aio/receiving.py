@@ -160,7 +160,7 @@ class Receiving:
         # ahead of that one was processed (Marlin answers in order) but its own ok was lost.
         index = match_ok(core.in_flight, ok, exact_oks=core.exact_oks) if core.in_flight else None
         if index is None and core.exact_oks and ok.line_number is None and ok.temperatures is None:
-            index = self._taken_unnumbered()
+            index = self._taken_unnumbered(ok)
         if index is None:
             core.stray_oks += 1
             _log.warning("an ok that answers no command waiting: %r", ok)
@@ -206,7 +206,7 @@ class Receiving:
                 best, fewest = command, changed
         return best
 
-    def _taken_unnumbered(self) -> int | None:
+    def _taken_unnumbered(self, ok: Ok) -> int | None:
         """With ADVANCED_OK, a plain ok that no unnumbered command earned: the FIFO index of the numbered line the
         printer took as unnumbered (its `N` damaged), or None for the tail of a line cut by a flush.
 
@@ -218,7 +218,7 @@ class Receiving:
         if core.resends.draining:
             commands = list(core.in_flight)
             return commands.index(held) if held is not None and held in commands else None
-        return next((i for i, c in enumerate(core.in_flight) if c.code != "M105" or c.refusal is not None), None)
+        return match_ok(core.in_flight, ok, exact_oks=False)
 
     def _damaged_input(self, echoed: str, now: float) -> None:
         """The printer refused something we never sent as such: its ok answers nothing.
@@ -240,8 +240,7 @@ class Receiving:
         command = self._damaged_copy(echoed)
         if command is None:
             return
-        at = list(core.in_flight).index(command)
-        behind = any(c.line_number is not None for c in list(core.in_flight)[at + 1 :])
+        behind = any(c.line_number is not None for c in core.in_flight.after(command))
         core.in_flight.remove(command, now)
         command.move(LineEvent.MANGLED)
         _log.info("the printer received a damaged copy of %r and did not count it; it goes again", command.text)

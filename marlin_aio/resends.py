@@ -62,12 +62,6 @@ def wanted(line: Command) -> bool:
     return job is None or (job.active and not job.cancelling)
 
 
-def _after(flight: InFlight, command: Command) -> list[Command]:
-    """The commands written after `command`."""
-    commands = list(flight)
-    return commands[commands.index(command) + 1 :]
-
-
 class Resends:
     """Line numbering and resend recovery for one connection.
 
@@ -177,7 +171,7 @@ class Resends:
         printer's last line), or its ok is only late or lost: it sets what it sets however often it runs, and the
         oks of copies beyond the first answer nothing (`m110_repeated`).
         """
-        behind = _after(flight, m110)
+        behind = flight.after(m110)
         flight.keep_only([c for c in flight if c is not m110 and c not in behind], now, restart_head=False)
         for probe in behind:  # only a probe goes behind an M110, numbered as if it took effect: withdrawn with it
             if probe.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
@@ -291,7 +285,7 @@ class Resends:
         # flight with lines behind it, the printer may have taken it unnumbered (its `N` damaged): then its ok
         # comes before anything the flush let through, and it ran. Hold it in flight until the printer is quiet.
         held = first if self.sequence_error and first.state is LineState.ON_WIRE and first in flight else None
-        if held is not None and not any(c.line_number is not None and c is not held for c in _after(flight, held)):
+        if held is not None and not any(c.line_number is not None for c in flight.after(held)):
             held = None
         keep: list[Command] = []
         removed = 0
