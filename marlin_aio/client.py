@@ -250,6 +250,21 @@ class Printer:
         self._link.emergency_stop()
         _log.warning("emergency stop (M112) sent to %s", self.port)
 
+    def interrupt_wait(self) -> bool:
+        """End a heater wait (M109, M190, M191) or a pause (M0/M1) now, if the firmware can: write M108 at once,
+        ahead of anything queued, and return True. Only Marlin's emergency parser (M115's `Cap:EMERGENCY_PARSER:1`)
+        reads M108 while a wait blocks; without it nothing is written and this returns False (the wait runs to its
+        end, and the M108 would only run after it).
+
+        Raises:
+            ConnectionLostError: the port is closed or lost.
+        """
+        if not self.capabilities.get("EMERGENCY_PARSER", False):
+            return False
+        self._link.interrupt_wait()
+        _log.info("M108 sent to %s to end a wait", self.port)
+        return True
+
     async def home(self, *axes: str, timeout_s: float | None = None) -> Reply:
         """Home the axes given (`home()` homes all, `home("x", "y")` two) with G28; return its reply.
 

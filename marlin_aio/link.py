@@ -235,6 +235,18 @@ class Link:
         self._transport.write(self._conn.emergency_stop(self.now()))
         self.flush()
 
+    def interrupt_wait(self) -> None:
+        """Write M108 at once, ahead of anything queued: Marlin's emergency parser ends a heater wait (M109, M190,
+        M191) or an M0/M1 with it. It takes no place in the FIFO; the wait's own command is then answered normally.
+
+        Raises:
+            ConnectionLostError: the port is closed or lost.
+        """
+        if self._transport is None or self._lost is not None:
+            reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
+            raise ConnectionLostError(f"cannot send M108: {reason}")
+        self._transport.write(self._conn.emergency("M108", now=self.now()))
+
     def attach(self, job: PrintJob, *, timeout_s: float) -> None:
         """Stream `job` (see `Connection.attach`)."""
         self._conn.attach(job, timeout_s=timeout_s)
