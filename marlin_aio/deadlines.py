@@ -15,6 +15,7 @@ import math
 from marlin_aio.corestate import CoreState
 from marlin_aio.errors import CommandTimeoutError, PrintStalledError
 from marlin_aio.replies import Command
+from marlin_aio.secrets import redact
 from marlin_aio.states import FINAL_LINE_STATES, LineEvent, LineState
 
 __all__ = ["Deadlines"]
@@ -159,7 +160,7 @@ class Deadlines:
             # No stale rejection can still be on its way after this much silence.
             resends.forget_stale()
             core.timeouts += 1
-            _log.warning("no answer to %r within %g s", head.text, head.timeout_s)
+            _log.warning("no answer to %r within %g s", redact(head.text), head.timeout_s)
             if (head.job is not None or head.probe) and not head.orphan:
                 self._stall_job(head, now)
                 continue
@@ -167,7 +168,7 @@ class Deadlines:
                 # Written again until the resend limit says the link is too noisy; its caller is told now.
                 if not head.orphan:
                     head.orphan = True
-                    core.finish(head, CommandTimeoutError(self.describe_stall(head, now), command=head.text))
+                    core.finish(head, CommandTimeoutError(self.describe_stall(head, now), command=redact(head.text)))
                 core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
                 return
             summary = self.describe_stall(head, now)
@@ -181,7 +182,7 @@ class Deadlines:
             head.head_since_s = now
             head.alive_s = None
             if not was_orphan:
-                core.finish(head, CommandTimeoutError(summary, command=head.text))
+                core.finish(head, CommandTimeoutError(summary, command=redact(head.text)))
             silent = last_in is None or now - last_in.time_s >= head.timeout_s
             if silent:
                 # The printer has said nothing for the whole timeout: what waits behind it fails now, not one
@@ -209,9 +210,9 @@ class Deadlines:
                     continue
                 if now >= max(command.submitted_s, since) + command.timeout_s:
                     error = CommandTimeoutError(
-                        f"no answer within {command.timeout_s:g} s: it waited behind {head.text!r}, which the "
+                        f"no answer within {command.timeout_s:g} s: it waited behind {redact(head.text)!r}, which the "
                         f"printer has not answered ({self.describe_stall(head, now)})",
-                        command=command.text,
+                        command=redact(command.text),
                     )
                     if command.sends == 0:
                         core.queue.remove(command)
@@ -257,13 +258,16 @@ class Deadlines:
             if not command.orphan and command.job is None and not command.probe:
                 command.orphan = True
                 core.finish(
-                    command, CommandTimeoutError(f"gave up behind {dead.text!r}: {summary}", command=command.text)
+                    command,
+                    CommandTimeoutError(
+                        f"gave up behind {redact(dead.text)!r}: {summary}", command=redact(command.text)
+                    ),
                 )
         kept: list[Command] = []
         for command in core.queue:
             if command.job is None and not command.probe:
                 error = CommandTimeoutError(
-                    f"not sent: the printer stopped answering ({summary})", command=command.text
+                    f"not sent: the printer stopped answering ({summary})", command=redact(command.text)
                 )
                 core.finish(command, error)
             else:
@@ -280,7 +284,7 @@ class Deadlines:
         if head.job is not None and job:
             where = f"line {head.source_line} of {job.name}"
         elif job is not None and not head.probe:
-            where = f"{job.name} behind {head.text!r}, which the printer has not answered,"
+            where = f"{job.name} behind {redact(head.text)!r}, which the printer has not answered,"
         else:
             where = "a probe"
         if job is not None:
@@ -288,7 +292,7 @@ class Deadlines:
             where += f" (line {job.last_source_line} surely ran"
             where += f"; lines up to {max(maybe)} may have run)" if maybe else ")"
         error = PrintStalledError(
-            f"print stalled at {where}: {summary}", command=head.text, trace=core.trace.format(now)
+            f"print stalled at {where}: {summary}", command=redact(head.text), trace=core.trace.format(now)
         )
         if job is not None:
             job.fail(error, now)
@@ -314,7 +318,7 @@ class Deadlines:
         """One line saying who waits for whom: the command, for how long, and what each side last said."""
         core = self._core
         waited = now - (command.submitted_s if command.head_since_s is None else command.head_since_s)
-        parts = [f"no 'ok' for {command.text!r} after {waited:.1f} s"]
+        parts = [f"no 'ok' for {redact(command.text)!r} after {waited:.1f} s"]
         if command.line_number is not None:
             parts[0] += f" (line {command.line_number})"
         behind = len(core.in_flight) - 1 + len(core.queue)

@@ -21,6 +21,7 @@ from marlin_aio.errors import (
     PrinterResetError,
 )
 from marlin_aio.link import Link
+from marlin_aio.secrets import redact
 
 __all__ = ["BAUD_RATES", "handshake", "send_until_processed"]
 
@@ -127,19 +128,28 @@ async def send_until_processed(link: Link, command: str, *, timeout_s: float) ->
         except (CommandTimeoutError, LostReplyError) as exc:
             if link.now() >= deadline:
                 raise CommandTimeoutError(
-                    f"no answer to {command!r} within {timeout_s:g} s: {exc}", command=command
+                    f"no answer to {redact(command)!r} within {timeout_s:g} s: {exc}", command=redact(command)
                 ) from exc
 
 
 async def _unlock(link: Link, password: str | None, timeout_s: float) -> None:
-    """Unlock a PASSWORD_FEATURE printer with the password given to `connect()`, or fail clearly."""
+    """Unlock a PASSWORD_FEATURE printer with the password given to `connect()`, or fail clearly.
+
+    Raises:
+        PrinterLockedError: no password was given, or the printer refused it.
+        HandshakeTimeoutError: the printer did not answer the M511.
+    """
     if password is None:
         raise PrinterLockedError(
             f"the printer on {link.port} is locked (it said 'Printer locked! (Unlock with M511 or LCD)'): "
             "connect with password=... (marlin-temp --password) to send M511 P<password>, "
             "or unlock it on its screen"
         )
-    reply = await link.send(f"M511 P{password}", timeout_s=timeout_s)
+    try:
+        reply = await link.send(f"M511 P{password}", timeout_s=timeout_s)
+    except CommandTimeoutError as exc:
+        # The message is built from redacted text (`marlin_aio.secrets`): the password never shows in it.
+        raise HandshakeTimeoutError(f"the printer did not answer the password (M511 ****): {exc}", step="sync") from exc
     if any("incorrect" in line.lower() for line in reply.lines):
         raise PrinterLockedError(
             f"the printer on {link.port} refused the password ({' '.join(reply.lines)}); it stays locked"

@@ -41,6 +41,7 @@ from marlin_aio.events import (
 from marlin_aio.matching import attribute, match_ok
 from marlin_aio.replies import Command, Reply, is_noise
 from marlin_aio.resends import wanted
+from marlin_aio.secrets import redact
 from marlin_aio.states import LineEvent, LineState, LinkEvent, LinkState
 
 __all__ = ["Receiving"]
@@ -145,7 +146,7 @@ class Receiving:
                         # The ok that follows answers a command that was refused, not run.
                         head.refusal = text
                         if core.state is not LinkState.LOCKED:
-                            _log.warning("the printer is locked: %s", text)
+                            _log.warning("the printer is locked: %s", redact(text))
                         core.move(LinkEvent.LOCKED, remote=True)
                     elif head.job is not None:
                         head.refusal = text  # a print line the firmware did not understand was not printed
@@ -174,7 +175,7 @@ class Receiving:
         lines = attribute(skipped, command)
         for at, lost in enumerate(skipped):
             core.lost_oks += 1
-            _log.info("the ok of %r was lost; %r was answered after it", lost.text, command.text)
+            _log.info("the ok of %r was lost; %r was answered after it", redact(lost.text), redact(command.text))
             # Its lines are its own if every command after it printed nothing but its ok (a bare M105).
             quiet = all(c.text == "M105" or c.probe for c in (*skipped[at + 1 :], command))
             self._settle(lost, None, tuple(lost.lines) if quiet else None, now, proof=ok)
@@ -233,7 +234,7 @@ class Receiving:
             # The line was counted with a damaged body (two flips of one bit, which the 8-bit checksum cannot
             # see): the printer did not run what was sent, and nothing can put it back in its place.
             damaged_body.refusal = (
-                f"echo:Unknown command: {echoed!r} (it arrived damaged in a way its checksum could not show)"
+                f"echo:Unknown command: {redact(echoed)!r} (it arrived damaged in a way its checksum could not show)"
             )
             return
         core.resends.fragment_refused()
@@ -243,7 +244,7 @@ class Receiving:
         behind = any(c.line_number is not None for c in core.in_flight.after(command))
         core.in_flight.remove(command, now)
         command.move(LineEvent.MANGLED)
-        _log.info("the printer received a damaged copy of %r and did not count it; it goes again", command.text)
+        _log.info("the printer received a damaged copy of %r and did not count it; it goes again", redact(command.text))
         if not behind:
             core.queue.appendleft(command if wanted(command) else core.resends.placeholder_for([command]))
 
@@ -293,9 +294,9 @@ class Receiving:
             core.finish(
                 command,
                 LostReplyError(
-                    f"{command.text!r} was processed but the ok of a command before it was lost, so which reply "
-                    "lines are its own cannot be proven; it was not handed another command's answer",
-                    command=command.text,
+                    f"{redact(command.text)!r} was processed but the ok of a command before it was lost, so which "
+                    "reply lines are its own cannot be proven; it was not handed another command's answer",
+                    command=redact(command.text),
                 ),
             )
         else:
@@ -304,15 +305,15 @@ class Receiving:
 
     def _refused(self, command: Command, now: float) -> None:
         """The printer answered `command` with an ok but said it did not run it."""
-        said = command.refusal or ""
+        said = redact(command.refusal or "")
         error: MarlinError
         if "locked" in said.lower():
             error = PrinterLockedError(
-                f"the printer is locked and refused {command.text!r} ({said.removeprefix('echo:')}): "
+                f"the printer is locked and refused {redact(command.text)!r} ({said.removeprefix('echo:')}): "
                 "unlock it with M511 P<password> (connect with password=..., or --password) or on its screen"
             )
         else:
-            error = CommandNotExecutedError(f"the printer did not run {command.text!r}: it said {said!r}")
+            error = CommandNotExecutedError(f"the printer did not run {redact(command.text)!r}: it said {said!r}")
         if command.job is not None:
             job = command.job
             job.in_flight -= 1
@@ -330,7 +331,7 @@ class Receiving:
         job = core.feed.job
         if job is None or not job.active:
             return
-        pieces = ", ".join(repr(text) for text in core.resends.fragment_texts[:3])
+        pieces = ", ".join(repr(redact(text)) for text in core.resends.fragment_texts[:3])
         message = (
             f"print stopped after line {job.last_source_line} of {job.name}: after a line error the printer threw "
             "away its receive buffer in the middle of a line and ran the rest of it as a command of its own (an ok "
@@ -371,7 +372,7 @@ class Receiving:
         core.in_flight.remove(command, now)
         if not command.orphan and command.job is None and not command.probe:
             error = ChecksumRequiredError(
-                f"the printer refused {command.text!r} without a line number and checksum "
+                f"the printer refused {redact(command.text)!r} without a line number and checksum "
                 f"('Error:{message}'); it needs numbered commands"
             )
             core.finish(command, error)

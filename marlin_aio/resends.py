@@ -27,6 +27,7 @@ from marlin_aio.commands import number_command
 from marlin_aio.errors import MarlinError, RemoteProtocolError, ResendLimitError
 from marlin_aio.matching import InFlight
 from marlin_aio.replies import Command
+from marlin_aio.secrets import redact
 from marlin_aio.states import LineEvent, LineState
 
 __all__ = ["CALM_LINES", "Resends"]
@@ -365,7 +366,7 @@ class Resends:
         if command.sends <= self.max_resends:
             return None
         return ResendLimitError(
-            f"the printer asked for line {line_number} ({command.text!r}) {command.sends} times; "
+            f"the printer asked for line {line_number} ({redact(command.text)!r}) {command.sends} times; "
             "the link is too noisy (check the cable, baud rate and grounding)"
         )
 

@@ -1,4 +1,8 @@
-"""A ring buffer of the last lines sent and received, for saying who was waiting for whom when a link stalls."""
+"""A ring buffer of the last lines sent and received, for saying who was waiting for whom when a link stalls.
+
+Lines are recorded redacted (`marlin_aio.secrets.redact`): the trace ends up in error messages and logs, and an
+`M511 P<password>` line must not carry the password there. The wire itself is not touched.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +10,8 @@ import logging
 from collections import deque
 from dataclasses import dataclass
 from typing import Literal
+
+from marlin_aio.secrets import redact
 
 __all__ = ["Trace", "TraceEntry"]
 
@@ -40,7 +46,8 @@ class Trace:
         self._last_received: _Line | None = None
 
     def sent(self, time_s: float, text: str) -> None:
-        """Record a line written to the printer."""
+        """Record a line written to the printer (redacted: see the module's docstring)."""
+        text = redact(text)
         entry: _Line = (time_s, "sent", text)
         self._entries.append(entry)
         self._last_sent = entry
@@ -48,7 +55,9 @@ class Trace:
             _wire_log.debug(">> %s", text)
 
     def received(self, time_s: float, text: str) -> None:
-        """Record a line read from the printer."""
+        """Record a line read from the printer (redacted: firmware without PASSWORD_FEATURE echoes an M511 back in
+        its `Unknown command`)."""
+        text = redact(text)
         entry: _Line = (time_s, "received", text)
         self._entries.append(entry)
         self._last_received = entry
