@@ -18,7 +18,8 @@ import asyncio
 import contextlib
 import logging
 from collections import deque
-from collections.abc import AsyncGenerator, AsyncIterator, Callable, Generator, Iterable
+from collections.abc import AsyncGenerator, AsyncIterator, Callable, Generator, Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from types import TracebackType
 from typing import Self
@@ -35,7 +36,6 @@ from marlin_aio.feed import TemperatureFeed
 from marlin_aio.handshake import BAUD_RATES, handshake, send_until_processed
 from marlin_aio.heaters import (
     HeaterLimits,
-    check_gcode_targets,
     describe_heaters,
     target_commands,
     targets_reached,
@@ -47,7 +47,7 @@ from marlin_aio.motion import command_timeout_s, disable_motors_command, extrude
 from marlin_aio.parsing import parse_endstops, parse_position
 from marlin_aio.poller import Poller
 from marlin_aio.printhandle import PrintHandle
-from marlin_aio.printjob import PrintJob, PrintProgress
+from marlin_aio.printjob import PrintJob, PrintProgress, gcode_commands
 from marlin_aio.stats import LinkStats
 from marlin_aio.temperatures import ReadingSource, TemperatureReading, heater_name
 from marlin_aio.trace import Trace
@@ -57,6 +57,17 @@ __all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "PrintHandle", "Printer", "connect"
 DEFAULT_BAUDRATE = BAUD_RATES[0]
 
 _log = logging.getLogger("marlin_aio")
+
+
+def _limit(name: str, celsius: float) -> float:
+    """A heater limit as given, if it is a positive finite number of degrees.
+
+    Raises:
+        ValueError: it is not.
+    """
+    if isinstance(celsius, bool) or not isinstance(celsius, int | float) or not 0 < celsius < float("inf"):
+        raise ValueError(f"{name} must be a positive number of degrees Celsius, got {celsius!r}")
+    return float(celsius)
 
 
 class Printer:
@@ -114,9 +125,11 @@ class Printer:
         self.port = port
         self.baudrate = baudrate
         self.timeout_s = timeout_s
-        self.max_hotend_celsius = max_hotend_celsius
-        self.max_bed_celsius = max_bed_celsius
-        self.max_chamber_celsius = max_chamber_celsius
+        self._heater_limits = HeaterLimits(
+            _limit("max_hotend_celsius", max_hotend_celsius),
+            _limit("max_bed_celsius", max_bed_celsius),
+            _limit("max_chamber_celsius", max_chamber_celsius),
+        )
         self._handshake_enabled = handshake
         self._boot_quiet_s = boot_quiet_s
         self._password = password
@@ -133,8 +146,45 @@ class Printer:
         self._reset_on_open = False
         self._failure_waiters: list[asyncio.Future[MarlinError]] = []
 
+    @property
+    def max_hotend_celsius(self) -> float:
+        """The highest hotend target any command may set (checked as the firmware reads each command)."""
+        return self._heater_limits.hotend
+
+    @max_hotend_celsius.setter
+    def max_hotend_celsius(self, celsius: float) -> None:
+        self._set_limits(replace(self._heater_limits, hotend=_limit("max_hotend_celsius", celsius)))
+
+    @property
+    def max_bed_celsius(self) -> float:
+        """The highest bed target any command may set."""
+        return self._heater_limits.bed
+
+    @max_bed_celsius.setter
+    def max_bed_celsius(self, celsius: float) -> None:
+        self._set_limits(replace(self._heater_limits, bed=_limit("max_bed_celsius", celsius)))
+
+    @property
+    def max_chamber_celsius(self) -> float:
+        """The highest chamber target any command may set."""
+        return self._heater_limits.chamber
+
+    @max_chamber_celsius.setter
+    def max_chamber_celsius(self, celsius: float) -> None:
+        self._set_limits(replace(self._heater_limits, chamber=_limit("max_chamber_celsius", celsius)))
+
+    def _set_limits(self, limits: HeaterLimits) -> None:
+        self._heater_limits = limits
+        self._connection.limits = limits  # the connection is the gate every command and print line passes
+
     def _new_link(self) -> Link:
-        connection = Connection(numbered=self._numbered, max_in_flight=self._window[0], rx_buffer_bytes=self._window[1])
+        connection = Connection(
+            numbered=self._numbered,
+            max_in_flight=self._window[0],
+            rx_buffer_bytes=self._window[1],
+            limits=self._heater_limits,
+        )
+        self._connection = connection
         return Link(
             self.port,
             self.baudrate,
@@ -229,12 +279,6 @@ class Printer:
             LostReplyError: the command ran, but its reply cannot be proven its own (an ok was lost).
             ConnectionLostError: the link went away.
         """
-        check_gcode_targets(
-            command,
-            max_hotend_celsius=self.max_hotend_celsius,
-            max_bed_celsius=self.max_bed_celsius,
-            max_chamber_celsius=self.max_chamber_celsius,
-        )
         return await self._link.send(
             command, timeout_s=self.timeout_s if timeout_s is None else timeout_s, numbered=numbered
         )
@@ -439,7 +483,7 @@ class Printer:
             await self.send(command)
 
     def _limits(self) -> HeaterLimits:
-        return HeaterLimits(self.max_hotend_celsius, self.max_bed_celsius, self.max_chamber_celsius)
+        return self._heater_limits
 
     async def wait_for_temperatures(
         self,
@@ -531,7 +575,7 @@ class Printer:
         if window_bytes is not None and not 16 < window_bytes <= 65536:
             raise ValueError(f"window_bytes must be between 17 and 65536, got {window_bytes}")
         link = self._link
-        job = PrintJob.from_path(Path(source), check=check) if isinstance(source, str | Path) else PrintJob(source)
+        job = self._print_job(source, check)
         await send_until_processed(link, "M110 N0", timeout_s=self.timeout_s)  # the print's numbering starts fresh
         job.start_s = link.now()
         saved = link.window
@@ -541,6 +585,19 @@ class Printer:
         link.attach(job, timeout_s=self.timeout_s if timeout_s is None else timeout_s)
         _log.info("print of %s started (%s)", job.name, "send-ahead" if send_ahead else "ping-pong")
         return handle
+
+    def _print_job(self, source: str | Path | Iterable[str], check: bool) -> PrintJob:
+        """The job for `source`, checked whole first where it can be read twice (a path, a list of lines)."""
+        limits = self._heater_limits
+        if isinstance(source, str | Path):
+            return PrintJob.from_path(Path(source), check=check, limits=limits)
+        if check and isinstance(source, Sequence):
+            # Before the first line is sent, as for a file: a list over the limits is refused whole. (An iterator
+            # can be read only once: each of its lines is checked as it is fed, and a bad one stops the print.)
+            for _ in gcode_commands(source, limits):
+                pass
+            return PrintJob(source, lines_total=sum(1 for _ in gcode_commands(source)), limits=limits)
+        return PrintJob(source, limits=limits)
 
     async def print_file(
         self,

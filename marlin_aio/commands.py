@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import functools
 
+from marlin_aio.gcode import command_code
+
 __all__ = [
     "DEFAULT_MAX_BED_CELSIUS",
     "DEFAULT_MAX_CHAMBER_CELSIUS",
@@ -51,7 +53,7 @@ def strip_comment(text: str) -> str:
 def validate_command(text: str) -> str:
     """Return the command as it will be sent (comment and surrounding space removed), or raise.
 
-    (Cached, as `command_code` is: the same few commands come back many times a second. A command that raises is
+    (Cached, as `gcode.command_code` is: the same few commands come back many times a second. A command that raises is
     not cached, so it raises every time.)
 
     Raises:
@@ -70,18 +72,6 @@ def validate_command(text: str) -> str:
         # Marlin reads the first `*` as the start of the checksum: the line could never be accepted.
         raise ValueError(f"command contains '*', which Marlin reserves for the checksum: {text!r}")
     return command
-
-
-@functools.lru_cache(maxsize=256)
-def command_code(text: str) -> str:
-    """Return the command word of a G-code line in upper case (`"m105 t0"` gives `"M105"`), or `""`.
-
-    A leading `N<number>` is skipped. (Cached: the same few commands come back a hundred times a second.)
-    """
-    words = text.split()
-    if words and words[0][:1] in ("N", "n") and words[0][1:].isdigit():
-        words = words[1:]
-    return words[0].upper() if words else ""
 
 
 def number_command(command: str, line_number: int) -> str:

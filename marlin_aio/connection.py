@@ -38,6 +38,7 @@ from marlin_aio.errors import (
     PrinterLockedError,
 )
 from marlin_aio.events import Event
+from marlin_aio.heaters import DEFAULT_LIMITS, HeaterLimits, check_gcode_targets
 from marlin_aio.linkstate import LinkState
 from marlin_aio.matching import answer_stays_distinct
 from marlin_aio.printjob import PrintJob
@@ -97,7 +98,7 @@ class Connection:
             share the line from the start; otherwise this is learnt from the first `ok N<line>`.
     """
 
-    __slots__ = ("_core", "_deadlines", "_receiving")
+    __slots__ = ("_core", "_deadlines", "_receiving", "limits")
 
     def __init__(
         self,
@@ -110,6 +111,7 @@ class Connection:
         resend_timeout_s: float = 3.0,
         ok_after_resend: bool = True,
         advanced_ok: bool = False,
+        limits: HeaterLimits = DEFAULT_LIMITS,
     ) -> None:
         """A connection that has sent nothing yet.
 
@@ -130,6 +132,9 @@ class Connection:
         )
         self._receiving = Receiving(self._core)
         self._deadlines = Deadlines(self._core)
+        # The one gate for heater targets: every command submitted and every line of every print passes it, read
+        # as the firmware reads it (`heaters.check_gcode_targets`), whatever API or CLI command made it.
+        self.limits = limits
 
     @property
     def trace(self) -> Trace:
@@ -274,7 +279,8 @@ class Connection:
         own M105 polls, a hundred times a second).
 
         Raises:
-            ValueError: the command is not valid (line break, non-ASCII, too long, empty).
+            ValueError: the command is not valid (line break, non-ASCII, too long, empty), or it sets a heater
+                target above `limits` (however it is spelt).
             PrinterHaltedError: the printer halted and answers nothing until it is reset.
         """
         core = self._core
@@ -283,6 +289,7 @@ class Connection:
             # Validate now, so a bad command never reaches the queue: as given (the clearest message), then its
             # length with a line number comfortably larger than any it can get while queued.
             text = validate_command(text)
+            check_gcode_targets(text, self.limits)
             if use_numbers:
                 longest_number = core.resends.next_line + len(core.queue) + len(core.in_flight) + 1000
                 if len(text) + len(str(longest_number)) + 6 > MAX_COMMAND_BYTES:
@@ -338,6 +345,8 @@ class Connection:
             raise core.halt
         if core.state is LinkState.LOCKED:
             raise PrinterLockedError("the printer is locked: unlock it (M511 P<password>) before printing")
+        if job.limits is None:
+            job.limits = self.limits  # a job made without limits gets the connection's: no line passes unchecked
         core.feed.attach(job, timeout_s)
         core.move(LinkEvent.PRINT_STARTED)
 

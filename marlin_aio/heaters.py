@@ -7,12 +7,21 @@ short and these rules can be tested without a printer.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
-from marlin_aio.commands import check_target, command_code, format_celsius
+from marlin_aio.commands import (
+    DEFAULT_MAX_BED_CELSIUS,
+    DEFAULT_MAX_CHAMBER_CELSIUS,
+    DEFAULT_MAX_HOTEND_CELSIUS,
+    check_target,
+    format_celsius,
+)
+from marlin_aio.gcode import GCodeLine, command_code, parse_gcode, value_long
 from marlin_aio.temperatures import TemperatureReading, heater_name
 
 __all__ = [
+    "DEFAULT_LIMITS",
     "HeaterLimits",
     "check_gcode_targets",
     "check_tool",
@@ -22,8 +31,22 @@ __all__ = [
     "wanted_targets",
 ]
 
-#: The commands that set a target, with the heater they set.
-_TARGET_CODES = {"M104": "hotend", "M109": "hotend", "M140": "bed", "M190": "bed", "M141": "chamber", "M191": "chamber"}
+#: The words that set a target, by command and letter, with the heater each sets: S and R for M104/M109,
+#: M140/M190 and M141/M191; B, AUTOTEMP's upper target, for M104/M109; M145's material presets (H hotend, B bed),
+#: which M104/M140 `I<n>` and the LCD's preheat use later. M303 (PID autotune) heats to its S (see `_m303_heater`).
+_TARGET_WORDS: dict[str, dict[str, str]] = {
+    "M104": {"S": "hotend", "R": "hotend", "B": "hotend"},
+    "M109": {"S": "hotend", "R": "hotend", "B": "hotend"},
+    "M140": {"S": "bed", "R": "bed"},
+    "M190": {"S": "bed", "R": "bed"},
+    "M141": {"S": "chamber", "R": "chamber"},
+    "M191": {"S": "chamber", "R": "chamber"},
+    "M145": {"H": "hotend", "B": "bed"},
+    "M303": {"S": "hotend"},
+}
+_TARGET_NUMBERS = frozenset(int(code[1:]) for code in _TARGET_WORDS)
+_EMBEDDED_M = re.compile(r"[Mm] *[0-9]")
+_NUMBER = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,26 +57,60 @@ class HeaterLimits:
     bed: float
     chamber: float
 
+    def of(self, heater: str) -> float:
+        """The limit of "hotend", "bed" or "chamber"."""
+        return {"hotend": self.hotend, "bed": self.bed, "chamber": self.chamber}[heater]
 
-def check_gcode_targets(
-    command: str, *, max_hotend_celsius: float, max_bed_celsius: float, max_chamber_celsius: float
-) -> None:
-    """Check the target a raw G-code command sets (`M104 S300`, `M190 R70`) against the same limits as
-    `set_temperatures`, so typed G-code cannot get around them; other commands pass.
+
+#: Marlin's own default clamps (see `commands.DEFAULT_MAX_HOTEND_CELSIUS`).
+DEFAULT_LIMITS = HeaterLimits(DEFAULT_MAX_HOTEND_CELSIUS, DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS)
+
+
+def check_gcode_targets(command: str, limits: HeaterLimits) -> None:
+    """Check every target a G-code command sets against `limits`, reading it as Marlin does (`marlin_aio.gcode`):
+    `M104S280`, `m0104 s280`, `M104 S100 S280`, `M65640 S280` (M104 to a 16-bit parser) and `M104 B1000` (AUTOTEMP)
+    are all read, so no spelling gets around the limits that `set_temperatures` applies. A command word carried as
+    a parameter of another (`T0 M104 S1000`, which Marlin runs as T0) is checked as if it ran: the user meant it.
+    Every word of a target letter must be a plain number from 0 to the limit; other commands pass.
 
     Raises:
-        ValueError: the command sets a target that is not a number, negative or above its limit.
+        ValueError: a target is not a number, negative or above its limit; the message names heater and limit.
     """
-    heater = _TARGET_CODES.get(command_code(command))  # cached: this runs for every command sent
-    if heater is None:
-        return
-    words = command.split(";", 1)[0].split()
-    if words[0][:1] in "Nn" and words[0][1:].isdigit():
-        words = words[1:]
-    limit = {"hotend": max_hotend_celsius, "bed": max_bed_celsius, "chamber": max_chamber_celsius}[heater]
-    for word in words[1:]:
-        if word[:1] in "SsRr":
-            check_target(heater, word[1:], limit)
+    if command_code(command) not in _TARGET_WORDS and _EMBEDDED_M.search(command, 1) is None:
+        return  # most lines (moves) set no target: no need to read their parameters
+    line = parse_gcode(command)
+    codes = [line.code]
+    for letter, value in line.words:
+        if letter == "M" and value is not None and value_long(value) in _TARGET_NUMBERS:
+            codes.append(f"M{value_long(value)}")
+    for code in codes:
+        targets = _TARGET_WORDS.get(code)
+        if targets is None:
+            continue
+        for letter, value in line.words:
+            heater = targets.get(letter)
+            if heater is None:
+                continue
+            if code == "M303":
+                heater = _m303_heater(line)
+            limit = limits.of(heater)
+            if value is None or _NUMBER.fullmatch(value) is None:
+                shown = _word_after(line.args, letter) if value is None else value
+                raise ValueError(f"{heater} target must be a number of degrees Celsius, got {shown!r} in {command!r}")
+            check_target(heater, value, limit)
+
+
+def _m303_heater(line: GCodeLine) -> str:
+    """M303 E<n>: -1 is the bed, -2 the chamber, any other the hotend of that number."""
+    heater = line.value("E")
+    number = 0 if heater is None else value_long(heater)
+    return {-1: "bed", -2: "chamber"}.get(number, "hotend")
+
+
+def _word_after(args: str, letter: str) -> str:
+    """What follows `letter` in `args` up to a space (`Sabc` gives `abc`), for the message."""
+    at = args.upper().find(letter)
+    return args[at + 1 :].split(" ", 1)[0] if at >= 0 else ""
 
 
 def check_tool(tool: int | None) -> None:

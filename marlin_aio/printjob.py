@@ -26,6 +26,7 @@ from pathlib import Path
 
 from marlin_aio.commands import encode_command, strip_comment
 from marlin_aio.errors import FileChangedError, MarlinError
+from marlin_aio.heaters import HeaterLimits, check_gcode_targets
 
 __all__ = ["PrintJob", "PrintProgress", "PrintState", "gcode_commands", "scan_gcode"]
 
@@ -86,14 +87,16 @@ class PrintProgress:
         return self.elapsed_s * (1 - fraction) / fraction
 
 
-def gcode_commands(lines: Iterable[str]) -> Iterator[tuple[str, int, int]]:
+def gcode_commands(lines: Iterable[str], limits: HeaterLimits | None = None) -> Iterator[tuple[str, int, int]]:
     """Yield (command, source line number, source bytes) for each line that holds a command.
 
     Comments and blank lines are dropped (Marlin would lose a checksum placed after a `;`). Source bytes include
-    the skipped lines before a command, so their sum is the size of the source.
+    the skipped lines before a command, so their sum is the size of the source. With `limits`, a line that sets a
+    heater target above them (however it is spelt) is refused like a malformed one.
 
     Raises:
-        ValueError: a line is not a valid command (too long, non-ASCII, ...); the message names its line number.
+        ValueError: a line is not a valid command (too long, non-ASCII, ...) or is over `limits`; the message names
+            its line number.
     """
     pending_bytes = 0
     for number, raw in enumerate(lines, 1):
@@ -103,25 +106,28 @@ def gcode_commands(lines: Iterable[str]) -> Iterator[tuple[str, int, int]]:
             continue
         try:
             encode_command(command)
+            if limits is not None:
+                check_gcode_targets(command, limits)
         except ValueError as exc:
             raise ValueError(f"line {number}: {exc}") from None
         yield command, number, pending_bytes
         pending_bytes = 0
 
 
-def scan_gcode(path: Path) -> int:
-    """Check every line of a file before printing it; return how many commands it holds.
+def scan_gcode(path: Path, limits: HeaterLimits | None = None) -> int:
+    """Check every line of a file before printing it (and its heater targets against `limits`, if given); return
+    how many commands it holds.
 
     Reading twice costs a pass over the file, but a print that stops half way at a bad line costs a part.
 
     Raises:
-        ValueError: a line is not a valid command; the message names the file and line.
+        ValueError: a line is not a valid command, or over `limits`; the message names the file and line.
         OSError: the file cannot be read.
     """
-    return _scan(path)[0]
+    return _scan(path, limits)[0]
 
 
-def _scan(path: Path) -> tuple[int, int]:
+def _scan(path: Path, limits: HeaterLimits | None) -> tuple[int, int]:
     """(commands, lines) of `path`, every line checked (see `scan_gcode`)."""
     commands = lines = 0
     with path.open(encoding="utf-8", errors="replace") as source:
@@ -132,7 +138,7 @@ def _scan(path: Path) -> tuple[int, int]:
                 yield line
 
         try:
-            for _ in gcode_commands(counted()):
+            for _ in gcode_commands(counted(), limits):
                 commands += 1
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
@@ -148,6 +154,8 @@ class PrintJob:
         lines_total: number of commands, if known (for progress).
         source_bytes_total: size of the source, if known (for progress).
         start_s: the connection clock's time when the job starts.
+        limits: the heater limits each line is checked against as it is fed (a line over them stops the print
+            before it). None: those of the connection it is attached to.
     """
 
     def __init__(
@@ -158,8 +166,10 @@ class PrintJob:
         lines_total: int | None = None,
         source_bytes_total: int | None = None,
         start_s: float = 0.0,
+        limits: HeaterLimits | None = None,
     ) -> None:
         self.name = name
+        self.limits = limits
         self._commands = gcode_commands(lines)
         self.lines_total = lines_total
         self.source_bytes_total = source_bytes_total
@@ -178,24 +188,28 @@ class PrintJob:
         self.last_source_line = 0
 
     @classmethod
-    def from_path(cls, path: Path, *, start_s: float = 0.0, check: bool = True) -> PrintJob:
-        """A job reading `path` lazily; with `check`, every line is validated (and counted) first.
+    def from_path(
+        cls, path: Path, *, start_s: float = 0.0, check: bool = True, limits: HeaterLimits | None = None
+    ) -> PrintJob:
+        """A job reading `path` lazily; with `check`, every line is validated (and counted) first, its heater
+        targets against `limits` too.
 
         If the file changes while it prints (see `file_lines`), the job feeds nothing more and ends FAILED with a
         `FileChangedError`.
 
         Raises:
-            ValueError: with `check`, a line is not a valid command.
+            ValueError: with `check`, a line is not a valid command or is over `limits`.
             OSError: the file cannot be read.
         """
         stamp = path.stat()  # before the scan: a change while it is scanned is a change too
-        commands, lines = _scan(path) if check else (None, None)
+        commands, lines = _scan(path, limits) if check else (None, None)
         return cls(
             cls.file_lines(path, size_bytes=stamp.st_size, mtime_ns=stamp.st_mtime_ns, lines_total=lines),
             name=path.name,
             lines_total=commands,
             source_bytes_total=stamp.st_size,
             start_s=start_s,
+            limits=limits,
         )
 
     @staticmethod
@@ -231,12 +245,19 @@ class PrintJob:
         if self.state is not PrintState.RUNNING or self.exhausted:
             return None
         try:
-            return next(self._commands)
+            command = next(self._commands)
+            if self.limits is not None:
+                try:
+                    check_gcode_targets(command[0], self.limits)
+                except ValueError as exc:
+                    raise ValueError(f"line {command[1]}: {exc}") from None
+            return command
         except StopIteration:
             self.exhausted = True
             return None
         except ValueError as exc:
-            # Only reachable without the up-front check: stop feeding, let what is in flight complete.
+            # Only reachable without the up-front check (a bad line, a target over the limits): stop feeding, let
+            # what is in flight complete.
             self.exhausted = True
             self.error = MarlinError(f"{self.name}: {exc}; the print stopped before that line")
             return None

@@ -37,7 +37,7 @@ from marlin_aio.simulator._config import (
     to_us,
 )
 from marlin_aio.simulator._heating import m104, m105, m109, m140, m141, m155, m190, m191
-from marlin_aio.simulator._intake import Command, parse_parameters
+from marlin_aio.simulator._intake import Command
 
 if TYPE_CHECKING:
     from marlin_aio.simulator._printer import SimulatedPrinter
@@ -113,7 +113,7 @@ def unknown(printer: SimulatedPrinter, command: Command) -> None:
 
 
 def _g0_g1(printer: SimulatedPrinter, command: Command) -> Task:
-    parameters = parse_parameters(command.args)
+    parameters = command.parameters()
     feedrate = parameters.get("F")
     if feedrate is not None and feedrate > 0:
         printer._feedrate_mm_s = feedrate / 60.0
@@ -140,7 +140,7 @@ def _g0_g1(printer: SimulatedPrinter, command: Command) -> Task:
 
 
 def _g4(printer: SimulatedPrinter, command: Command) -> Task:
-    parameters = parse_parameters(command.args)
+    parameters = command.parameters()
     dwell_us = 0
     if (milliseconds := parameters.get("P")) is not None:
         dwell_us = round(milliseconds * 1000)
@@ -153,7 +153,7 @@ def _g4(printer: SimulatedPrinter, command: Command) -> Task:
 
 
 def _g28(printer: SimulatedPrinter, command: Command) -> Task:
-    parameters = parse_parameters(command.args)
+    parameters = command.parameters()
     axes = [axis for axis, letter in enumerate("XYZ") if letter in parameters] or [0, 1, 2]
     yield from _synchronize(printer)
     end = printer._t + to_us(printer.config.homing_s)
@@ -175,7 +175,7 @@ def _g91(printer: SimulatedPrinter, command: Command) -> None:
 
 
 def _g92(printer: SimulatedPrinter, command: Command) -> None:
-    parameters = parse_parameters(command.args)
+    parameters = command.parameters()
     for axis, letter in enumerate("XYZE"):
         value = parameters.get(letter)
         if value is not None:
@@ -206,7 +206,7 @@ def _m112(printer: SimulatedPrinter, command: Command) -> None:
 
 
 def _m113(printer: SimulatedPrinter, command: Command) -> None:
-    seconds = parse_parameters(command.args).get("S")
+    seconds = command.parameters().get("S")
     if seconds is not None:
         printer._keepalive_us = min(max(int(seconds), 0), 60) * US_PER_S
 

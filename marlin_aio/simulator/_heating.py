@@ -15,8 +15,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from marlin_aio.gcode import value_celsius
 from marlin_aio.simulator._config import US_PER_S
-from marlin_aio.simulator._intake import Command, parse_parameters
+from marlin_aio.simulator._intake import Command
 from marlin_aio.simulator._thermal import STEP_US, Heater
 
 if TYPE_CHECKING:
@@ -58,24 +59,24 @@ def m109(printer: SimulatedPrinter, command: Command) -> Task | None:
 
 
 def _set_hotend(printer: SimulatedPrinter, command: Command, *, wait: bool = False) -> Task | None:
-    parameters = parse_parameters(command.args)
+    parameters = command.parameters()
     extruder = _target_extruder(printer, command, parameters)
     if extruder is None:
         return None
     heater = printer._hotends[extruder]
-    return _set_target(printer, heater, parameters, wait, extruder)
+    return _set_target(printer, heater, command, wait, extruder)
 
 
-def _set_target(
-    printer: SimulatedPrinter, heater: Heater, parameters: dict[str, float | None], wait: bool, extruder: int
-) -> Task | None:
+def _set_target(printer: SimulatedPrinter, heater: Heater, command: Command, wait: bool, extruder: int) -> Task | None:
     """M104/M109, M140/M190, M141/M191: S sets and waits only for heating, R waits both ways."""
-    no_wait_for_cooling = parameters.get("S") is not None
-    celsius = parameters.get("S") if no_wait_for_cooling else parameters.get("R")
+    words = command.words
+    no_wait_for_cooling = words.value("S") is not None
+    celsius = words.value("S") if no_wait_for_cooling else words.value("R")
     if celsius is None:
         return None
     printer._sync_thermal()
-    heater.set_target(float(int(celsius)))  # celsius_t is an integer in Marlin 2.1
+    # parser.value_celsius(): strtol's long cut to a 16-bit celsius_t (`S65816` is 280), as the board reads it.
+    heater.set_target(float(value_celsius(celsius)))
     if printer.config.repetier_targets:
         printer._emit(f"{_target_label(printer, heater, extruder)}:{int(heater.target_celsius)}")
     heating = heater.target_celsius > heater.celsius
@@ -146,7 +147,7 @@ def _wait_for_heater(printer: SimulatedPrinter, heater: Heater, extruder: int) -
 def m105(printer: SimulatedPrinter, command: Command) -> None:
     """M105 [T<n>]: the temperatures, on the `ok` line itself."""
     printer._skip_ok = True  # M105 answers on its own `ok T:...` line, or not at all
-    extruder = _target_extruder(printer, command, parse_parameters(command.args))
+    extruder = _target_extruder(printer, command, command.parameters())
     if extruder is not None:
         printer._emit("ok" + heater_states(printer, extruder))
 
@@ -154,30 +155,30 @@ def m105(printer: SimulatedPrinter, command: Command) -> None:
 def m140(printer: SimulatedPrinter, command: Command) -> None:
     """M140 S<celsius>: set the bed's target and go on."""
     assert printer._bed is not None
-    _set_target(printer, printer._bed, parse_parameters(command.args), False, printer._active_extruder)
+    _set_target(printer, printer._bed, command, False, printer._active_extruder)
 
 
 def m190(printer: SimulatedPrinter, command: Command) -> Task | None:
     """M190 S|R<celsius>: set the bed's target and wait for it (S: only when heating)."""
     assert printer._bed is not None
-    return _set_target(printer, printer._bed, parse_parameters(command.args), True, printer._active_extruder)
+    return _set_target(printer, printer._bed, command, True, printer._active_extruder)
 
 
 def m141(printer: SimulatedPrinter, command: Command) -> None:
     """M141 S<celsius>: set the chamber's target and go on."""
     assert printer._chamber is not None
-    _set_target(printer, printer._chamber, parse_parameters(command.args), False, printer._active_extruder)
+    _set_target(printer, printer._chamber, command, False, printer._active_extruder)
 
 
 def m191(printer: SimulatedPrinter, command: Command) -> Task | None:
     """M191 S|R<celsius>: set the chamber's target and wait for it (S: only when heating)."""
     assert printer._chamber is not None
-    return _set_target(printer, printer._chamber, parse_parameters(command.args), True, printer._active_extruder)
+    return _set_target(printer, printer._chamber, command, True, printer._active_extruder)
 
 
 def m155(printer: SimulatedPrinter, command: Command) -> None:
     """M155 S<seconds>: report the temperatures this often (0: stop), as AUTO_REPORT_TEMPERATURES does."""
-    seconds = parse_parameters(command.args).get("S")
+    seconds = command.parameters().get("S")
     if seconds is None:
         return
     printer._report_us = min(max(int(seconds), 0), 60) * US_PER_S

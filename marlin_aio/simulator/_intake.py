@@ -53,9 +53,11 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from marlin_aio import gcode
+from marlin_aio.gcode import GCodeLine
 from marlin_aio.simulator._config import Faults, SimulatorConfig
 
-__all__ = ["Command", "LineReader", "WireFlips", "parse_parameters"]
+__all__ = ["Command", "LineReader", "WireFlips"]
 
 _MAX_COMMAND_BYTES = 95  # MAX_CMD_SIZE 96 including the NUL
 _EOL = re.compile(rb"[\r\n]")
@@ -67,14 +69,10 @@ _LEADING_LONG = re.compile(rb"[ \t\n\v\f\r]*([-+]?[0-9]+)")  # strtol skips what
 # What the ADVANCED_OK `ok` echoes of a command that starts with N: the N and every signed digit after it.
 _OK_LABEL = re.compile(rb"N[-+0-9]*")
 # parser.cpp: `N` and a digit or sign, more digits, spaces.
-_LINE_NUMBER_WORD = re.compile(r"N[-+0-9][0-9]* *")
-_LINE_NUMBER_WORD_ANY_CASE = re.compile(r"[Nn][-+0-9][0-9]* *")
-_CODE_DIGITS = re.compile(r" *([0-9]+) *")
 _TO_UPPER = str.maketrans("abcdefghijklmnopqrstuvwxyz", "ABCDEFGHIJKLMNOPQRSTUVWXYZ")
 # Commands whose argument is a string, not parameters (parser.cpp hands them the raw text); M511's password is a
 # number on Marlin, a word here, so it keeps its case too.
 _STRING_ARGUMENT_CODES = frozenset({"M23", "M28", "M30", "M117", "M118", "M928", "M511"})
-_PARAMETER = re.compile(r"([A-Z]) *([-+]?(?:\d+\.?\d*|\.\d+))?")
 # What Marlin's emergency parser (feature/e_parser.h) recognises at the start of a line.
 _EMERGENCY_LINE = re.compile(rb" *(?:N[-0-9 ]*)?M *(108|112|410)")
 _EMERGENCY_HINT = re.compile(rb"1[01][028]|410")
@@ -97,11 +95,16 @@ class Command:
     """`"N5"` when the stored line starts with `N` (ADVANCED_OK echoes it in the `ok`)."""
     line_number: int | None
     """5 for a numbered line (its own number, also for an M110 line), None for an unnumbered one."""
+    words: GCodeLine
+    """The line as parser.cpp reads it (`marlin_aio.gcode`, the library's own reading): its parameters, with
+    Marlin's rules for values (`value_celsius`), are what the handlers act on."""
+
+    def parameters(self) -> dict[str, float | None]:
+        """The parameter words by letter, as Marlin's `floatval` reads them (the last of a letter wins): `X10 E`
+        gives `{"X": 10.0, "E": None}`."""
+        return {letter: None if value is None else gcode.value_float(value) for letter, value in self.words.words}
 
 
-def parse_parameters(args: str) -> dict[str, float | None]:
-    """A command's parameter words by letter: `X10 E` gives `{"X": 10.0, "E": None}`."""
-    return {letter: float(value) if value else None for letter, value in _PARAMETER.findall(args)}
 
 
 def _strtol(data: bytes, start: int) -> int:
@@ -321,7 +324,6 @@ class LineReader:
         self._line = bytearray()  # the line being read, as process_stream_char() stored it
         self._state = _NORMAL
         self._emergency_tail = b""
-        self._number_word = _LINE_NUMBER_WORD_ANY_CASE if config.case_insensitive else _LINE_NUMBER_WORD
         self._m110_queued = False  # an M110 went into the ring (and may not have run yet)
         self.last_line_number = 0
         """The line counter: the number of the last numbered line taken (M110 sets it)."""
@@ -405,7 +407,7 @@ class LineReader:
 
     def run_m110(self, command: Command) -> None:
         """M110 as it runs (`gcode/host/M110.cpp`): `N<n>` sets the line counter, for any M110 line."""
-        number = parse_parameters(command.args).get("N")
+        number = command.parameters().get("N")
         if number is not None:
             self.last_line_number = min(max(int(number), _LONG_MIN), _LONG_MAX)
 
@@ -455,30 +457,15 @@ class LineReader:
         return self._parse(command.decode("latin-1"), None, line_number)
 
     def _parse(self, text: str, line_label: str | None, line_number: int | None) -> Command:
-        """parser.cpp's `parse()` of a line without its leading spaces."""
+        """parser.cpp's `parse()` of a line without its leading spaces: the library's own reading of it
+        (`marlin_aio.gcode.parse_gcode`), so what the host checks is what the board runs."""
         case_insensitive = self._config.case_insensitive
-        first = text[:1]
-        if first == "N" or (first == "n" and case_insensitive):
-            word = self._number_word.match(text)
-            if word is not None:
-                text = text[word.end() :]
-        star = text.find("*")
-        if star >= 0:
-            text = text[:star].rstrip(" ")
-        letter = text[:1]
-        if case_insensitive and "a" <= letter <= "z":
-            letter = letter.upper()
-        if letter not in ("G", "M", "T"):
-            return Command(text, "", "", line_label, line_number)
-        digits = _CODE_DIGITS.match(text, 1)
-        if digits is None:
-            return Command(text, "", "", line_label, line_number)
-        code = letter + str(int(digits.group(1)) % 65536)  # codenum is a uint16_t
-        args = text[digits.end() :]
-        if case_insensitive and code not in _STRING_ARGUMENT_CODES and not args.isupper():
+        words = gcode.parse_gcode(text, case_insensitive=case_insensitive)
+        code, args = words.code, words.args
+        if code and case_insensitive and code not in _STRING_ARGUMENT_CODES and not args.isupper():
             # Only a-z: str.upper() would also change latin-1 letters, which Marlin leaves alone.
             args = args.upper() if args.isascii() else args.translate(_TO_UPPER)
-        return Command(text, code, args, line_label, line_number)
+        return Command(words.text, code, args, line_label, line_number, words)
 
     def _corrupt(self, command: bytes) -> bytes:
         # Never the leading N: a line that loses it is run unchecked (flip_bit_ratio is the fault that can).
