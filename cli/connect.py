@@ -3,16 +3,31 @@
 from __future__ import annotations
 
 import contextlib
+import getpass
+import os
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from enum import IntEnum
+from pathlib import Path
 
 from rich.console import Console
 
 import marlin_aio
 from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS
 
-__all__ = ["EXIT_CODES_HELP", "ConnectOptions", "Exit", "UsageProblem", "exit_code_for", "open_printer"]
+__all__ = [
+    "EXIT_CODES_HELP",
+    "PASSWORD_ENV",
+    "ConnectOptions",
+    "Exit",
+    "UsageProblem",
+    "exit_code_for",
+    "open_printer",
+    "printer_password",
+]
+
+#: The environment variable a locked printer's password (M511) is read from.
+PASSWORD_ENV = "MARLIN_PASSWORD"
 
 
 class Exit(IntEnum):
@@ -44,6 +59,40 @@ class UsageProblem(Exception):
     def __init__(self, message: str, code: Exit = Exit.USAGE) -> None:
         super().__init__(message)
         self.code = code
+
+
+def printer_password(on_argv: str | None, password_file: Path | None, *, ask: bool) -> str | None:
+    """A locked printer's password (Marlin's PASSWORD_FEATURE): asked on the terminal with `ask`, else read from
+    `password_file` (its first line), else from $MARLIN_PASSWORD; None when none is given.
+
+    Never from the command line: every user of the machine sees a process's arguments (`ps`), so a password given
+    there (`on_argv`) is refused with the ways that keep it private.
+
+    Raises:
+        UsageProblem: a password on the command line, more than one source, or a file that cannot be read.
+    """
+    if on_argv is not None:
+        raise UsageProblem(
+            f"--password on the command line is visible to every user of this machine (ps): put it in ${PASSWORD_ENV}, "
+            "in a file given with --password-file, or type it with --ask-password"
+        )
+    if ask and password_file is not None:
+        raise UsageProblem("--ask-password and --password-file are two sources of one password: give one")
+    if ask:
+        try:
+            return getpass.getpass("printer password (M511): ") or None
+        except (EOFError, KeyboardInterrupt):
+            raise UsageProblem("no password typed for --ask-password", Exit.INTERRUPTED) from None
+    if password_file is not None:
+        try:
+            lines = password_file.read_text(encoding="utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+            raise UsageProblem(f"--password-file {password_file}: {reason}") from None
+        if not lines or not lines[0].strip():
+            raise UsageProblem(f"--password-file {password_file} is empty: its first line should be the password")
+        return lines[0].strip()
+    return os.environ.get(PASSWORD_ENV) or None
 
 
 def exit_code_for(exc: marlin_aio.MarlinError) -> Exit:

@@ -22,7 +22,7 @@ from typer.core import TyperGroup
 import marlin_aio
 from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, check_target
 
-from .connect import EXIT_CODES_HELP, ConnectOptions, Exit, UsageProblem, exit_code_for
+from .connect import EXIT_CODES_HELP, PASSWORD_ENV, ConnectOptions, Exit, UsageProblem, exit_code_for, printer_password
 
 __all__ = ["app"]
 
@@ -96,7 +96,7 @@ _T = TypeVar("_T")
 
 
 def _stderr() -> Console:
-    return Console(stderr=True, highlight=False, soft_wrap=True)
+    return Console(stderr=True, highlight=False, emoji=False, soft_wrap=True)
 
 
 def fail(message: str, code: int = Exit.ERROR) -> NoReturn:
@@ -164,13 +164,20 @@ SimSpeedOption = Annotated[
 TimeoutOption = Annotated[
     float, typer.Option("--timeout", help="Seconds to wait for each answer from the printer.", min=0.1)
 ]
-PasswordOption = Annotated[
-    str | None,
+# The printer's password (Marlin's PASSWORD_FEATURE, M511) never comes from the command line, where `ps` shows it
+# to every user of the machine: `--password VALUE` is refused with a line that says where to put it instead.
+PasswordOption = Annotated[str | None, typer.Option("--password", hidden=True, show_default=False)]
+PasswordFileOption = Annotated[
+    Path | None,
     typer.Option(
-        "--password",
-        help="Unlock a printer with Marlin's PASSWORD_FEATURE (M511) when it connects.",
+        "--password-file",
+        help=f"Unlock a printer with Marlin's PASSWORD_FEATURE (M511) when it connects, with the password in this "
+        f"file (or in ${PASSWORD_ENV}).",
         show_default=False,
     ),
+]
+AskPasswordOption = Annotated[
+    bool, typer.Option("--ask-password", help="Ask for the printer's password (M511) on the terminal.")
 ]
 # In `set`, --timeout bounds the wait for the targets (as users expect there); the answer timeout moves aside.
 MaxHotendOption = Annotated[
@@ -180,6 +187,19 @@ MaxBedOption = Annotated[float, typer.Option("--max-bed", help="Highest bed targ
 MaxChamberOption = Annotated[
     float, typer.Option("--max-chamber", help="Highest chamber target allowed (C).", min=1, max=1000)
 ]
+
+
+def _limits(max_hotend: float, max_bed: float) -> marlin_aio.HeaterLimits:
+    """The heater limits of --max-hotend and --max-bed (the chamber's stays the library's default)."""
+    return marlin_aio.HeaterLimits(max_hotend, max_bed, DEFAULT_MAX_CHAMBER_CELSIUS)
+
+
+def _printer_password(on_argv: str | None, password_file: Path | None, ask: bool) -> str | None:
+    """The printer password from --password-file, --ask-password or the environment; --password refused."""
+    try:
+        return printer_password(on_argv, password_file, ask=ask)
+    except UsageProblem as exc:
+        fail(str(exc), exc.code)
 
 
 def _version_callback(value: bool) -> None:
@@ -250,6 +270,8 @@ def watch(
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
+    password_file: PasswordFileOption = None,
+    ask_password: AskPasswordOption = False,
     interval: Annotated[
         float | None,
         typer.Option(
@@ -275,6 +297,7 @@ def watch(
 ) -> None:
     """Live view of every heater, with keys to set targets; the farm view for several printers (the help text
     is `_WATCH_HELP`)."""
+    password = _printer_password(password, password_file, ask_password)
     from .watch import WatchSettings, watch_farm, watch_printer
 
     ports = ports or []
@@ -329,9 +352,9 @@ def watch(
     if farm_specs:
         if log is not None:
             fail("--log records one printer: watch it alone (one --port or --sim) to log it", Exit.USAGE)
-        code = run(watch_farm(farm_specs, settings, Console(highlight=False), _stderr()))
+        code = run(watch_farm(farm_specs, settings, Console(highlight=False, emoji=False), _stderr()))
     else:
-        code = run(watch_printer(options, settings, Console(highlight=False), _stderr()))
+        code = run(watch_printer(options, settings, Console(highlight=False, emoji=False), _stderr()))
     raise typer.Exit(int(code))
 
 
@@ -392,11 +415,14 @@ def set_targets(
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
+    password_file: PasswordFileOption = None,
+    ask_password: AskPasswordOption = False,
     max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
     max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
     max_chamber: MaxChamberOption = DEFAULT_MAX_CHAMBER_CELSIUS,
 ) -> None:
     """Set heater targets, print what the printer confirmed, wait if asked (the help text is `_SET_HELP`)."""
+    password = _printer_password(password, password_file, ask_password)
     from .setcmd import SetRequest, set_printer_targets
 
     if off and (hotend or bed or chamber):
@@ -427,7 +453,7 @@ def set_targets(
         max_chamber_celsius=max_chamber,
         password=password,
     )
-    code = run(set_printer_targets(options, request, Console(highlight=False), _stderr()))
+    code = run(set_printer_targets(options, request, Console(highlight=False, emoji=False), _stderr()))
     raise typer.Exit(int(code))
 
 
@@ -482,10 +508,13 @@ def log(
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
+    password_file: PasswordFileOption = None,
+    ask_password: AskPasswordOption = False,
     max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
     max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
 ) -> None:
     """Record temperatures to a file (the help text is `_LOG_HELP`)."""
+    password = _printer_password(password, password_file, ask_password)
     import math
 
     from .logcmd import LogSettings, log_temperatures
@@ -526,8 +555,9 @@ def log(
 _PRINT_HELP = "\n\n".join(
     (
         "Stream a G-code file with line numbers, checksums and resends, with a progress bar and live temperatures.",
-        "The whole file is checked before anything is sent: a line Marlin cannot take exits with code 2 and its "
-        "line number. Display text (M117, M118, M0/M1) with letters beyond ASCII is sent transliterated (café as "
+        "The whole file is checked before anything is sent: a line Marlin cannot take, a heater target above "
+        "--max-hotend or --max-bed, or a file that is not text exits with code 2 and its line number. "
+        "Display text (M117, M118, M0/M1) with letters beyond ASCII is sent transliterated (café as "
         "cafe), with a warning. While the printer waits for a heater (M109, M190 in the file) the view says so "
         "instead of a rate.",
         "Keys on a terminal: p pauses (no new lines are sent; the moves the printer has finish, heaters stay on), "
@@ -541,7 +571,8 @@ _PRINT_HELP = "\n\n".join(
         "header); line N starts a layer (its Z move; slicers mark layers with comments such as ;LAYER:), as moves "
         "the printer had buffered may not have run; and with absolute extrusion (M82) E goes on from where it "
         "was: the header's G92 E0 resets it, so the layer must set E itself (G92 E...) or you add that line (a "
-        "warning names the line to add when it finds the jump).",
+        "warning names the line to add when it finds the jump). A resume the check calls dangerous (such as a jump "
+        "in E that would push out a long length of filament at once) is refused unless --force.",
     )
 )
 
@@ -580,14 +611,23 @@ def print_file(
             show_default=False,
         ),
     ] = None,
+    force: Annotated[
+        bool,
+        typer.Option("--force", help="With --from-line: resume even where the check calls the resume dangerous."),
+    ] = False,
     port: PortOption = None,
     baud: BaudOption = None,
     sim: SimOption = False,
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
+    password_file: PasswordFileOption = None,
+    ask_password: AskPasswordOption = False,
+    max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
+    max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
 ) -> None:
     """Stream a G-code file with a progress view, keys and --from-line (the help text is `_PRINT_HELP`)."""
+    password = _printer_password(password, password_file, ask_password)
     from .printcmd import PrintSettings, print_gcode
     from .printfile import plan_print
 
@@ -598,15 +638,24 @@ def print_file(
     if send_ahead is False and window is not None:
         fail("--ping-pong sends one line at a time; do not combine it with --window", Exit.USAGE)
     try:
-        plan = plan_print(path, from_line)
+        plan = plan_print(path, from_line, force=force, limits=_limits(max_hotend, max_bed))
     except ValueError as exc:
         fail(str(exc), Exit.USAGE)
     except OSError as exc:
         fail(f"cannot read {path}: {exc.strerror or exc}", Exit.USAGE)
     ahead = window is not None if send_ahead is None else send_ahead
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
+    options = ConnectOptions(
+        port=port,
+        baud=baud,
+        sim=sim,
+        sim_speed=sim_speed,
+        timeout_s=timeout,
+        password=password,
+        max_hotend_celsius=max_hotend,
+        max_bed_celsius=max_bed,
+    )
     settings = PrintSettings(plan=plan, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters)
-    code = run(print_gcode(options, settings, Console(highlight=False), _stderr()))
+    code = run(print_gcode(options, settings, Console(highlight=False, emoji=False), _stderr()))
     raise typer.Exit(int(code))
 
 
@@ -617,7 +666,8 @@ def print_file(
 _SEND_HELP = "\n\n".join(
     (
         "Send G-code commands in order and print each reply (its lines, then ok).",
-        "Every command is checked first: a line break, non-ASCII, an empty command or one too long for Marlin exits "
+        "Every command is checked first: a line break, non-ASCII, an empty command, one too long for Marlin, or a "
+        "heater target above --max-hotend or --max-bed however it is spelt (M104S280, m0104 s280, M104 B1000) exits "
         "with code 2 and nothing is sent. The first failure (timeout, halt, lost link) ends the run with its exit "
         "code; a command the printer does not know exits 1 after the others ran.",
         "Homing and probing (G28, G29, ...) get at least 3 minutes. M112 is the emergency stop: sent at once, the "
@@ -638,16 +688,30 @@ def send(
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
+    password_file: PasswordFileOption = None,
+    ask_password: AskPasswordOption = False,
+    max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
+    max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
 ) -> None:
     """Send G-code commands in order and print each reply (the help text is `_SEND_HELP`)."""
+    password = _printer_password(password, password_file, ask_password)
     from .sendcmd import check_commands, send_commands
 
     try:
-        checked = check_commands(commands or [])
+        checked = check_commands(commands or [], limits=_limits(max_hotend, max_bed))
     except UsageProblem as exc:
         fail(str(exc), exc.code)
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
-    code = run(send_commands(options, checked, Console(highlight=False, soft_wrap=True), _stderr()))
+    options = ConnectOptions(
+        port=port,
+        baud=baud,
+        sim=sim,
+        sim_speed=sim_speed,
+        timeout_s=timeout,
+        password=password,
+        max_hotend_celsius=max_hotend,
+        max_bed_celsius=max_bed,
+    )
+    code = run(send_commands(options, checked, Console(highlight=False, emoji=False, soft_wrap=True), _stderr()))
     raise typer.Exit(int(code))
 
 
@@ -660,8 +724,11 @@ _TERMINAL_HELP = "\n\n".join(
         "Tab completes the common G and M codes (with what each does); Up/Down and Ctrl-R reach the history of "
         "earlier sessions. Replies are printed as they come, and you can type on while a long command runs. Ctrl-C "
         "clears the line, Ctrl-D quits.",
-        "F12 (or ! or M112, then Enter) sends the emergency stop at once, ahead of anything queued: the printer "
-        "halts and needs a reset (the exit code is then 7).",
+        "F12 sends the emergency stop at once, ahead of anything queued: the printer halts and needs a reset (the "
+        "exit code is then 7). M112 (or !) and Enter asks first. M112 is never completed or kept in the history.",
+        "Every command is read as Marlin reads it and checked against --max-hotend and --max-bed (M104S280, "
+        "m0104 s280 and M104 B1000 are all heater targets); one refused, or a malformed one, is one error line and "
+        "nothing is sent.",
         "Needs a terminal: from scripts use send.",
     )
 )
@@ -675,6 +742,10 @@ def terminal(
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
+    password_file: PasswordFileOption = None,
+    ask_password: AskPasswordOption = False,
+    max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
+    max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
     interval: Annotated[
         float, typer.Option("--interval", help="Seconds between the (hidden) temperature polls.", min=0.05)
     ] = 1.0,
@@ -697,6 +768,7 @@ def terminal(
     no_history: Annotated[bool, typer.Option("--no-history", help="Keep no history after this session.")] = False,
 ) -> None:
     """The interactive G-code console (the help text is `_TERMINAL_HELP`)."""
+    password = _printer_password(password, password_file, ask_password)
     from .console import ConsoleSettings, default_history_path, run_console
 
     if not (sys.stdin.isatty() and sys.stdout.isatty()):
@@ -706,7 +778,16 @@ def terminal(
         temperature_every_s=temperatures_every,
         history_path=None if no_history else history or default_history_path(),
     )
-    options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
+    options = ConnectOptions(
+        port=port,
+        baud=baud,
+        sim=sim,
+        sim_speed=sim_speed,
+        timeout_s=timeout,
+        password=password,
+        max_hotend_celsius=max_hotend,
+        max_bed_celsius=max_bed,
+    )
     code = run(run_console(options, settings, _stderr()))
     raise typer.Exit(int(code))
 
@@ -884,14 +965,17 @@ def bench(
     sim_speed: SimSpeedOption = 1.0,
     timeout: TimeoutOption = 10.0,
     password: PasswordOption = None,
+    password_file: PasswordFileOption = None,
+    ask_password: AskPasswordOption = False,
 ) -> None:
     """Measure latency, order and throughput of the link to the printer (the help text is `_BENCH_HELP`)."""
+    password = _printer_password(password, password_file, ask_password)
     from .benchcmd import BenchSettings, bench_printer, show_result
 
     options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
     settings = BenchSettings(round_trips=count, lines=lines, duration_s=duration)
     result = run(bench_printer(options, settings, _stderr()))
-    show_result(result, Console(highlight=False), as_json=json_output)
+    show_result(result, Console(highlight=False, emoji=False), as_json=json_output)
     if result.problem is not None:
         fail(result.problem)
     if result.warning is not None:
@@ -925,7 +1009,7 @@ def plot(
     if output is None and not show:
         fail("give --output FILE.png, or --show to draw in the terminal", Exit.USAGE)
     try:
-        message = plot_log(logfile, output, show, Console(highlight=False), session)
+        message = plot_log(logfile, output, show, Console(highlight=False, emoji=False), session)
     except UsageProblem as exc:
         fail(str(exc), exc.code)
     except ValueError as exc:
@@ -946,7 +1030,7 @@ def ports() -> None:
     from rich.table import Table
 
     found = marlin_aio.list_ports()
-    console = Console(highlight=False)
+    console = Console(highlight=False, emoji=False)
     if not found:
         console.print("no serial ports found")
         return

@@ -69,7 +69,7 @@ from marlin_aio.events import (
     UnrecognisedLine,
 )
 from marlin_aio.framing import LineSplitter
-from marlin_aio.heaters import check_gcode_targets
+from marlin_aio.heaters import HeaterLimits, check_gcode_targets
 from marlin_aio.linkstate import LinkState
 from marlin_aio.motion import (
     LONG_COMMAND_TIMEOUT_S,
@@ -130,6 +130,7 @@ __all__ = [
     "FirmwareInfo",
     "HandshakeError",
     "HandshakeTimeoutError",
+    "HeaterLimits",
     "HeaterReading",
     "HostAction",
     "LineSplitter",
