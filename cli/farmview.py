@@ -5,6 +5,9 @@ error, when it reconnects, print) and that printer's `WatchModel` (readings, hea
 the width given and the tests render them into `Console(record=True, width=...)`. The detail view of one printer
 is the single-printer view (`render.watch_view`) of its model, so both views read the same numbers.
 
+Every cell is a `rich.text.Text`, never a str rich would read as markup: a printer named `[b]p1` or an error quoting
+`Cap:REPEAT:0` is shown as it is.
+
 A row keeps its name, heaters, state and print progress whole; only the link column (the last one, where an error
 can be long) is shortened, with an ellipsis, to what the width leaves. A printer whose link is down shows no
 temperatures: its last ones would read as if they were current.
@@ -223,21 +226,21 @@ def farm_table(rows: Sequence[FarmRow], width: int | None = None, selected: int 
         link_width = max(width - used - gap * len(columns), 4)
     table = Table(box=None, padding=(0, gap, 0, 0), pad_edge=False, header_style="bold", expand=False)
     for header, right in columns:
-        table.add_column(header, justify="right" if right else "left", no_wrap=True)
+        table.add_column(Text(header), justify="right" if right else "left", no_wrap=True)
     table.add_column("link", no_wrap=True)
     for index, (row, line) in enumerate(zip(rows, cells, strict=True)):
         link = (
             row.link if link_width is None else _fit_link(_compact_link(row.link) if narrow else row.link, link_width)
         )
         state_index = len(line) - (2 if with_print else 1)
-        rendered: list[Text | str] = []
+        rendered: list[Text] = []  # Text, not str: a printer's name or a heater's must not be read as markup
         for position, cell in enumerate(line):
             if position == state_index:
                 rendered.append(Text(cell, style=_STATE_STYLE.get(cell, "")))
             elif position == 1:
                 rendered.append(Text(cell, style="bold"))
             else:
-                rendered.append(cell)
+                rendered.append(Text(cell))
         rendered.append(Text(link, style="green" if row.link_up else "bold red"))
         table.add_row(*rendered, style="reverse" if index == selected else None)
     return table

@@ -13,6 +13,10 @@ watching is not this command's call.
 
 A log the file system stops (disk full, the file size limit) ends the run at once with one line, the rows on
 disk counted in it, and exit code 1: logging is all this command does.
+
+A run that set targets says, however it ends (Ctrl-C, --duration, a lost link, an error), which heaters are still
+on and how to turn them off, in `set`'s words (`setcmd.heaters_left_on`), from the last reading it had. Lines
+that carry a file name, a port or an error's text are printed with markup and emoji codes off.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import marlin_aio
 
 from .connect import ConnectOptions, Exit, open_printer
 from .logfile import LogFormat, LogWriteError, TemperatureLog
+from .setcmd import say_heaters_left_on
 from .terminal import on_stop_signals
 
 __all__ = ["RECONNECT_DELAYS_S", "LogSettings", "log_temperatures", "record_temperatures"]
@@ -110,6 +115,8 @@ class _Run:
 
     targets_pending: bool
     attempt: int = 0  # reconnect attempts since the last session that wrote rows
+    targets_sent: bool = False
+    latest: marlin_aio.TemperatureReading | None = None  # the last reading of the last session: what is on
 
 
 async def _session(
@@ -122,20 +129,38 @@ async def _session(
     errors: Console,
 ) -> None:
     async with open_printer(options, errors) as (printer, label):
-        first = await printer.read_temperatures()
-        log.check_heaters(first.temperatures.heaters)  # refuse a file with other heaters before setting anything
-        if run.targets_pending:
-            await printer.set_temperatures(hotend=settings.hotend, bed=settings.bed)
-            run.targets_pending = False
-            errors.print(f"set {_targets_line(settings)}; logging from the first reading", style="dim")
-        errors.print(
-            f"logging {label} to {settings.output} every {settings.interval_s:g} s, session {log.session}; "
-            "Ctrl-C stops",
-            style="dim",
-        )
-        # Counted from here: opening the port and the handshake may have taken a while.
-        remaining_s = None if deadline is None else max(deadline - asyncio.get_running_loop().time(), 0.0)
-        await record_temperatures(printer, log, settings.interval_s, remaining_s, stop)
+        try:
+            await _log_session(printer, label, settings, log, stop, deadline, run, errors)
+        finally:
+            run.latest = printer.latest
+
+
+async def _log_session(
+    printer: marlin_aio.Printer,
+    label: str,
+    settings: LogSettings,
+    log: TemperatureLog,
+    stop: asyncio.Event,
+    deadline: float | None,
+    run: _Run,
+    errors: Console,
+) -> None:
+    first = await printer.read_temperatures()
+    log.check_heaters(first.temperatures.heaters)  # refuse a file with other heaters before setting anything
+    if run.targets_pending:
+        run.targets_pending = False
+        run.targets_sent = True  # from here on, the user must hear what stays on (a failed set may have set one)
+        await printer.set_temperatures(hotend=settings.hotend, bed=settings.bed)
+        errors.print(f"set {_targets_line(settings)}; logging from the first reading", style="dim")
+    errors.print(
+        f"logging {label} to {settings.output} every {settings.interval_s:g} s, session {log.session}; Ctrl-C stops",
+        style="dim",
+        markup=False,
+        emoji=False,
+    )
+    # Counted from here: opening the port and the handshake may have taken a while.
+    remaining_s = None if deadline is None else max(deadline - asyncio.get_running_loop().time(), 0.0)
+    await record_temperatures(printer, log, settings.interval_s, remaining_s, stop)
 
 
 async def log_temperatures(options: ConnectOptions, settings: LogSettings, errors: Console) -> Exit:
@@ -154,33 +179,53 @@ async def log_temperatures(options: ConnectOptions, settings: LogSettings, error
     stop = asyncio.Event()
     run = _Run(targets_pending=settings.hotend is not None or settings.bed is not None)
     with on_stop_signals(stop.set):
-        async with TemperatureLog(settings.output, settings.fmt, interval_s=settings.interval_s) as log:
-            try:
-                while not stop.is_set():
-                    if deadline is not None and loop.time() >= deadline:
-                        break
-                    rows_before = log.summary.rows
-                    try:
-                        await _session(options, settings, log, stop, deadline, run, errors)
-                        break
-                    except _RECONNECTABLE as exc:
-                        if not settings.reconnect:
-                            if isinstance(exc, marlin_aio.ConnectionLostError):
-                                raise marlin_aio.ConnectionLostError(
-                                    f"{exc} (unplugged? use --reconnect to keep logging)"
-                                ) from exc
-                            raise
-                        await _back_off(exc, run, log, rows_before, stop, deadline, errors)
-            except LogWriteError:
-                raise  # its one line counts the rows on disk
-            except BaseException:
-                if log.summary.rows:  # what the file holds; a run refused before its first row has one line only
-                    errors.print(log.summary.line())
-                raise
-        if log.failure is not None:
-            raise log.failure  # met by the last rows, as the file was closed
-        errors.print(log.summary.line())
+        try:
+            await _log_until_done(options, settings, stop, deadline, run, errors)
+        except BaseException as exc:
+            if run.targets_sent:
+                say_heaters_left_on(errors, run.latest, exc)
+            raise
+    if run.targets_sent:
+        say_heaters_left_on(errors, run.latest)
     return Exit.OK
+
+
+async def _log_until_done(
+    options: ConnectOptions,
+    settings: LogSettings,
+    stop: asyncio.Event,
+    deadline: float | None,
+    run: _Run,
+    errors: Console,
+) -> None:
+    """The sessions of one run, into one file, and its summary line (see `log_temperatures`)."""
+    loop = asyncio.get_running_loop()
+    async with TemperatureLog(settings.output, settings.fmt, interval_s=settings.interval_s) as log:
+        try:
+            while not stop.is_set():
+                if deadline is not None and loop.time() >= deadline:
+                    break
+                rows_before = log.summary.rows
+                try:
+                    await _session(options, settings, log, stop, deadline, run, errors)
+                    break
+                except _RECONNECTABLE as exc:
+                    if not settings.reconnect:
+                        if isinstance(exc, marlin_aio.ConnectionLostError):
+                            raise marlin_aio.ConnectionLostError(
+                                f"{exc} (unplugged? use --reconnect to keep logging)"
+                            ) from exc
+                        raise
+                    await _back_off(exc, run, log, rows_before, stop, deadline, errors)
+        except LogWriteError:
+            raise  # its one line counts the rows on disk
+        except BaseException:
+            if log.summary.rows:  # what the file holds; a run refused before its first row has one line only
+                errors.print(log.summary.line(), markup=False, emoji=False)
+            raise
+    if log.failure is not None:
+        raise log.failure  # met by the last rows, as the file was closed
+    errors.print(log.summary.line(), markup=False, emoji=False)
 
 
 async def _back_off(
@@ -198,7 +243,7 @@ async def _back_off(
         log.new_session()  # the next connection's rows are a session of their own, whatever the printer did meanwhile
     delay = RECONNECT_DELAYS_S[min(run.attempt, len(RECONNECT_DELAYS_S) - 1)]
     run.attempt += 1
-    errors.print(f"{exc}; reconnecting in {delay:g} s (Ctrl-C stops)", style="yellow")
+    errors.print(f"{exc}; reconnecting in {delay:g} s (Ctrl-C stops)", style="yellow", markup=False, emoji=False)
     if deadline is not None:
         delay = min(delay, max(deadline - asyncio.get_running_loop().time(), 0.0))
     with contextlib.suppress(TimeoutError):

@@ -20,6 +20,7 @@ from marlin_aio import (
     HEATER_NAMES,
     TemperatureReading,
     check_target,
+    command_code,
     heater_name,
 )
 
@@ -95,12 +96,14 @@ class WatchModel:
         self.timeouts = 0
         self.errors = 0
         self.latest_time: float | None = None
+        self.latest: TemperatureReading | None = None
 
     def add(self, reading: TemperatureReading) -> None:
         """Record a reading (any source)."""
         now = reading.monotonic_s
         self.readings += 1
         self.latest_time = now
+        self.latest = reading
         horizon = now - self.window_s
         for key, heater in reading.temperatures.heaters.items():
             series = self.series.get(key)
@@ -253,6 +256,9 @@ class Notice:
     error: bool = False
 
 
+#: The G-code commands that set a heater's target (typed on the : line).
+_TARGET_CODES = frozenset({"M104", "M109", "M140", "M190", "M141", "M191"})
+
 _ENTER = ("\r", "\n")
 _BACKSPACE = ("\x7f", "\x08")
 _ESCAPE = "\x1b"
@@ -295,6 +301,9 @@ class WatchControls:
         self._prompt: _Prompt | None = None
         # Targets sent but not yet seen in a reading, so + pressed twice quickly steps twice.
         self._wanted: dict[str, float] = {}
+        self.heated = False
+        """A key (a preset, h, b, +, or a target typed on the : line) set a heater's target above 0: on the way
+        out, watch says what is still on."""
 
     # ------------------------------------------------------------------ what the view shows
 
@@ -381,14 +390,14 @@ class WatchControls:
         if self._prompt is None:
             # Only a key that opens an input line may start it (`:M114` typed fast); no key command comes of a paste.
             if text[:1].lower() not in _PROMPTS:
-                self.notice = Notice("pasted text is ignored here", ("press : and paste one G-code line",), error=True)
+                self.notice = Notice("pasted text is ignored here: press : and paste one G-code line", error=True)
                 return None
             self._open(text[0].lower())
             text = text[1:]
         lines = [line for line in text.replace("\r\n", "\n").replace("\r", "\n").split("\n")]
         if len([line for line in lines[:-1] if line.strip()]) > 1 or (len(lines) > 1 and lines[-1].strip()):
             self._close()
-            self.notice = Notice("several lines pasted", ("nothing sent: one line at a time",), error=True)
+            self.notice = Notice("several lines pasted; nothing sent: one line at a time", error=True)
             return None
         action = None
         for key in lines[0]:
@@ -454,7 +463,7 @@ class WatchControls:
             except ValueError as exc:
                 hint = f" (raise the limit with --max-{name})" if "above the limit" in str(exc) else ""
                 refused = f"{label}: " if label else ""
-                self.notice = Notice(f"{refused}{exc}{hint}", ("nothing sent",), error=True)
+                self.notice = Notice(f"{refused}{exc}{hint}; nothing sent", error=True)
                 return None
         for name, value in checked.items():
             self._wanted["T" if name == "hotend" else "B"] = value
@@ -466,4 +475,9 @@ class WatchControls:
         """Show what became of `action`; a target that failed to go out is no longer counted as wanted."""
         if notice.error and isinstance(action, SetTargets):
             self._wanted.clear()
+        if not notice.error:
+            if isinstance(action, SetTargets) and (action.hotend or action.bed):
+                self.heated = True
+            elif isinstance(action, SendCommand) and command_code(action.text) in _TARGET_CODES:
+                self.heated = True  # whatever it set: on the way out, the readings say what is on
         self.notice = notice

@@ -1,6 +1,8 @@
 """Rendering: pure functions from the watch model to rich renderables and plain text.
 
 Nothing here touches the printer or the terminal; tests render into `Console(record=True, width=...)`.
+Everything that can carry the printer's or the user's text (heater names, the firmware's name, the port, a
+reply) is a `rich.text.Text`, which reads no markup and no emoji codes: `Cap:REPEAT:0` stays as it is.
 Every part is laid out for the width it is given, from 40 columns up: the table takes the widest of its layouts
 that fits, and the lines made of several parts (footer, legend, key help) break between parts, never inside one.
 """
@@ -194,14 +196,14 @@ def heater_table(statuses: list[HeaterStatus], width: int | None = None) -> Tabl
         )
     for status in statuses:
         cells = _cells(status, layout.units_in_cells)
-        row: list[Text | str] = []
+        row: list[Text] = []
         for column in layout.columns:
             if column == "heater":
                 row.append(Text(cells[column], style=_colour(status.key)))
             elif column == "state":
                 row.append(Text(cells[column], style=_STATE_STYLE.get(status.state, "")))
             else:
-                row.append(cells[column])
+                row.append(Text(cells[column]))  # Text, not str: a str cell would be read as markup
         table.add_row(*row)
     return table
 

@@ -1,8 +1,12 @@
 """`marlin-temp send "G28" "M503"`: run G-code commands one after another and print each reply.
 
 Every command is checked before the port is opened, so a bad one among several sends none of them. The checks
-are the library's (`validate_command`), plus a length that fits whatever line number the client gives it. M112
-is not queued behind the others: it goes out at once as the emergency stop (`Printer.emergency_stop`).
+are the library's (`validate_command`, and `check_gcode_targets` for a target above the limits: `M104S280` exits 2
+with nothing connected), plus a length that fits whatever line number the client gives it. M112 is not queued
+behind the others: it goes out at once as the emergency stop (`Printer.emergency_stop`).
+
+What the printer says is printed verbatim: `Cap:REPEAT:0` must not become an emoji, nor `echo:[bold]` a style, so
+every line is printed with markup and emoji codes off, whatever Console it is given.
 """
 
 from __future__ import annotations
@@ -12,7 +16,17 @@ from collections.abc import Mapping, Sequence
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio import MAX_COMMAND_BYTES, command_code, command_timeout_s, validate_command
+from marlin_aio import (
+    DEFAULT_MAX_BED_CELSIUS,
+    DEFAULT_MAX_CHAMBER_CELSIUS,
+    DEFAULT_MAX_HOTEND_CELSIUS,
+    MAX_COMMAND_BYTES,
+    HeaterLimits,
+    check_gcode_targets,
+    command_code,
+    command_timeout_s,
+    validate_command,
+)
 
 from .connect import ConnectOptions, Exit, UsageProblem, open_printer
 
@@ -41,13 +55,20 @@ def emergency_stop_notes(capabilities: Mapping[str, bool]) -> list[str]:
     return notes
 
 
-def check_command(text: str) -> str:
+#: The limits `send` checks targets against when it is given none: the library's, as `Printer` has them.
+_DEFAULT_LIMITS = HeaterLimits(DEFAULT_MAX_HOTEND_CELSIUS, DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS)
+
+
+def check_command(text: str, *, limits: HeaterLimits | None = None) -> str:
     """The command as it will be sent (comment and surrounding blanks removed).
 
     Raises:
-        ValueError: a line break, non-ASCII, `*` or nothing in it, or too long for Marlin once numbered.
+        ValueError: a line break, non-ASCII, `*` or nothing in it, too long for Marlin once numbered, or a target
+            that is not a number, negative or above `limits` (None: the library's defaults).
     """
     command = validate_command(text)
+    # The client refuses it too, but only once connected: checked here, a bad target opens nothing.
+    check_gcode_targets(command, _DEFAULT_LIMITS if limits is None else limits)
     if len(command) + _NUMBERING > MAX_COMMAND_BYTES:
         raise ValueError(
             f"command is too long: {command[:40]!r}... with a line number and checksum would exceed Marlin's "
@@ -56,8 +77,8 @@ def check_command(text: str) -> str:
     return command
 
 
-def check_commands(texts: Sequence[str]) -> list[str]:
-    """Every command checked (see `check_command`), before any is sent.
+def check_commands(texts: Sequence[str], *, limits: HeaterLimits | None = None) -> list[str]:
+    """Every command checked (see `check_command`, with `limits`), before any is sent.
 
     Raises:
         UsageProblem: none given, or one is bad (the message says which and why).
@@ -67,7 +88,7 @@ def check_commands(texts: Sequence[str]) -> list[str]:
     commands = []
     for index, text in enumerate(texts, 1):
         try:
-            commands.append(check_command(text))
+            commands.append(check_command(text, limits=limits))
         except ValueError as exc:
             which = f"command {index} of {len(texts)}" if len(texts) > 1 else "the command"
             # The library speaks to callers of `send()`; here each command is an argument of its own.
@@ -103,16 +124,18 @@ async def send_commands(options: ConnectOptions, commands: Sequence[str], consol
     async with open_printer(options, errors) as (printer, _label):
         for command in commands:
             if len(commands) > 1:
-                console.print(f"> {command}", style="bold", markup=False)
+                console.print(f"> {command}", style="bold", markup=False, emoji=False)
             if command_code(command) == "M112":
                 printer.emergency_stop()
                 for note in emergency_stop_notes(printer.capabilities):
-                    console.print(note, style="bold red", markup=False)
+                    console.print(note, style="bold red", markup=False, emoji=False)
                 continue
             reply = await printer.send(command, timeout_s=command_timeout_s(command, options.timeout_s))
             for line in reply_lines(reply):
-                console.print(line, markup=False)
+                console.print(line, markup=False, emoji=False)
             if unknown_command(reply):
-                errors.print(f"error: the printer does not know {command_code(command)}", style="red", markup=False)
+                errors.print(
+                    f"error: the printer does not know {command_code(command)}", style="red", markup=False, emoji=False
+                )
                 code = Exit.ERROR
     return code

@@ -6,6 +6,12 @@ sent. What is reported afterwards is the target the printer confirmed in its nex
 Marlin keeps whole degrees (200.5 becomes 200) and caps a target at its own maximum (300 becomes 260), and a wait
 watches the confirmed target, which is the one the printer heats to. `--off --wait` waits until every heater is
 below `--cool-to`, so "done" means safe to touch.
+
+Every way out that leaves a heater on (a wait timed out, Ctrl-C, a lost link, an error) says which heaters are on,
+with actual/target, and how to turn them off: `heaters_left_on` is that one sentence, and `log` and `watch` say it
+with the same words. A halt or a board reset is the exception: the firmware itself turned the heaters off.
+
+Printed lines carry the port's name and the printer's numbers: they go out with markup and emoji codes off.
 """
 
 from __future__ import annotations
@@ -23,7 +29,14 @@ import marlin_aio
 from .connect import ConnectOptions, Exit, UsageProblem, open_printer
 from .model import heater_name
 
-__all__ = ["PrinterHeaters", "SetRequest", "confirmation", "set_printer_targets"]
+__all__ = [
+    "PrinterHeaters",
+    "SetRequest",
+    "confirmation",
+    "heaters_left_on",
+    "say_heaters_left_on",
+    "set_printer_targets",
+]
 
 #: Below this a heater is safe to touch (and a hotend no longer oozes): what `--off --wait` waits for by default.
 SAFE_CELSIUS = 50.0
@@ -156,11 +169,41 @@ def _confirmed_targets(reading: marlin_aio.TemperatureReading, asked: dict[str, 
     return confirmed
 
 
+def heaters_left_on(reading: marlin_aio.TemperatureReading | None, ended_by: BaseException | None = None) -> str | None:
+    """What to tell the user whose command ends while heaters are on: "the heaters stay on (hotend 151.2/200 C,
+    bed 60.0/60 C). Turn them off with: marlin-temp set --off".
+
+    None when `reading` (the latest, or None: there was none) shows no heater with a target, or when `ended_by` is
+    a halt or a board reset: the firmware turned every heater off then.
+    """
+    if reading is None or isinstance(ended_by, marlin_aio.PrinterHaltedError | marlin_aio.PrinterResetError):
+        return None
+    heaters = reading.temperatures.heaters
+    on = [
+        f"{heater_name(key)} {heater.actual:.1f}/{heater.target:g} C"
+        for key, heater in heaters.items()
+        if heater.target and key[:1] in "TBC" and not (key == "T" and "T0" in heaters)  # T is one of T0, T1...
+    ]
+    if not on:
+        return None
+    which = "the heaters stay" if len(on) > 1 else "the heater stays"
+    return f"{which} on ({', '.join(on)}). Turn {'them' if len(on) > 1 else 'it'} off with: marlin-temp set --off"
+
+
+def say_heaters_left_on(
+    errors: Console, reading: marlin_aio.TemperatureReading | None, ended_by: BaseException | None = None
+) -> None:
+    """Print `heaters_left_on` (if it has anything to say) on `errors`, as one line."""
+    note = heaters_left_on(reading, ended_by)
+    if note is not None:
+        errors.print(note, style="yellow", markup=False, emoji=False, soft_wrap=True)
+
+
 def _bars(console: Console) -> Progress:
     return Progress(
-        TextColumn("{task.description:<9}"),
+        TextColumn("{task.description:<9}", markup=False),
         BarColumn(),
-        TextColumn("{task.fields[now]:>6.1f} / {task.fields[goal]} C"),
+        TextColumn("{task.fields[now]:>6.1f} / {task.fields[goal]} C", markup=False),
         TimeElapsedColumn(),
         console=console,
         transient=False,
@@ -271,28 +314,31 @@ async def set_printer_targets(options: ConnectOptions, request: SetRequest, cons
     async with open_printer(options, errors) as (printer, label):
         heaters = PrinterHeaters.of(await printer.read_temperatures())
         targets = _targets(request, heaters)
-        await _send_targets(printer, targets)
-        reading = await printer.read_temperatures()
-        console.print(f"{label}: {confirmation(reading, targets)}", soft_wrap=True)
-        if not request.wait:
-            return Exit.OK
-        confirmed = _confirmed_targets(reading, targets)
-        heating = {key: celsius for key, celsius in confirmed.items() if celsius > 0}
-        cooling = [key for key, celsius in confirmed.items() if celsius <= 0]
         try:
-            if heating:
-                reached = await _wait_with_progress(printer, heating, request, console)
-                console.print(f"reached: {confirmation(reached, {k: targets[k] for k in heating})}", soft_wrap=True)
-            if cooling:
-                await _wait_until_cool(printer, cooling, request, console)
-                names = ", ".join(heater_name(key) for key in cooling)
-                console.print(f"cool: {names} below {request.cool_to_c:g} C")
-        except asyncio.CancelledError:
-            if heating:
-                on = ", ".join(f"{heater_name(k)} {v:g} C" for k, v in heating.items())
-                errors.print(
-                    f"stopped waiting; the heaters stay on ({on}). Turn them off with: marlin-temp set --off",
-                    style="yellow",
-                )
+            return await _set_and_wait(printer, label, targets, request, console)
+        except BaseException as exc:
+            # Ctrl-C, --wait-timeout, a lost link, an error: whatever set so far stays set.
+            say_heaters_left_on(errors, printer.latest, exc)
             raise
+
+
+async def _set_and_wait(
+    printer: marlin_aio.Printer, label: str, targets: dict[str, float], request: SetRequest, console: Console
+) -> Exit:
+    await _send_targets(printer, targets)
+    reading = await printer.read_temperatures()
+    console.print(f"{label}: {confirmation(reading, targets)}", soft_wrap=True, markup=False, emoji=False)
+    if not request.wait:
+        return Exit.OK
+    confirmed = _confirmed_targets(reading, targets)
+    heating = {key: celsius for key, celsius in confirmed.items() if celsius > 0}
+    cooling = [key for key, celsius in confirmed.items() if celsius <= 0]
+    if heating:
+        reached = await _wait_with_progress(printer, heating, request, console)
+        said = confirmation(reached, {k: targets[k] for k in heating})
+        console.print(f"reached: {said}", soft_wrap=True, markup=False, emoji=False)
+    if cooling:
+        await _wait_until_cool(printer, cooling, request, console)
+        names = ", ".join(heater_name(key) for key in cooling)
+        console.print(f"cool: {names} below {request.cool_to_c:g} C", markup=False, emoji=False)
     return Exit.OK

@@ -8,6 +8,11 @@ refresh, and only `q` (when stdin is a terminal) means anything.
 In the live view, keys set targets, the fan, or send a G-code line (`WatchControls` decides what a key means and
 checks targets; nothing it refuses is sent). One task performs those actions one after another, beside the
 polling, and hands each outcome back to the view: the port is held by watch, so this is where `set` runs now.
+An action the library refuses (a target above the limits typed on the `:` line) is one line in the view, never a
+traceback; quitting while a target set by the keys is still on says so, in `set`'s words.
+
+The printer's text (replies, its firmware name) reaches the view as `rich.text.Text`, and the lines printed on
+stderr have markup and emoji codes off: nothing the printer or the user typed is read as rich markup.
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ from .model import (
     WatchModel,
 )
 from .render import plain_line, watch_view
+from .setcmd import say_heaters_left_on
 from .terminal import key_presses, on_stop_signals
 
 __all__ = ["WatchSettings", "watch_farm", "watch_printer"]
@@ -171,6 +177,18 @@ async def _perform(printer: marlin_aio.Printer, action: Action, model: WatchMode
     raise AssertionError(f"not an action to perform: {action!r}")
 
 
+async def _outcome(printer: marlin_aio.Printer, action: Action, model: WatchModel) -> Notice:
+    """`_perform`, with what it raises as an error notice of one line (the view has room for no more, and a
+    message may quote what was typed). A lost link or a halt also ends the readings, and watch with them; until
+    then, it is said here."""
+    try:
+        return await _perform(printer, action, model)
+    except (ValueError, marlin_aio.MarlinError) as exc:
+        message = " ".join(str(exc).split())
+        # The library refuses with ValueError before anything is written.
+        return Notice(f"{message}; nothing sent" if isinstance(exc, ValueError) else message, error=True)
+
+
 async def _session(
     printer: marlin_aio.Printer,
     label: str,
@@ -180,12 +198,11 @@ async def _session(
     log: TemperatureLog | None,
     stop: asyncio.Event,
     deadline: float | None,
-    limits: TargetLimits,
+    controls: WatchControls,
 ) -> None:
     loop = asyncio.get_running_loop()
     live_view = console.is_terminal and not settings.json_lines
     firmware = printer.firmware.name if printer.firmware else "unknown firmware"
-    controls = WatchControls(limits)
     actions: asyncio.Queue[Action] = asyncio.Queue()
     wake = asyncio.Event()  # a key was pressed or an action finished: redraw now, not at the next refresh
 
@@ -205,11 +222,7 @@ async def _session(
                 # M109, G28 and the like take a while: say it went out rather than show nothing.
                 controls.notice = Notice(f"> {action.text}", ("(waiting for the reply)",))
                 wake.set()
-            try:
-                notice = await _perform(printer, action, model)
-            except (ValueError, marlin_aio.MarlinError) as exc:
-                # A lost link or a halt also ends the readings, and watch with them; until then, say it here.
-                notice = Notice(str(exc), error=True)
+            notice = await _outcome(printer, action, model)
             controls.finished(action, notice)
             wake.set()
 
@@ -296,33 +309,56 @@ async def watch_printer(options: ConnectOptions, settings: WatchSettings, consol
     deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
     started = loop.time()
     log = TemperatureLog(settings.log_path) if settings.log_path is not None else None
-    limits = TargetLimits(options.max_hotend_celsius, options.max_bed_celsius)
+    # One for the whole run: what the keys set is remembered across reconnects, for the word on the way out.
+    controls = WatchControls(TargetLimits(options.max_hotend_celsius, options.max_bed_celsius))
     with on_stop_signals(stop.set):
-        async with log if log is not None else contextlib.nullcontext():
-            while True:
-                try:
-                    async with open_printer(options, errors) as (printer, label):
-                        await _session(printer, label, model, settings, console, log, stop, deadline, limits)
-                        break
-                except (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError) as exc:
-                    if not settings.reconnect or stop.is_set():
-                        if isinstance(exc, marlin_aio.ConnectionLostError):
-                            raise marlin_aio.ConnectionLostError(
-                                f"{exc} (unplugged? use --reconnect to keep retrying)"
-                            ) from exc
-                        raise
-                    errors.print(f"{exc}; retrying in 2 s (Ctrl-C stops)", style="yellow")
-                    with contextlib.suppress(TimeoutError):
-                        await asyncio.wait_for(stop.wait(), 2.0)
-                    if stop.is_set():
-                        break
+        try:
+            async with log if log is not None else contextlib.nullcontext():
+                await _sessions(options, settings, model, console, errors, log, stop, deadline, controls)
+        except BaseException as exc:
+            if controls.heated:
+                say_heaters_left_on(errors, model.latest, exc)
+            raise
     link = model.link()
     elapsed = loop.time() - started
     summary = f"watched {elapsed:.1f} s: {model.readings} readings, {link.timeouts} timeouts, {link.errors} errors"
     if log is not None:
         summary += f"; {log.summary.line()}"
-    errors.print(summary, style="dim")
+    errors.print(summary, style="dim", markup=False, emoji=False)
+    if controls.heated:
+        say_heaters_left_on(errors, model.latest)
     return Exit.OK
+
+
+async def _sessions(
+    options: ConnectOptions,
+    settings: WatchSettings,
+    model: WatchModel,
+    console: Console,
+    errors: Console,
+    log: TemperatureLog | None,
+    stop: asyncio.Event,
+    deadline: float | None,
+    controls: WatchControls,
+) -> None:
+    """Connect and watch until the end, again after each lost link with --reconnect."""
+    while True:
+        try:
+            async with open_printer(options, errors) as (printer, label):
+                await _session(printer, label, model, settings, console, log, stop, deadline, controls)
+                return
+        except (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError) as exc:
+            if not settings.reconnect or stop.is_set():
+                if isinstance(exc, marlin_aio.ConnectionLostError):
+                    raise marlin_aio.ConnectionLostError(
+                        f"{exc} (unplugged? use --reconnect to keep retrying)"
+                    ) from exc
+                raise
+            errors.print(f"{exc}; retrying in 2 s (Ctrl-C stops)", style="yellow", markup=False, emoji=False)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), 2.0)
+            if stop.is_set():
+                return
 
 
 _FARM_EVENTS = 3  # the latest events shown under the farm table
@@ -349,7 +385,7 @@ async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console:
             events.append(line)
             wake.set()
         else:
-            errors.print(line, style="dim", markup=False)
+            errors.print(line, style="dim", markup=False, emoji=False)
 
     farm = Farm(specs, on_event)
     printers = list(farm.printers.values())
