@@ -17,7 +17,16 @@ import pytest
 import marlin_aio
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
 
-SPELLINGS = ["M104S280", "M109S270", "M140S200", "M0104 S250", "T0 M104 S1000", "M104 B1000", "m104 s280", "M65640 S280"]
+SPELLINGS = [
+    "M104S280",
+    "M109S270",
+    "M140S200",
+    "M0104 S250",
+    "T0 M104 S1000",
+    "M104 B1000",
+    "m104 s280",
+    "M65640 S280",
+]
 
 
 @pytest.fixture
@@ -70,7 +79,9 @@ async def test_a_file_over_the_limit_is_refused_naming_its_line(tmp_path: Path, 
     assert "G28" not in fast_sim.printer.executed
 
 
-async def test_an_unchecked_file_or_a_generator_stops_before_the_line(tmp_path: Path, fast_sim: SimulatorServer) -> None:
+async def test_an_unchecked_file_or_a_generator_stops_before_the_line(
+    tmp_path: Path, fast_sim: SimulatorServer
+) -> None:
     def lines() -> Iterator[str]:
         yield "G1 X1\n"
         yield "G1 X2\n"
