@@ -18,20 +18,36 @@ from dataclasses import dataclass
 
 from rich.console import Console
 from rich.live import Live
-from rich.markup import escape
+from rich.text import Text
 
 import marlin_aio
 
-from .connect import ConnectOptions, Exit, open_printer
+from .connect import ConnectOptions, Exit, exit_code_for, open_printer
 from .printfile import GcodePlan
-from .printview import KEYS_HELP, PrintStatus, RateWindow, heating_text, plain_status, print_view, temperatures_text
+from .printview import (
+    KEYS_HELP,
+    PrintStatus,
+    RateWindow,
+    heaters_on_text,
+    heating_text,
+    plain_status,
+    print_view,
+    temperatures_text,
+)
 from .terminal import key_presses, on_stop_signals
 
 __all__ = ["PrintSettings", "print_gcode", "print_status"]
 
 CANCEL_SCRIPT = marlin_aio.COOL_DOWN
 _QUESTION = "cancel the print? y = yes, any other key = go on"
+_ENDED_QUESTION = "the print has ended: press any key"
 _PLAIN_EVERY_S = 2.0
+_FRESH_READING_S = 2.0  # a reading for the closing message: longer and the latest one says it as well
+_M108_SENT = "M108 sent: the heat-up wait ended"
+_NO_EMERGENCY_PARSER = (
+    "the firmware has no emergency parser (M108 cannot end the heat-up wait), so the cancel takes effect when "
+    "the heat-up ends"
+)
 
 
 @dataclass(frozen=True)
@@ -59,6 +75,7 @@ def print_status(
     question: str | None = None,
     keys: str | None = None,
     cancelling: bool = False,
+    note: str | None = None,
 ) -> PrintStatus:
     """One frame of the view from the print's progress, the file's plan and the latest reading."""
     in_flight = progress.lines_sent > progress.lines_acked
@@ -80,22 +97,32 @@ def print_status(
         temperatures=temperatures_text(reading),
         question=question,
         keys=keys,
+        message=plan.display_text(progress.last_source_line),
+        note=note,
     )
+
+
+def _say(console: Console, label: str, style: str, text: str) -> None:
+    """One line: a styled label, then `text` exactly as it is (file and firmware text: no markup, no emoji)."""
+    console.print(Text.assemble((label, style), " ", text), highlight=False, soft_wrap=True)
 
 
 def _announce(plan: GcodePlan, errors: Console) -> None:
     """Say what the plan changed or skips, before the print starts."""
     for line, written, sent in plan.transliterated:
-        errors.print(
-            f"[yellow]warning:[/] line {line}: {escape(repr(written))} is sent as {escape(repr(sent))} "
-            "(the printer takes ASCII only)",
-            highlight=False,
+        _say(
+            errors,
+            "warning:",
+            "yellow",
+            f"line {line}: {written!r} is sent as {sent!r} (the printer takes ASCII only)",
         )
     if plan.transliterated_count > len(plan.transliterated):
         more = plan.transliterated_count - len(plan.transliterated)
-        errors.print(f"[yellow]warning:[/] and {more} more lines with non-ASCII text, sent the same way")
-    if plan.extrusion_warning is not None:
-        errors.print(f"[yellow]warning:[/] {escape(plan.extrusion_warning)}", highlight=False)
+        _say(errors, "warning:", "yellow", f"and {more} more lines with non-ASCII text, sent the same way")
+    for danger in plan.resume_dangers:  # only there with --force: without it the plan was refused
+        _say(errors, "warning:", "yellow", f"{danger} (resuming anyway: --force)")
+    for note in plan.resume_notes:
+        _say(errors, "note:", "dim", note)
     if plan.from_line is not None and plan.first_move_line is not None:
         if plan.from_line <= plan.first_move_line:
             errors.print(
@@ -110,11 +137,14 @@ def _announce(plan: GcodePlan, errors: Console) -> None:
 
 
 async def print_gcode(options: ConnectOptions, settings: PrintSettings, console: Console, errors: Console) -> Exit:
-    """Stream the file; return the exit code (0 done, 130 cancelled, 7 after the emergency stop).
+    """Stream the file; return the exit code (0 done, 130 cancelled, 7 after the emergency stop, or the code of
+    the error that ended the print).
+
+    A print that fails is reported here, not raised: its error line, then (where the printer may still be hot)
+    which heaters are on and how to turn them off, which only this command can say.
 
     Raises:
-        MarlinError: the print failed (a `PrintStalledError` carries the trace, printed before raising; after a
-            `FileChangedError` the heaters and fan are turned off first, as on a cancel).
+        MarlinError: connecting failed (nothing was sent).
     """
     plan = settings.plan
     _announce(plan, errors)
@@ -128,48 +158,93 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
             errors.print(f"printing {plan.path.name} on {label} ({mode}); Ctrl-C to cancel", style="dim")
             script = () if settings.keep_heaters else CANCEL_SCRIPT
             try:
-                outcome = await _follow(handle, printer, plan, console, interrupted, script)
-            except marlin_aio.FileChangedError as exc:
-                # The printer is well and idle, but hot and standing on the part: end as a cancel would.
-                raise marlin_aio.FileChangedError(
-                    f"{exc}; {await _cool_down(printer, script)}", path=exc.path, line=exc.line
-                ) from exc
-            except marlin_aio.PrintStalledError as exc:
-                errors.print(f"[bold red]error:[/] {exc}", highlight=False)
-                errors.print("last lines sent (>>) and received (<<), seconds before the stall:", style="dim")
-                errors.print(exc.trace, highlight=False, markup=False)
-                raise
-            except (marlin_aio.ConnectionLostError, marlin_aio.PrinterHaltedError) as exc:
-                # The one line a user reads after a failed print says how far it got and how to go on from there.
-                reached = handle.progress.last_source_line
-                where = f"; the print reached line {reached} of {plan.path.name}"
-                if isinstance(exc, marlin_aio.ConnectionLostError) and reached:
-                    where += (
-                        f" (once the printer is checked, go on with: marlin-temp print {plan.path.name} "
-                        f"--from-line {reached + 1}; see --help)"
-                    )
-                raise type(exc)(f"{exc}{where}") from exc
+                outcome = await _follow(handle, printer, plan, console, errors, interrupted, script)
+            except marlin_aio.MarlinError as exc:
+                return await _failed(exc, handle, printer, plan, errors, script)
             final = handle.progress
             if outcome is _Outcome.STOPPED:
                 errors.print(
                     f"[bold red]emergency stop:[/] M112 sent after line {final.last_source_line} "
-                    f"({final.lines_acked} commands done); the printer is halted: reset it (its reset button or "
-                    "power) before it prints again",
+                    f"({final.lines_acked} commands done); the printer is halted (Marlin turns its heaters off as "
+                    "it halts): reset it (its reset button or power) before it prints again",
                     highlight=False,
                 )
                 return Exit.HALTED
             if outcome is _Outcome.CANCELLED:
-                heaters = "heaters left on" if settings.keep_heaters else "heaters and fan turned off"
-                errors.print(
-                    f"cancelled after line {final.last_source_line} ({final.lines_acked} commands done); {heaters}"
-                )
+                done = f"cancelled after line {final.last_source_line} ({final.lines_acked} commands done)"
+                if not settings.keep_heaters:
+                    errors.print(f"{done}; heaters and fan turned off")
+                else:
+                    heaters = heaters_on_text(await _reading_now(printer))
+                    errors.print(
+                        f"{done}; heaters left as they were (--keep-heaters)" + ("" if heaters else ": none is on")
+                    )
+                    if heaters:
+                        _heaters_on(errors, "heaters left on", heaters)
                 return Exit.INTERRUPTED
             errors.print(
                 f"done: {final.lines_acked} commands in {final.elapsed_s:.1f} s "
                 f"({final.lines_per_s:.0f} lines/s on average, "
                 f"{final.bytes_acked / max(final.elapsed_s, 1e-9):.0f} bytes/s, {final.resends} resends)"
             )
+            heaters = heaters_on_text(await _reading_now(printer))
+            if heaters:
+                _heaters_on(errors, "the file ended with heaters on", heaters)
             return Exit.OK
+
+
+def _heaters_on(errors: Console, what: str, heaters: str) -> None:
+    """The line every way out of a print that leaves a heater on ends with."""
+    _say(errors, "warning:", "yellow", f"{what}: {heaters}; turn them off with: marlin-temp set --off")
+
+
+async def _failed(
+    exc: marlin_aio.MarlinError,
+    handle: marlin_aio.PrintHandle,
+    printer: marlin_aio.Printer,
+    plan: GcodePlan,
+    errors: Console,
+    script: tuple[str, ...],
+) -> Exit:
+    """Report a print that failed: its error line (with where it got to), then what became of the heaters."""
+    reached = handle.progress.last_source_line
+    message = str(exc)
+    heaters: str | None = None
+    if isinstance(exc, marlin_aio.FileChangedError):
+        # The printer is well and idle, but hot and standing on the part: end as a cancel would.
+        message += f"; {await _cool_down(printer, script)}"
+        if not script:
+            heaters = heaters_on_text(await _reading_now(printer))
+    elif isinstance(exc, marlin_aio.PrinterHaltedError | marlin_aio.PrinterResetError):
+        # The one line a user reads after a failed print says how far it got; a halted or reset board has its
+        # heaters off (Marlin's kill() and its start-up both turn them off).
+        message += f"; the print reached line {reached} of {plan.path.name}; Marlin turned its heaters off"
+    else:
+        if isinstance(exc, marlin_aio.ConnectionLostError):
+            message += f"; the print reached line {reached} of {plan.path.name}"
+            if reached:
+                message += (
+                    f" (once the printer is checked, go on with: marlin-temp print {plan.path.name} "
+                    f"--from-line {reached + 1}; see --help)"
+                )
+        silent = isinstance(exc, marlin_aio.ConnectionLostError | TimeoutError)
+        # Not turned off here: a failed print may be resumed (--from-line), with the bed kept hot meanwhile.
+        heaters = heaters_on_text(printer.latest if silent else await _reading_now(printer))
+    _say(errors, "error:", "bold red", message)
+    if isinstance(exc, marlin_aio.PrintStalledError):
+        errors.print("last lines sent (>>) and received (<<), seconds before the stall:", style="dim")
+        errors.print(Text(exc.trace), highlight=False)
+    if heaters:
+        _heaters_on(errors, "heaters on when last read", heaters)
+    return exit_code_for(exc)
+
+
+async def _reading_now(printer: marlin_aio.Printer) -> marlin_aio.TemperatureReading | None:
+    """A fresh reading where the printer answers within a moment, else the latest one (None: none yet)."""
+    with contextlib.suppress(marlin_aio.MarlinError, TimeoutError):
+        async with asyncio.timeout(_FRESH_READING_S):
+            return await printer.read_temperatures()
+    return printer.latest
 
 
 async def _cool_down(printer: marlin_aio.Printer, script: tuple[str, ...]) -> str:
@@ -180,7 +255,7 @@ async def _cool_down(printer: marlin_aio.Printer, script: tuple[str, ...]) -> st
         for command in script:
             await printer.send(command)
     except marlin_aio.MarlinError as exc:
-        return f"turning the heaters off failed ({exc}): turn them off on the printer"
+        return f"turning the heaters off failed ({exc}): turn them off on the printer or with marlin-temp set --off"
     return "heaters and fan turned off"
 
 
@@ -189,32 +264,43 @@ async def _follow(
     printer: marlin_aio.Printer,
     plan: GcodePlan,
     console: Console,
+    errors: Console,
     interrupted: asyncio.Event,
     script: tuple[str, ...],
 ) -> _Outcome:
     """Show progress until the print ends; act on the keys and on Ctrl-C (cancelling with `script`).
+
+    While the Ctrl-C question is up the print is paused (it goes on after "no", unless it was paused before), and
+    keys are read until the answer comes, also when the print ends meanwhile: the key that answers is ours, never
+    the shell's.
 
     Raises:
         MarlinError: what ended the print, unless it was cancelled or stopped here.
     """
     pressed: asyncio.Queue[str] = asyncio.Queue()
     rate = RateWindow()
-    asking = cancelling = False
+    asking = cancelling = paused_to_ask = False
+    note: str | None = None
     outcome = _Outcome.DONE
     done = asyncio.create_task(handle.wait())
     last_plain = -_PLAIN_EVERY_S
+    last_message: str | None = None
     live = Live(console=console, auto_refresh=False) if console.is_terminal else None
 
     def frame(keys_help: str | None) -> PrintStatus:
         progress = handle.progress
+        question = None
+        if asking:
+            question = _ENDED_QUESTION if ending.done() else _QUESTION
         status = print_status(
             progress,
             plan,
             printer.latest,
             rate.lines_per_s(),
-            question=_QUESTION if asking else None,
+            question=question,
             keys=keys_help,
             cancelling=cancelling,
+            note=note,
         )
         if status.state == "printing":
             rate.add(time.monotonic(), progress.lines_acked)
@@ -222,45 +308,81 @@ async def _follow(
             rate.clear()  # a pause or a wait for heat is not part of the printing rate
         return status
 
+    def start_cancel() -> str | None:
+        """Cancel the print; end a heater wait of the file the printer is in, where the firmware can. Returns
+        what to tell the user about that wait."""
+        progress = handle.progress
+        wait = plan.heat_wait_running(progress.last_source_line, progress.lines_sent > progress.lines_acked)
+        try:
+            interrupted_wait = wait is not None and printer.interrupt_wait()
+        except marlin_aio.MarlinError:
+            interrupted_wait = False  # the link is gone: the print fails, and says so
+        if wait is None:
+            return None
+        return _M108_SENT if interrupted_wait else _NO_EMERGENCY_PARSER
+
     # What ends the loop: the print, or once a cancel is under way, the cancel (which waits for what the printer
-    # has, perhaps a long M109, then sends the script). The loop goes on meanwhile, so ! still works.
+    # has, perhaps a long M109, then sends the script), and never a question without its answer. The loop goes on
+    # meanwhile, so ! still works.
     ending: asyncio.Task[marlin_aio.PrintProgress] = done
     try:
-        with key_presses(pressed.put_nowait) as keys, live if live is not None else contextlib.nullcontext():
+        with (
+            key_presses(pressed.put_nowait, discard_unread=True) as keys,
+            live if live is not None else contextlib.nullcontext(),
+        ):
             keys_help = KEYS_HELP if keys else None
-            while not ending.done():
-                waiters = [ending, asyncio.ensure_future(interrupted.wait()), asyncio.ensure_future(pressed.get())]
+            while asking or not ending.done():
+                waiters = [asyncio.ensure_future(interrupted.wait()), asyncio.ensure_future(pressed.get())]
+                if not ending.done():
+                    waiters.append(ending)
                 finished, _ = await asyncio.wait(waiters, timeout=0.25, return_when="FIRST_COMPLETED")
-                for waiter in waiters[1:]:
+                for waiter in waiters[:2]:
                     if waiter not in finished:
                         waiter.cancel()
-                key = waiters[2].result() if waiters[2] in finished else None
-                if key == "!":
+                signalled = waiters[0] in finished
+                key = waiters[1].result() if waiters[1] in finished else None
+                if key == "!" and not ending.done():
                     # First, before any question: an emergency stop waits for nothing.
                     printer.emergency_stop()
                     outcome = _Outcome.STOPPED
+                    asking = False
                     break
-                start_cancel = False
-                if waiters[1] in finished:
+                cancel = False
+                was_asking = asking
+                if signalled:
                     interrupted.clear()
                     if asking or not keys:
                         # A second Ctrl-C, or no terminal to ask on: cancel at once.
-                        start_cancel = not cancelling
-                    asking = not start_cancel and not cancelling
+                        cancel = not cancelling
+                    asking = not cancel and not cancelling and not ending.done()
                 elif key is not None and asking:
                     asking = False
-                    start_cancel = key == "y"
+                    cancel = key == "y" and not ending.done()
                 elif key == "p" and not cancelling:
                     handle.pause()
                 elif key == "r" and not cancelling:
                     handle.resume()
-                if start_cancel:
+                if asking and not was_asking and handle.progress.state is marlin_aio.PrintState.RUNNING:
+                    handle.pause()  # the print waits for the answer, not the answer for the print
+                    paused_to_ask = True
+                if was_asking and not asking and paused_to_ask:
+                    paused_to_ask = False
+                    if not cancel:
+                        handle.resume()
+                if cancel:
                     outcome, cancelling = _Outcome.CANCELLED, True
                     ending = asyncio.create_task(handle.cancel(script))
+                    note = start_cancel()
+                    if note is not None and live is None:
+                        _say(errors, "note:", "yellow", note)
                 status = frame(keys_help)
                 if live is not None:
                     live.update(print_view(status), refresh=True)
-                elif status.question is not None and waiters[1] in finished:
+                    continue
+                if status.message is not None and status.message != last_message:
+                    last_message = status.message
+                    print(f"printer: {status.message}", flush=True)
+                if status.question is not None and signalled:
                     print(status.question, flush=True)  # keys on a terminal, output to a pipe: ask plainly
                 elif time.monotonic() - last_plain >= _PLAIN_EVERY_S:
                     last_plain = time.monotonic()

@@ -30,6 +30,7 @@ Three kinds of file are refused whole, each with one `ValueError` line, before a
 
 from __future__ import annotations
 
+import bisect
 import codecs
 import unicodedata
 from collections.abc import Iterator
@@ -49,6 +50,7 @@ SNIFF_BYTES = 8192
 # ones where replacing a letter by its closest ASCII form changes nothing the printer does.
 _TEXT_COMMANDS = frozenset({"M117", "M118", "M0", "M1"})
 _MOVES = frozenset({"G0", "G1", "G2", "G3", "G5"})
+_DISPLAY_COMMANDS = frozenset({"M117", "M118"})  # their text is what the printer shows or echoes
 _HEAT_WAITS = {"M109": "T", "M190": "B", "M191": "C"}
 # The commands that set a heater's target, with the heater's name; the option that raises each heater's limit.
 _TARGETS = {"M104": "hotend", "M109": "hotend", "M140": "bed", "M190": "bed", "M141": "chamber", "M191": "chamber"}
@@ -116,6 +118,8 @@ class GcodePlan:
     # merely changes (notes).
     resume_dangers: tuple[str, ...] = ()
     resume_notes: tuple[str, ...] = ()
+    # The text of each M117/M118 sent, as sent, by file line in order: what the printer shows as the print runs.
+    display_texts: tuple[tuple[int, str], ...] = ()
 
     def lines(self) -> Iterator[str]:
         """The file's lines as they are to be sent: selected, transliterated, skipped ones empty.
@@ -140,6 +144,11 @@ class GcodePlan:
         if self.from_line is None or self.first_move_line is None:
             return True
         return number < self.first_move_line or number >= self.from_line
+
+    def display_text(self, last_line_answered: int) -> str | None:
+        """The text of the last M117/M118 answered by `last_line_answered`, as sent (None before the first)."""
+        index = bisect.bisect_right(self.display_texts, last_line_answered, key=lambda entry: entry[0])
+        return self.display_texts[index - 1][1] if index else None
 
     def heat_wait_running(self, last_line_answered: int, in_flight: bool) -> HeatWait | None:
         """The heater wait the printer is in, if the command after the last one answered is one and it was sent."""
@@ -175,6 +184,7 @@ def plan_print(
     changed: list[tuple[int, str, str]] = []
     changed_count = 0
     waits: dict[int, HeatWait] = {}
+    texts: list[tuple[int, str]] = []
     resume = _Resume(from_line, first_move) if from_line is not None and first_move is not None else None
     number = 0
     with path.open(encoding="utf-8", errors="replace") as source:
@@ -207,6 +217,8 @@ def plan_print(
             _check_targets(path, number, command, limits)
             if code in _HEAT_WAITS:
                 waits[previous] = _heat_wait(number, parsed)
+            elif code in _DISPLAY_COMMANDS:
+                texts.append((number, parse_gcode(command).string_arg or ""))
             commands += 1
             if first_move is not None and number < first_move:
                 header += 1
@@ -233,6 +245,7 @@ def plan_print(
         number,
         dangers,
         tuple(resume.notes()) if resume is not None else (),
+        tuple(texts),
     )
 
 

@@ -6,6 +6,9 @@ No I/O and no clock: the command builds a status from the print's progress, the 
 The rate is the rate of the last seconds (`RateWindow`), not an average since the start: a print that spent five
 minutes in M190 would otherwise show a third of its real speed for the rest of the hour. While the printer waits
 for a heater, the view says so ("heating hotend 187/200 C") instead of a rate of 0 and an ETA of hours.
+
+Text that is not ours (the file's name, what the printer shows or echoes, firmware messages) goes into `Text`
+objects, never into markup: `[bold]` and `:smile:` in it stay as they are.
 """
 
 from __future__ import annotations
@@ -22,7 +25,16 @@ import marlin_aio
 
 from .printfile import HeatWait
 
-__all__ = ["KEYS_HELP", "PrintStatus", "RateWindow", "heating_text", "plain_status", "print_view", "temperatures_text"]
+__all__ = [
+    "KEYS_HELP",
+    "PrintStatus",
+    "RateWindow",
+    "heaters_on_text",
+    "heating_text",
+    "plain_status",
+    "print_view",
+    "temperatures_text",
+]
 
 KEYS_HELP = "p pause  r resume  ! emergency stop (M112, no question asked)  Ctrl-C cancel"
 
@@ -67,6 +79,8 @@ class PrintStatus:
     temperatures: str = ""
     question: str | None = None  # asked on a line of its own, never over the bar's label
     keys: str | None = None  # the keys help, when there is a terminal to press them in
+    message: str | None = None  # the printer's text (M117/M118 of the file, firmware messages), shown verbatim
+    note: str | None = None  # what the command did about the print ("M108 sent: the heat-up wait ended")
 
     @property
     def fraction(self) -> float:
@@ -112,6 +126,19 @@ def heating_text(wait: HeatWait, reading: marlin_aio.TemperatureReading | None) 
     return f"{verb} {name} {heater.actual:.0f}/{target_text} C"
 
 
+def heaters_on_text(reading: marlin_aio.TemperatureReading | None) -> str | None:
+    """The heaters of `reading` that have a target, as "hotend 198.2/200 C, bed 60.0/60 C"; None if none has."""
+    if reading is None:
+        return None
+    heaters = reading.temperatures.heaters
+    parts = []
+    for key, heater in heaters.items():
+        if key[:1] not in ("T", "B", "C") or (key == "T" and "T0" in heaters) or not heater.target:
+            continue  # the active hotend appears again under its number
+        parts.append(f"{marlin_aio.heater_name(key)} {heater.actual:.1f}/{heater.target:.0f} C")
+    return ", ".join(parts) or None
+
+
 def temperatures_text(reading: marlin_aio.TemperatureReading | None) -> str:
     """Every heater of the reading as "hotend 187.2/200 °C   bed 60.0/60 °C" ("off" for no target)."""
     if reading is None:
@@ -136,7 +163,7 @@ def print_view(status: PrintStatus) -> RenderableType:
     row.add_column(no_wrap=True)
     style = "bold yellow" if status.heating is not None or status.state in ("paused", "cancelling") else ""
     row.add_row(
-        status.name,
+        Text(status.name),
         ProgressBar(total=max(status.lines_total, 1), completed=status.lines_done),
         f"{status.fraction * 100:5.1f}%",
         f"{status.lines_done}/{status.lines_total} lines",
@@ -146,6 +173,10 @@ def print_view(status: PrintStatus) -> RenderableType:
         row,
         Text(f"  {status.temperatures}", style="dim" if not status.temperatures else ""),
     ]
+    if status.message is not None:
+        parts.append(Text.assemble(("  printer: ", "dim"), status.message))
+    if status.note is not None:
+        parts.append(Text(status.note, style="yellow"))
     if status.question is not None:
         parts.append(Text(status.question, style="bold yellow"))
     elif status.keys is not None:

@@ -72,13 +72,14 @@ def split_keys(text: str) -> list[str]:
 
 
 @contextlib.contextmanager
-def key_presses(callback: Callable[[str], None], *, raw: bool = False) -> Iterator[bool]:
+def key_presses(callback: Callable[[str], None], *, raw: bool = False, discard_unread: bool = False) -> Iterator[bool]:
     """While active, call `callback` with each key pressed; yield whether stdin is a terminal at all.
 
     Keys are lower case, one character each; with `raw`, as typed (case kept, escape sequences whole, see
     `split_keys`), and a paste arrives whole, as `PASTE` followed by its text. The terminal is put in cbreak mode
     (keys arrive one at a time, unechoed; Ctrl-C still raises SIGINT) and its mode is restored afterwards, however
-    the block ends.
+    the block ends. With `discard_unread`, keys typed but not yet read when the block ends are thrown away
+    rather than left for the shell (a second `y` typed while a print was ending must not become a command).
     """
     if not sys.stdin.isatty():
         yield False
@@ -107,4 +108,4 @@ def key_presses(callback: Callable[[str], None], *, raw: bool = False) -> Iterat
         yield True
     finally:
         loop.remove_reader(fd)
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+        termios.tcsetattr(fd, termios.TCSAFLUSH if discard_unread else termios.TCSADRAIN, saved)
