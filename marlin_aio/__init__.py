@@ -69,6 +69,7 @@ from marlin_aio.events import (
     UnrecognisedLine,
 )
 from marlin_aio.framing import LineSplitter
+from marlin_aio.gcode import GCodeLine, parse_gcode
 from marlin_aio.heaters import HeaterLimits, check_gcode_targets
 from marlin_aio.linkstate import LinkState
 from marlin_aio.motion import (
@@ -128,6 +129,7 @@ __all__ = [
     "EventParser",
     "FileChangedError",
     "FirmwareInfo",
+    "GCodeLine",
     "HandshakeError",
     "HandshakeTimeoutError",
     "HeaterLimits",
@@ -184,6 +186,7 @@ __all__ = [
     "move_commands",
     "number_command",
     "parse_endstops",
+    "parse_gcode",
     "parse_position",
     "parse_temperatures",
     "strip_comment",
