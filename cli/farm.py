@@ -8,6 +8,10 @@ to it (`FarmEvent`: connected, connection lost, halted, reset, thermal runaway) 
 
 Nothing here knows about MQTT: the bridge (`cli.farmbridge`) reads this state at its own rate, so a slow or
 absent broker never slows a serial loop.
+
+Secrets: a printer's password (`password` in the config, sent as `M511 P<password>`) never reaches an event, the
+last error or a log line: every event's message is redacted (`redact`) where it is made, in `Farm.emit`, and the
+bridge redacts whatever else it publishes (`redact_payload`); `PrinterSpec`'s repr leaves the password out.
 """
 
 from __future__ import annotations
@@ -15,22 +19,60 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import re
 import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import marlin_aio
 
 if TYPE_CHECKING:
     from marlin_aio.simulator import SimulatorServer
 
-__all__ = ["BACKOFF_MAX_S", "BACKOFF_START_S", "Farm", "FarmEvent", "FarmPrinter", "PrinterSpec"]
+__all__ = [
+    "BACKOFF_MAX_S",
+    "BACKOFF_START_S",
+    "Farm",
+    "FarmEvent",
+    "FarmPrinter",
+    "PrinterSpec",
+    "redact",
+    "redact_payload",
+]
 
 _log = logging.getLogger("marlin_temp.farm")
 
 BACKOFF_START_S = 1.0
 BACKOFF_MAX_S = 30.0
+
+# The rule of `marlin_aio.secrets.redact`, which the CLI cannot import until the library exports it (the CLI uses
+# only the library's public names): tests/test_secrets.py checks that the two agree on every spelling.
+_M511 = re.compile(
+    r"(?<![A-Za-z])([Mm][ \t]*0*511)(?![0-9])"
+    r"(?![ \t]*(?:or LCD\)|P<password>(?=[\s,;)'\"]|$)|\*\*\*\*(?=[\r\n,;)'\"]|\Z)))"
+    r"[^\r\n]*"
+)
+
+
+def redact(text: str) -> str:
+    """`text` with everything after each M511 command word (the password, `M511 P1234` -> `M511 ****`) blanked, as
+    `marlin_aio.secrets.redact` does; a whole message may be redacted, since text already redacted stays as it is.
+    Cheap for text without `511`, which is nearly all of it."""
+    if "511" not in text:
+        return text
+    return _M511.sub(lambda match: match.group(1) + " ****", text)
+
+
+def redact_payload(value: Any) -> Any:
+    """`value` (a JSON-able payload: dicts, lists, strings, numbers) with every string in it redacted."""
+    if isinstance(value, str):
+        return redact(value)
+    if isinstance(value, dict):
+        return {key: redact_payload(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [redact_payload(item) for item in value]
+    return value
 
 
 @dataclass(frozen=True)
@@ -46,7 +88,8 @@ class PrinterSpec:
     max_hotend_celsius: float = marlin_aio.DEFAULT_MAX_HOTEND_CELSIUS
     max_bed_celsius: float = marlin_aio.DEFAULT_MAX_BED_CELSIUS
     max_chamber_celsius: float = marlin_aio.DEFAULT_MAX_CHAMBER_CELSIUS
-    password: str | None = None
+    password: str | None = field(default=None, repr=False)
+    """PASSWORD_FEATURE's password, sent as `M511 P<password>`; never printed, logged or published."""
     sim: bool = False
     """Serve a simulated printer for it in this process (on a pty) instead of opening `port`."""
     sim_speed: float = 1.0
@@ -157,7 +200,12 @@ class Farm:
                 await server.aclose()
 
     def emit(self, farm_printer: FarmPrinter, kind: str, message: str) -> None:
-        """Tell the listener that `kind` happened to `farm_printer` (also for events from outside: a print)."""
+        """Tell the listener that `kind` happened to `farm_printer` (also for events from outside: a print).
+
+        The message is redacted here, once for the event, the last error and whatever prints or publishes them: it
+        is often an error's text, which may quote an `M511 P<password>` from the library or from a user's G-code.
+        """
+        message = redact(message)
         if kind in ("connection_lost", "halted", "thermal_runaway", "connect_failed", "print_failed"):
             farm_printer.last_error = message
         try:

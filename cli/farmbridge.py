@@ -18,6 +18,11 @@ does, which drops (and counts) the oldest when the broker cannot keep up; the se
 broker. Events wait in a queue of their own (bounded too: past the bound the oldest is dropped, counted, and
 logged). When the broker goes away the bridge reconnects with backoff and publishes availability, state and
 discovery again.
+
+Secrets: state and events are retained or kept by the broker for any later subscriber, so nothing published or
+logged carries a printer's password: each event, state and answer is redacted (`cli.farm.redact`) before it is
+queued, whatever the farm and the library already did, since a command's text and an error's message can quote
+`M511 P<password>` (typed as G-code, or sent by the handshake).
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ import aiomqtt
 
 import marlin_aio
 
-from .farm import Farm, FarmEvent, FarmPrinter
+from .farm import Farm, FarmEvent, FarmPrinter, redact, redact_payload
 from .farmcommands import CommandError, FarmCommand, parse_command, run_command
 
 __all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug"]
@@ -203,7 +208,7 @@ class Bridge:
 
     def on_event(self, event: FarmEvent) -> None:
         """Queue a printer's event for delivery (the farm's listener); past the bound the oldest is lost."""
-        payload = {"event": event.kind, "message": event.message, "time": round(event.time_s, 3)}
+        payload = {"event": event.kind, "message": redact(event.message), "time": round(event.time_s, 3)}
         self._queue_reliable(self.topic(event.printer, "events"), payload)
 
     def _queue_reliable(self, topic: str, payload: dict[str, Any]) -> None:
@@ -247,13 +252,16 @@ class Bridge:
             self._wake.set()
 
     def _state(self, farm_printer: FarmPrinter) -> dict[str, Any]:
-        return {
-            "link": "up" if farm_printer.link_up else "down",
-            "firmware": farm_printer.firmware,
-            "print": farm_printer.print_status(),
-            "last_error": farm_printer.last_error,
-            "port": farm_printer.url or farm_printer.spec.port,
-        }
+        state: dict[str, Any] = redact_payload(
+            {
+                "link": "up" if farm_printer.link_up else "down",
+                "firmware": farm_printer.firmware,
+                "print": farm_printer.print_status(),
+                "last_error": farm_printer.last_error,
+                "port": farm_printer.url or farm_printer.spec.port,
+            }
+        )
+        return state
 
     # ------------------------------------------------------------------------------------------- running
 
@@ -372,12 +380,16 @@ class Bridge:
             )
 
     def _answer(self, printer: str, command_id: object, *, result: Any = None, error: str | None = None) -> None:
+        # The answer goes to every subscriber of the response topic, not only to whoever sent the command: a G-code
+        # command's text (and its echo in the reply lines) and an error's message are redacted.
         answer: dict[str, Any] = {"id": command_id, "ok": error is None}
         if error is None:
             answer["result"] = result
         else:
             answer["error"] = error
-            _log.warning("command for %s refused or failed: %s", printer, error)
+        answer = redact_payload(answer)
+        if error is not None:
+            _log.warning("command for %s refused or failed: %s", printer, answer["error"])
         self._queue_reliable(self.topic(printer, "response"), answer)
 
     def _client(self) -> aiomqtt.Client:

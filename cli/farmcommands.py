@@ -11,8 +11,10 @@ A command is a JSON object published to `PREFIX/NAME/command`; its answer goes t
     {"id": 6, "action": "emergency_stop"}
 
 Everything is checked before anything is written: bad JSON, an unknown printer or action, a target of 900 or
-`abc`, a newline inside a G-code command, a path outside the allowed directory each get an error answer and
-write nothing to any printer. `parse_command` does the checking (no I/O but the path's), `run_command` the running.
+`abc`, a newline inside a G-code command, a G-code command setting a target above the printer's limit however it
+is spelt (`M104S280`, `m0104 s280`, `M104 B1000`: the library's `check_gcode_targets`, which reads it as Marlin
+does), a path outside the allowed directory each get an error answer and write nothing to any printer.
+`parse_command` does the checking (no I/O but the path's), `run_command` the running.
 """
 
 from __future__ import annotations
@@ -123,19 +125,16 @@ def parse_command(
             raise CommandError(f"at most {MAX_GCODE_COMMANDS} commands at once, got {len(commands)}")
         checked = []
         spec = farm_printer.spec
+        limits = marlin_aio.HeaterLimits(spec.max_hotend_celsius, spec.max_bed_celsius, spec.max_chamber_celsius)
         for text in commands:
             try:
                 checked.append(marlin_aio.validate_command(text))
-                # Printer.send refuses such a target too, but only when its turn comes: checked here, a list with
-                # one bad target writes nothing at all.
-                marlin_aio.check_gcode_targets(
-                    text,
-                    max_hotend_celsius=spec.max_hotend_celsius,
-                    max_bed_celsius=spec.max_bed_celsius,
-                    max_chamber_celsius=spec.max_chamber_celsius,
-                )
+                # Printer.send refuses such a target too (the library's own check, reading the command as Marlin's
+                # parser does), but only when its turn comes: checked here, a list with one bad target writes
+                # nothing at all.
+                marlin_aio.check_gcode_targets(text, limits)
             except ValueError as exc:
-                raise CommandError(str(exc)) from None
+                raise CommandError(_one_line(exc)) from None
         return FarmCommand(printer, action, command_id, gcode=tuple(checked))
     if action == "print":
         return FarmCommand(printer, action, command_id, path=_allowed_path(body.get("path"), allowed_dir))
@@ -152,6 +151,12 @@ _FIELDS: dict[str, set[str]] = {
     "cancel": set(),
     "emergency_stop": set(),
 }
+
+
+def _one_line(exc: Exception) -> str:
+    """An error's message as one line, for an answer (the first line says what was wrong)."""
+    lines = str(exc).splitlines()
+    return lines[0] if lines else type(exc).__name__
 
 
 def _allowed_path(value: object, allowed_dir: Path | None) -> Path:
@@ -194,7 +199,8 @@ async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
 
     Raises:
         CommandError: the printer is not connected, or no print is running to pause, resume or cancel.
-        ValueError: the file has a line that is not a valid command (nothing is sent).
+        ValueError: the file has a line that is not a valid command, or a G-code command sets a target above the
+            limits (the library checks every command it is given; nothing of it is sent).
         MarlinError: as the library raises it.
     """
     printer = farm_printer.printer

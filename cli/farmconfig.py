@@ -17,7 +17,9 @@ A TOML file lists printers under `[[printer]]`, with defaults for all of them un
     port = "/dev/ttyUSB1"
     baud = 115200
 
-Names become MQTT topic levels and Home Assistant ids, so they are letters, digits, `-` and `_`.
+Names become MQTT topic levels and Home Assistant ids, so they are letters, digits, `-` and `_`. A locked
+printer (Marlin's PASSWORD_FEATURE) gets `password = "1234"`, which is sent as `M511 P1234` and never printed,
+logged or published (a quoted string: a number is refused without showing it).
 """
 
 from __future__ import annotations
@@ -64,7 +66,9 @@ def _spec(values: dict[str, Any], where: str) -> PrinterSpec:
             value = float(value)
         if not isinstance(value, kind) or isinstance(value, bool):
             what = {int: "a whole number", float: "a number", str: "a string"}[kind]
-            raise ValueError(f"{where}: {key} must be {what}, got {value!r}")
+            # A password is never shown, not even a mistyped one (`password = 1234` without quotes).
+            shown = "something else (not shown)" if key == "password" else repr(value)
+            raise ValueError(f"{where}: {key} must be {what}, got {shown}")
         checked[key] = value
     if "name" not in checked or "port" not in checked:
         raise ValueError(f"{where}: every printer needs a name and a port")

@@ -453,6 +453,43 @@ async def test_commands_are_off_unless_allowed(broker: Broker) -> None:
     assert not any("/number/" in t or "/button/" in t for t in configs)  # no controls that would not work
 
 
+async def test_a_target_above_the_limits_is_refused_however_the_gcode_spells_it(broker: Broker) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="commander") as commander,
+    ):
+        farm, bridge, _ = farm_and_bridge(
+            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True
+        )
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up, "the printer connected")
+            before = not_polls(list(sim.printer.executed))
+            # The default limits: hotend 260, bed 140. Each spelling is one Marlin's parser reads as the target.
+            spellings = ["M104S280", "m104 s280", "M0104 S270", "M104 B1000", "M140S200"]
+            for id_, text in enumerate(spellings, 1):
+                answer = await command(
+                    sub, commander, "a", json.dumps({"id": id_, "action": "gcode", "command": text}), id_
+                )
+                assert answer["ok"] is False, (text, answer)
+                assert "\n" not in answer["error"] and "limit" in answer["error"], answer
+            # A list with one such command among good ones writes none of them.
+            answer = await command(
+                sub, commander, "a", json.dumps({"id": 9, "action": "gcode", "commands": ["M105", "M104S280"]}), 9
+            )
+            assert answer["ok"] is False
+            assert not_polls(list(sim.printer.executed)) == before
+            # Readings taken after the refusals still show no target set.
+            seen = len(sub.payloads("marlin/a/telemetry"))
+            await sub.until(lambda: len(sub.payloads("marlin/a/telemetry")) > seen + 2, "telemetry after them")
+            heaters = sub.payloads("marlin/a/telemetry")[-1]["heaters"]
+            assert heaters["hotend"]["target"] == 0 and heaters["bed"]["target"] == 0
+            # Within the limits, the same spelling runs.
+            answer = await command(sub, commander, "a", '{"id": 10, "action": "gcode", "command": "M104S200"}', 10)
+            assert answer["ok"] is True
+            assert not_polls(list(sim.printer.executed))[-1:] == ["M104S200"]
+
+
 @contextlib.contextmanager
 def secured_broker(directory: Path, extra: str) -> Iterator[int]:
     """A Mosquitto with `extra` configuration (password file, TLS) on a free port."""
