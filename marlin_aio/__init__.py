@@ -86,6 +86,7 @@ from marlin_aio.motion import (
 from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
 from marlin_aio.printhandle import COOL_DOWN
 from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
+from marlin_aio.secrets import redact
 from marlin_aio.stats import LinkStats
 from marlin_aio.temperatures import (
     HEATER_NAMES,
@@ -189,6 +190,7 @@ __all__ = [
     "parse_gcode",
     "parse_position",
     "parse_temperatures",
+    "redact",
     "strip_comment",
     "validate_command",
 ]

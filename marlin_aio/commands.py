@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 
 from marlin_aio.gcode import command_code
+from marlin_aio.secrets import redact
 
 __all__ = [
     "DEFAULT_MAX_BED_CELSIUS",
@@ -60,17 +61,17 @@ def validate_command(text: str) -> str:
         ValueError: a line break, NUL, non-ASCII or `*` in it, or nothing left once the comment is removed.
     """
     if "\n" in text or "\r" in text:
-        raise ValueError(f"command contains a line break: {text!r}; send one command per call")
+        raise ValueError(f"command contains a line break: {redact(text)!r}; send one command per call")
     if not text.isascii():
-        raise ValueError(f"command contains non-ASCII characters: {text!r}")
+        raise ValueError(f"command contains non-ASCII characters: {redact(text)!r}")
     if "\x00" in text:
-        raise ValueError(f"command contains a NUL byte: {text!r}")
+        raise ValueError(f"command contains a NUL byte: {redact(text)!r}")
     command = strip_comment(text)
     if not command:
-        raise ValueError(f"command is empty (after removing comments): {text!r}")
+        raise ValueError(f"command is empty (after removing comments): {redact(text)!r}")
     if "*" in command:
         # Marlin reads the first `*` as the start of the checksum: the line could never be accepted.
-        raise ValueError(f"command contains '*', which Marlin reserves for the checksum: {text!r}")
+        raise ValueError(f"command contains '*', which Marlin reserves for the checksum: {redact(text)!r}")
     return command
 
 

@@ -45,6 +45,7 @@ from marlin_aio.printjob import PrintJob
 from marlin_aio.receiving import Receiving
 from marlin_aio.replies import MAX_REPLY_LINES, Command, Reply
 from marlin_aio.resends import CALM_LINES, wanted
+from marlin_aio.secrets import redact
 from marlin_aio.states import LineEvent, LineState, LinkEvent
 from marlin_aio.stats import LinkStats
 from marlin_aio.trace import Trace
@@ -294,8 +295,8 @@ class Connection:
                 longest_number = core.resends.next_line + len(core.queue) + len(core.in_flight) + 1000
                 if len(text) + len(str(longest_number)) + 6 > MAX_COMMAND_BYTES:
                     raise ValueError(
-                        f"command {text[:40]!r}... is too long: with its line number and checksum it would exceed "
-                        f"Marlin's {MAX_COMMAND_BYTES}-byte limit"
+                        f"command {redact(text)[:40]!r}... is too long: with its line number and checksum it would "
+                        f"exceed Marlin's {MAX_COMMAND_BYTES}-byte limit"
                     )
             if timeout_s <= 0:
                 raise ValueError(f"timeout_s must be positive, got {timeout_s}")
@@ -318,7 +319,7 @@ class Connection:
         """
         wire = encode_command(text)
         if command_code(text) not in EMERGENCY_COMMANDS:
-            raise ValueError(f"{text!r} is not an emergency command (M108, M112, M410, M876)")
+            raise ValueError(f"{redact(text)!r} is not an emergency command (M108, M112, M410, M876)")
         self._core.trace.sent(now, wire.decode("ascii").rstrip("\n"))
         return wire
 
@@ -442,7 +443,9 @@ class Connection:
             if not command.wire:
                 if resends.wire_size(command) - 1 > MAX_COMMAND_BYTES:
                     # Only possible if the line numbers grew by over a thousand while it waited in the queue.
-                    core.finish(command, MarlinError(f"{command.text!r} grew too long for Marlin once numbered"))
+                    core.finish(
+                        command, MarlinError(f"{redact(command.text)!r} grew too long for Marlin once numbered")
+                    )
                     continue
                 # Keep enough history for everything that can be in flight, with a wide margin.
                 resends.assign_wire(command, max(256, 4 * core.max_in_flight))

@@ -18,6 +18,7 @@ from marlin_aio.commands import (
     format_celsius,
 )
 from marlin_aio.gcode import GCodeLine, command_code, parse_gcode, value_long
+from marlin_aio.secrets import redact
 from marlin_aio.temperatures import TemperatureReading, heater_name
 
 __all__ = [
@@ -96,7 +97,9 @@ def check_gcode_targets(command: str, limits: HeaterLimits) -> None:
             limit = limits.of(heater)
             if value is None or _NUMBER.fullmatch(value) is None:
                 shown = _word_after(line.args, letter) if value is None else value
-                raise ValueError(f"{heater} target must be a number of degrees Celsius, got {shown!r} in {command!r}")
+                raise ValueError(
+                    f"{heater} target must be a number of degrees Celsius, got {shown!r} in {redact(command)!r}"
+                )
             check_target(heater, value, limit)
 
 
