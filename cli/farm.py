@@ -19,7 +19,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import re
 import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
@@ -46,22 +45,8 @@ _log = logging.getLogger("marlin_temp.farm")
 BACKOFF_START_S = 1.0
 BACKOFF_MAX_S = 30.0
 
-# The rule of `marlin_aio.secrets.redact`, which the CLI cannot import until the library exports it (the CLI uses
-# only the library's public names): tests/test_secrets.py checks that the two agree on every spelling.
-_M511 = re.compile(
-    r"(?<![A-Za-z])([Mm][ \t]*0*511)(?![0-9])"
-    r"(?![ \t]*(?:or LCD\)|P<password>(?=[\s,;)'\"]|$)|\*\*\*\*(?=[\r\n,;)'\"]|\Z)))"
-    r"[^\r\n]*"
-)
-
-
-def redact(text: str) -> str:
-    """`text` with everything after each M511 command word (the password, `M511 P1234` -> `M511 ****`) blanked, as
-    `marlin_aio.secrets.redact` does; a whole message may be redacted, since text already redacted stays as it is.
-    Cheap for text without `511`, which is nearly all of it."""
-    if "511" not in text:
-        return text
-    return _M511.sub(lambda match: match.group(1) + " ****", text)
+#: The library's redaction (an M511's password blanked as `M511 ****`), re-exported for the bridge.
+redact = marlin_aio.redact
 
 
 def redact_payload(value: Any) -> Any:

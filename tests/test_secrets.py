@@ -23,7 +23,6 @@ import marlin_aio
 from marlin_aio.secrets import redact
 from marlin_aio.simulator import SimulatorConfig, serve_pty
 from marlin_temp.farm import Farm, FarmEvent, PrinterSpec
-from marlin_temp.farm import redact as farm_redact
 from marlin_temp.farmbridge import Bridge, BridgeSettings, BrokerSettings
 from marlin_temp.farmconfig import load_config
 
@@ -71,16 +70,6 @@ def test_text_that_carries_no_password_comes_back_as_it_was(text: str) -> None:
 def test_a_line_without_511_is_returned_as_is_without_a_regex() -> None:
     line = "N1234 G1 X10.5 Y20.3 E0.123*87"
     assert redact(line) is line
-
-
-@pytest.mark.parametrize("text", [text for text, _ in SPELLINGS] + UNTOUCHED)
-def test_the_farm_redacts_as_the_library_does(text: str) -> None:
-    assert farm_redact(text) == redact(text)
-
-
-@given(st.text(alphabet="Mm 0511NPp*\n'\"or LCD)<password>x", max_size=40))
-def test_the_farm_and_the_library_agree_on_any_text(text: str) -> None:
-    assert farm_redact(text) == redact(text)
 
 
 @given(st.text(alphabet="Mm 0511N*\n;'", max_size=20), st.sampled_from(["M511", "m511", "M0511", "M 511"]))
