@@ -142,7 +142,7 @@ async def _unlock(link: Link, password: str | None, timeout_s: float) -> None:
     if password is None:
         raise PrinterLockedError(
             f"the printer on {link.port} is locked (it said 'Printer locked! (Unlock with M511 or LCD)'): "
-            "connect with password=... (marlin-temp --password) to send M511 P<password>, "
+            "connect with password=... (marlin-temp: $MARLIN_PASSWORD or --password-file) to send M511 P<password>, "
             "or unlock it on its screen"
         )
     try:

@@ -310,7 +310,7 @@ class Receiving:
         if "locked" in said.lower():
             error = PrinterLockedError(
                 f"the printer is locked and refused {redact(command.text)!r} ({said.removeprefix('echo:')}): "
-                "unlock it with M511 P<password> (connect with password=..., or --password) or on its screen"
+                "unlock it with M511 P<password> (connect with password=..., or $MARLIN_PASSWORD) or on its screen"
             )
         else:
             error = CommandNotExecutedError(f"the printer did not run {redact(command.text)!r}: it said {said!r}")
