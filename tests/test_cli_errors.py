@@ -187,16 +187,17 @@ def test_sim_help_lists_the_options_marlin_sim_has() -> None:
     assert all(option in result.output for option in ("--corrupt-rx", "--checksum-required", "--tcp"))
 
 
-async def test_a_locked_printer_is_one_line_naming_the_password_option_and_the_password_unlocks_it() -> None:
+async def test_a_locked_printer_is_one_line_naming_where_the_password_goes_and_the_password_unlocks_it() -> None:
     async with serve_pty(SimulatorConfig(password="1234"), time_scale=20) as sim:
         locked = await asyncio.to_thread(runner.invoke, app, ["set", "--port", sim.url, "--hotend", "200"])
+        # From the environment: --password on the command line is refused (every user of the machine sees it).
         unlocked = await asyncio.to_thread(
-            runner.invoke, app, ["set", "--port", sim.url, "--hotend", "200", "--password", "1234"]
+            runner.invoke, app, ["set", "--port", sim.url, "--hotend", "200"], env={"MARLIN_PASSWORD": "1234"}
         )
         executed = list(sim.printer.executed)
     assert locked.exit_code != 0
     line = one_line(locked.output)
-    assert "locked" in line and "--password" in line
+    assert "locked" in line and "MARLIN_PASSWORD" in line and "--password-file" in line
     assert unlocked.exit_code == 0, unlocked.output
     assert executed.count("M104 S200") == 1  # only the unlocked run set the target
 

@@ -13,6 +13,7 @@ import csv
 import io
 import itertools
 import json
+import re
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
@@ -229,6 +230,32 @@ def test_hotend_target_is_set_before_the_first_row(tmp_path: Path) -> None:
     assert float(rows[0]["hotend_target_c"]) == 50  # the heat-up is recorded from its first reading
     assert float(rows[0]["hotend_actual_c"]) < 30  # ...which is still at room temperature
     assert float(rows[-1]["hotend_actual_c"]) > float(rows[0]["hotend_actual_c"])
+    # The log ends with the hotend still heating: it says so, after the summary, as set would.
+    last = result.stderr.splitlines()[-1]
+    assert re.fullmatch(r"the heater stays on \(hotend \d+\.\d/50 C\)\. Turn it off with: marlin-temp set --off", last)
+
+
+def test_a_log_that_set_no_target_says_nothing_of_the_heaters(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["log", *FAST, "-o", str(tmp_path / "t.csv"), "--interval", "0.1", "--duration", "0.3"])
+    assert result.exit_code == 0, result.output
+    assert "stays on" not in result.stderr and "set --off" not in result.stderr
+
+
+async def test_a_lost_link_after_setting_targets_says_the_heaters_stay_on(tmp_path: Path) -> None:
+    output = tmp_path / "lost.csv"
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+        args = ["--port", sim.url, "-o", str(output), "--hotend", "150", "--bed", "60", "--interval", "0.05"]
+        logging = log_in_thread(*args, "--duration", "60")
+        await until(lambda: len(rows_on_disk(output)) >= 3, "rows on disk")  # read after the targets were set
+        await sim.disconnect()
+        result = await logging
+    assert result.exit_code == Exit.LOST, result.output
+    assert re.search(
+        r"^the heaters stay on \(hotend \d+\.\d/150 C, bed \d+\.\d/60 C\)\. Turn them off with: marlin-temp set --off$",
+        result.stderr,
+        re.MULTILINE,
+    ), result.stderr
+    assert "Traceback" not in result.output
 
 
 @pytest.mark.parametrize(

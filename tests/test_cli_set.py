@@ -4,10 +4,12 @@ the simulated printer served on a real pty so the test can see what it ran."""
 from __future__ import annotations
 
 import asyncio
+import re
 
 import pytest
 from typer.testing import CliRunner
 
+import marlin_aio
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.connect import Exit
@@ -147,3 +149,55 @@ async def test_off_wait_times_out_with_exit_9_while_still_hot() -> None:
         result = await asyncio.to_thread(runner.invoke, app, cool)
     assert result.exit_code == Exit.TIMEOUT, result.output
     assert "did not cool below 50 C within 0.5 s" in result.output
+
+
+# ------------------------------------------------------------------------------------------- heaters left on
+
+
+HEATER_LEFT_ON = re.compile(
+    r"^the heater stays on \(hotend \d+\.\d/250 C\)\. Turn it off with: marlin-temp set --off$", re.MULTILINE
+)
+
+
+async def hotend_target(url: str) -> float | None:
+    """The hotend target the printer reports now, read by a connection of its own."""
+    async with marlin_aio.connect(url) as printer:
+        return (await printer.read_temperatures()).temperatures.heaters["T"].target
+
+
+async def test_a_wait_that_times_out_says_the_heater_stays_on_and_how_to_turn_it_off() -> None:
+    # At the simulator's own pace a hotend takes well over a minute to 250 C: 0.5 s cannot be enough, however
+    # loaded the machine (a stall slows the simulated time with it).
+    async with serve_pty(SimulatorConfig(), time_scale=1) as sim:
+        args = ["set", "--port", sim.url, "--hotend", "250", "--wait", "--wait-timeout", "0.5"]
+        result = await asyncio.to_thread(runner.invoke, app, args)
+        target = await hotend_target(sim.url)
+    assert result.exit_code == Exit.TIMEOUT, result.output
+    assert HEATER_LEFT_ON.search(result.output), result.output
+    assert "did not reach the target within 0.5 s" in result.output
+    assert "Traceback" not in result.output
+    assert target == 250  # what the line says: it is still on
+
+
+async def test_a_link_lost_while_waiting_says_the_heater_stays_on() -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=1) as sim:
+        args = ["set", "--port", sim.url, "--hotend", "250", "--wait", "--wait-timeout", "120"]
+        setting = asyncio.create_task(asyncio.to_thread(runner.invoke, app, args))
+        for _ in range(600):  # polling a condition, bounded: the wait's polls have begun
+            ran = list(sim.printer.executed)
+            # A second M105 after the target goes out only once the first one's answer (target 250) was read.
+            if "M104 S250" in ran and ran[ran.index("M104 S250") :].count("M105") >= 2:
+                break
+            await asyncio.sleep(0.05)
+        await sim.disconnect()
+        result = await setting
+    assert result.exit_code == Exit.LOST, result.output
+    assert HEATER_LEFT_ON.search(result.output), result.output
+
+
+async def test_a_wait_for_cooling_that_times_out_names_no_heater_as_on() -> None:
+    code, output, _ = await set_on(
+        SimulatorConfig(), "--hotend", "0", "--wait", "--cool-to", "1", "--wait-timeout", "0.3"
+    )
+    assert code == Exit.TIMEOUT, output
+    assert "stay" not in output and "set --off" not in output  # every target is 0: nothing is on

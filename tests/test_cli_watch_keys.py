@@ -9,6 +9,7 @@ checked at 40, 60, 80 and 120 columns with a recording Console.
 from __future__ import annotations
 
 import asyncio
+import io
 import re
 import shutil
 import subprocess
@@ -35,9 +36,9 @@ from marlin_temp.model import (
     WatchControls,
     WatchModel,
 )
-from marlin_temp.render import heater_table, watch_view
+from marlin_temp.render import controls_view, heater_table, watch_view
 from marlin_temp.terminal import split_keys
-from marlin_temp.watch import _perform
+from marlin_temp.watch import _outcome, _perform
 
 WIDTHS = (40, 60, 80, 120)
 needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
@@ -270,6 +271,57 @@ async def test_a_command_the_library_refuses_is_never_sent(
     assert pty_sim.printer.executed_count == before + 1
 
 
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("M104 S999", "hotend target 999 C is above the limit of 260 C; nothing sent"),
+        ("M104 Sabc", "hotend target must be a number"),
+        ("M140 S-5", "bed target must not be negative"),
+        ("M104\nS200", "line break"),
+    ],
+)
+async def test_bad_input_on_the_colon_line_is_one_line_in_the_view_and_never_sent(
+    pty_sim: SimulatorServer, printer: marlin_aio.Printer, text: str, message: str
+) -> None:
+    before = pty_sim.printer.executed_count
+    controls = WatchControls()
+    action = SendCommand(text)
+    notice = await _outcome(printer, action, WatchModel())  # what the view's action task makes of it
+    controls.finished(action, notice)
+    assert notice.error and message in notice.title and notice.lines == ()
+    console = Console(record=True, width=300, file=io.StringIO(), color_system=None)
+    console.print(controls_view(controls, 300))
+    shown = console.export_text().splitlines()
+    assert [line for line in shown if "error:" in line] == [shown[0]] and shown[1].startswith("h hotend")
+    assert not controls.heated  # refused: it set nothing
+    await printer.send("M400")  # anything written before this would have run before it
+    assert pty_sim.printer.executed_count == before + 1
+
+
+def test_a_pasted_line_with_a_line_break_in_it_is_one_line_saying_nothing_was_sent() -> None:
+    from marlin_temp.terminal import PASTE
+
+    controls = WatchControls()
+    assert press(controls, [":", PASTE + "M104 S200\nM140 S60\n"]) == []
+    assert controls.notice is not None and controls.notice.lines == ()
+    assert controls.notice.title == "several lines pasted; nothing sent: one line at a time"
+
+
+def test_keys_that_set_a_target_are_remembered_for_the_way_out() -> None:
+    controls = WatchControls()
+    controls.finished(SetTargets(hotend=0.0), Notice("hotend target off"))
+    assert not controls.heated  # turning a heater off leaves nothing on to warn of
+    controls.finished(SendCommand("M114"), Notice("> M114"))
+    assert not controls.heated
+    controls.finished(SetTargets(hotend=200.0), Notice("refused", error=True))
+    assert not controls.heated
+    controls.finished(SendCommand("m140 s60"), Notice("> m140 s60"))
+    assert controls.heated
+    other = WatchControls()
+    other.finished(SetTargets(bed=60.0, label="PLA"), Notice("PLA: bed target 60 °C"))
+    assert other.heated
+
+
 # ------------------------------------------------------------------------------------------- a real terminal
 
 
@@ -325,7 +377,7 @@ def test_keys_set_targets_and_send_gcode_in_the_live_view(tmux: Tmux) -> None:
 
     tmux.run("send-keys", "-t", "w", "-l", "h900")
     tmux.run("send-keys", "-t", "w", "Enter")
-    screen = tmux.wait_for(lambda s: "nothing sent" in s, "the refused target")
+    screen = tmux.wait_for(lambda s: "nothing sent" in flat(s), "the refused target")
     assert "error: hotend target 900 C is above the limit of 260 C (raise the limit with --max-hotend)" in flat(screen)
     assert "215 °C" in table_row(screen, "hotend")
 
@@ -335,9 +387,20 @@ def test_keys_set_targets_and_send_gcode_in_the_live_view(tmux: Tmux) -> None:
     screen = tmux.wait_for(lambda s: "> M114" in s and "X:" in s, "the reply under the chart")
     assert screen.index("now") < screen.index("> M114")  # under the chart
 
+    tmux.run("send-keys", "-t", "w", "-l", ":M104 S999")
+    tmux.run("send-keys", "-t", "w", "Enter")
+    screen = tmux.wait_for(lambda s: "999 C" in s, "the refused G-code line")
+    assert "error: hotend target 999 C is above the limit of 260 C; nothing sent" in flat(screen)
+    assert "215 °C" in table_row(screen, "hotend")
+
     tmux.run("send-keys", "-t", "w", "q")
     after = tmux.wait_for(lambda s: "MARLIN-EXIT=" in s, "watch to exit")
     assert "MARLIN-EXIT=0" in after
+    # The keys left the hotend and the bed on: the way out says so, in set's words.
+    assert re.search(
+        r"the heaters stay on \(hotend \d+\.\d/215 C, bed \d+\.\d/60 C\)\. Turn them off with:", flat(after)
+    )
+    assert "marlin-temp set --off" in flat(after)
 
 
 @needs_tmux
