@@ -58,7 +58,7 @@ _LIMIT_OPTIONS = {"hotend": "--max-hotend", "bed": "--max-bed", "chamber": "--ma
 # Control characters a text file may hold: tab, line ends, form feed, vertical tab.
 _TEXT_CONTROLS = frozenset("\t\n\r\f\v")
 # A file whose first chunk has more than this share of undecodable or control bytes is binary data.
-_BINARY_SHARE = 0.1
+_BINARY_SHARE = 0.3  # random bytes give over half; French comments in Latin-1 a few percent
 _SHOWN_CHARACTERS = 60  # of a bad command in a message: enough to find it, not a screen of it
 # Letters NFKD does not decompose into a base letter and an accent.
 _SPELLED = str.maketrans(
