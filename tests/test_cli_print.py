@@ -353,6 +353,7 @@ def test_print_keys_pause_resume_and_emergency_stop(tmux: Tmux, tmp_path: Path) 
         after = tmux.wait_for(lambda s: "MARLIN-EXIT=" in s, "print to exit")
         assert f"MARLIN-EXIT={int(Exit.HALTED)}" in after, after
         assert "emergency stop: M112 sent after line" in after and "halted" in after
+        assert "Marlin turns its heaters off as it halts" in " ".join(after.split())
         assert sim.printer.halted
 
 
