@@ -9,6 +9,14 @@ Temperatures are polled in the background (M105, plus M155 auto-reports where th
 coming while a long command blocks the queue); the polls' answers are never printed. The latest reading is in
 the bottom bar, and a compact line goes into the scrollback now and then (`temperature_every_s`), only when
 something changed, so an idle printer does not flood the screen.
+
+Nothing reaches the printer that the user did not mean. F12 sends the emergency stop at once; M112 typed (in any
+spelling Marlin reads as M112, see `is_emergency_stop`) or `!` and Enter asks first, one key: `y` sends, any other
+key does not. M112 is never completed and never kept in the history (`HistoryWithoutStops`), so Tab or Up, Enter
+cannot send it by accident. A command the library refuses (`M104 S999` above --max-hotend) is one error line;
+whatever a background task raises becomes one line too, never an exception in prompt_toolkit's event loop (which
+would stop the prompt and swallow the next line typed). Firmware text is printed as prompt_toolkit plain text:
+no markup or emoji codes are read in it.
 """
 
 from __future__ import annotations
@@ -16,17 +24,21 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
-from collections.abc import Callable, Iterable, Mapping
+import re
+from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from prompt_toolkit import PromptSession
-from prompt_toolkit.application import get_app_or_none, get_app_session, run_in_terminal
+from prompt_toolkit.application import Application, get_app_or_none, get_app_session, run_in_terminal
 from prompt_toolkit.completion import CompleteEvent, Completer, Completion
 from prompt_toolkit.document import Document
 from prompt_toolkit.formatted_text import FormattedText
 from prompt_toolkit.history import FileHistory, History, InMemoryHistory
+from prompt_toolkit.input.typeahead import clear_typeahead
 from prompt_toolkit.key_binding import KeyBindings, KeyPressEvent
+from prompt_toolkit.keys import Keys
+from prompt_toolkit.layout import FormattedTextControl, Layout, Window
 from prompt_toolkit.patch_stdout import patch_stdout
 from prompt_toolkit.renderer import print_formatted_text
 from prompt_toolkit.styles import Style
@@ -43,15 +55,18 @@ __all__ = [
     "GCODES",
     "ConsoleSettings",
     "GcodeCompleter",
+    "HistoryWithoutStops",
     "default_history_path",
+    "is_emergency_stop",
     "run_console",
     "temperature_line",
 ]
 
-#: The key that sends the emergency stop at once (as do typing `!` or `M112` and Enter).
+#: The key that sends the emergency stop at once (typing `!` or `M112` and Enter asks first).
 EMERGENCY_STOP_KEY = "f12"
 
-#: The codes the completer offers, with what each does (Marlin 2.1).
+#: The codes the completer offers, with what each does (Marlin 2.1). M112 is not among them: a Tab must never
+#: complete a line into the emergency stop.
 GCODES: dict[str, str] = {
     "G0": "travel move",
     "G1": "linear move (X Y Z E F)",
@@ -76,7 +91,6 @@ GCODES: dict[str, str] = {
     "M107": "fan off",
     "M108": "stop waiting for heaters",
     "M109": "hotend target and wait",
-    "M112": "EMERGENCY STOP (sent at once)",
     "M114": "report position",
     "M115": "firmware and capabilities",
     "M117": "message on the display",
@@ -110,7 +124,8 @@ _HELP = (
     "Type G-code and press Enter: the reply is printed when it comes, and you can type on meanwhile.",
     "Tab completes codes. Up and Down walk the history (kept across sessions); Ctrl-R searches it.",
     "Ctrl-C clears the line; Ctrl-D (or quit) leaves.",
-    "F12, or ! or M112 and Enter: the EMERGENCY STOP, sent at once ahead of anything queued.",
+    "F12 sends the emergency stop at once, ahead of anything queued; M112 (or !) and Enter asks first.",
+    "M112 is never completed or kept in the history.",
     "temps: the temperatures now (the bar at the bottom follows them; a line is added when they change).",
 )
 
@@ -134,6 +149,48 @@ class ConsoleSettings:
     history_path: Path | None = None
 
 
+# How Marlin reads a line as M112, in either of its two readers. parser.cpp: blanks, an optional `N<number>`, the
+# letter in either case, blanks, the number (leading zeros are just digits: M0112 is 112), then anything but
+# another digit (`M112.1` is M112 with a subcode). The emergency parser (emergency_parser.h) also takes `N` with
+# blanks or nothing before the M (`N 5 M112`, `NM112`). A line either reader takes for M112 matches.
+_M112 = re.compile(r"\s*(?:N[\d\s-]*)?M\s*0*112(?!\d)", re.IGNORECASE)
+
+_STOP_QUESTION = "send the emergency stop M112? the printer halts and needs a reset. y = send, any other key = don't "
+
+
+def is_emergency_stop(text: str) -> bool:
+    """Would this line, sent, be the emergency stop: M112 in any spelling Marlin reads as M112 (`m112`, `M0112`,
+    `M 112`, `N5 M112*12`, with a comment), or the console's own `!`?"""
+    line = text.strip()
+    return line == "!" or command_code(line) == "M112" or _M112.match(line) is not None
+
+
+class HistoryWithoutStops(History):
+    """A history (a file's, or this session's) that never holds the emergency stop: M112 is not written to it, not
+    recalled from it in this session, and not loaded from an old file that has it (older versions kept it).
+
+    Composed over the history it filters, so the file format and its locking stay prompt_toolkit's.
+    """
+
+    def __init__(self, inner: History) -> None:
+        super().__init__()
+        self.inner = inner
+
+    def load_history_strings(self) -> Iterable[str]:
+        """The inner history's lines, newest first, without the emergency stop."""
+        return (line for line in self.inner.load_history_strings() if not is_emergency_stop(line))
+
+    def append_string(self, string: str) -> None:
+        """Keep an entered line for Up and Ctrl-R (and the file), unless it is the emergency stop."""
+        if not is_emergency_stop(string):
+            super().append_string(string)
+
+    def store_string(self, string: str) -> None:
+        """Write a line to the inner history (never the emergency stop)."""
+        if not is_emergency_stop(string):
+            self.inner.store_string(string)
+
+
 def default_history_path(environ: Mapping[str, str] = os.environ) -> Path:
     """`$XDG_STATE_HOME/marlin-temp/history`, or `~/.local/state/marlin-temp/history` (the XDG default).
 
@@ -154,7 +211,7 @@ class GcodeCompleter(Completer):
             return  # past the code: parameters are the user's
         word = typed.upper()
         for code, meaning in GCODES.items():
-            if code.startswith(word):
+            if code.startswith(word) and not is_emergency_stop(code):
                 yield Completion(code, start_position=-len(typed), display_meta=meaning)
         for name, meaning in _LOCAL.items():
             if typed and name.startswith(typed.lower()):
@@ -205,6 +262,7 @@ class _Console:
         self.halted = False
         self.failure: marlin_aio.MarlinError | None = None  # the link went away: the session ends with it
         self.quit = False
+        self.question: Application[bool] | None = None  # the emergency stop's question, while it is asked
 
     # --------------------------------------------------------------------------------------- output
 
@@ -231,6 +289,7 @@ class _Console:
         printed = asyncio.ensure_future(run_in_terminal(render))
         self.printing.add(printed)  # the loop keeps only a weak reference to the task
         printed.add_done_callback(self.printing.discard)
+        printed.add_done_callback(_printed)
 
     def show_temperatures(self, reading: TemperatureReading | None) -> None:
         if reading is None:
@@ -247,7 +306,8 @@ class _Console:
             latest = self.printer.latest
             state = [("", f" {temperature_line(latest) if latest else 'waiting for temperatures'}")]
         busy = f"  | running: {len(self.running)}" if self.running else ""
-        return FormattedText([*state, ("", f"{busy}  | F12 or ! emergency stop  | Ctrl-D quits  | {self.label}")])
+        keys = "F12 emergency stop (M112 or ! asks first)  | Ctrl-D quits"
+        return FormattedText([*state, ("", f"{busy}  | {keys}  | {self.label}")])
 
     # --------------------------------------------------------------------------------------- input
 
@@ -261,23 +321,66 @@ class _Console:
         return bindings
 
     def emergency_stop(self) -> None:
+        """Write M112 now. Also run from a key binding: nothing may raise out of it into prompt_toolkit's loop."""
         try:
             self.printer.emergency_stop()
-        except marlin_aio.MarlinError as exc:
-            self.say(f"error: {exc}", "class:error")
+        except Exception as exc:  # a lost link, or a bug: one line either way, the prompt lives on
+            self.say(f"error: the emergency stop was not sent: {_one_line(exc)}", "class:error")
             return
         self.halted = True
         self.show(lambda: [("class:stop", note) for note in emergency_stop_notes(self.printer.capabilities)])
 
-    def handle(self, text: str) -> None:
+    async def ask_to_stop(self) -> None:
+        """M112 (or !) was typed: send it only if the next key is `y` (F12, the stop's own key, sends it too)."""
+        try:
+            send = await self.ask(_STOP_QUESTION)
+        except EOFError:  # the link went away while asking: there is nothing to send the stop to
+            send = False
+        if send:
+            self.emergency_stop()
+        else:
+            self.say("emergency stop not sent: nothing was written to the printer", "class:note")
+
+    async def ask(self, question: str) -> bool:
+        """Show `question` and wait for one key: True for `y`, False for any other (Enter, Esc, Ctrl-C, a paste).
+
+        Keys typed before the question was shown are dropped: an answer is a key pressed after it.
+        """
+        bindings = KeyBindings()
+
+        @bindings.add(Keys.Any)
+        def _(event: KeyPressEvent) -> None:
+            key = event.key_sequence[0].key
+            if key in _NOT_KEYS:
+                return  # the terminal reporting something, not a person pressing a key
+            event.app.exit(result=key in ("y", "Y"))
+
+        @bindings.add(EMERGENCY_STOP_KEY, eager=True)
+        def _(event: KeyPressEvent) -> None:
+            event.app.exit(result=True)
+
+        clear_typeahead(get_app_session().input)
+        self.question = Application(
+            layout=Layout(Window(FormattedTextControl([("class:stop", question)]), dont_extend_height=True)),
+            key_bindings=bindings,
+            style=_STYLE,
+            erase_when_done=False,
+        )
+        try:
+            return await self.question.run_async(pre_run=self.leave_if_ended)
+        finally:
+            self.question = None
+            self.screen_serial += 1  # the question and its answer stay on the screen
+
+    async def handle(self, text: str) -> None:
         """Act on one entered line: a word of the console's, the emergency stop, or a command for the printer."""
         self.screen_serial += 1  # the entered line stays on the screen above the next prompt
         line = text.strip()
         word = line.lower()
         if not line:
             return
-        if line == "!":
-            self.emergency_stop()
+        if is_emergency_stop(line):
+            await self.ask_to_stop()
         elif word in ("quit", "exit"):
             self.quit = True
         elif word == "help":
@@ -289,21 +392,32 @@ class _Console:
             try:
                 command = check_command(line)
             except ValueError as exc:
-                self.say(f"error: {exc} (not sent)", "class:error")
+                self.say(f"error: {_one_line(exc)} (not sent)", "class:error")
                 return
-            if command_code(command) == "M112":
-                self.emergency_stop()
-                return
-            task = asyncio.create_task(self.run_command(command, self.screen_serial), name=f"console {command}")
+            task = asyncio.create_task(
+                self.guarded(self.run_command(command, self.screen_serial), command), name=f"console {command}"
+            )
             self.running.add(task)
             task.add_done_callback(self.running.discard)
+
+    async def guarded(self, work: Awaitable[None], what: str) -> None:
+        """Run a background task's work: whatever it raises becomes one error line, never an exception in
+        prompt_toolkit's event loop ("Unhandled exception in event loop ... Press ENTER", which also takes the
+        next line typed)."""
+        try:
+            await work
+        except Exception as exc:  # a bug of ours or the library's: one line, the prompt lives on
+            self.say(f"error: {what}: {_one_line(exc)}", "class:error")
 
     async def run_command(self, command: str, entered_at: int) -> None:
         timeout_s = command_timeout_s(command, self.printer.timeout_s)
         try:
             reply = await self.printer.send(command, timeout_s=timeout_s)
+        except ValueError as exc:  # refused before anything was written: a target above the limits, ...
+            self.say(f"error: {command}: {_one_line(exc)} (not sent)", "class:error")
+            return
         except marlin_aio.MarlinError as exc:
-            self.say(f"error: {command}: {exc}", "class:error")
+            self.say(f"error: {command}: {_one_line(exc)}", "class:error")
             if isinstance(exc, marlin_aio.PrinterHaltedError):
                 self.halted = True
             elif isinstance(exc, marlin_aio.ConnectionLostError):
@@ -330,7 +444,7 @@ class _Console:
                     self.show_temperatures(reading)
         except marlin_aio.PrinterHaltedError as exc:
             if not self.halted:  # not our own emergency stop: thermal protection, a kill on the board, ...
-                self.say(f"error: {exc}", "class:error")
+                self.say(f"error: {_one_line(exc)}", "class:error")
             self.halted = True
         except marlin_aio.MarlinError as exc:
             self.end(exc)  # the link is gone (or the board reset): said once, as the session's error
@@ -341,17 +455,22 @@ class _Console:
         self.leave_if_ended()
 
     def leave_if_ended(self) -> None:
-        # Also run as each prompt starts, for a failure that came while no prompt was up to leave.
-        app = self.session.app if self.session is not None else None
-        if self.failure is not None and app is not None and app.is_running and not app.is_done:
-            app.exit(exception=EOFError())
+        # Also run as each prompt (and the stop's question) starts, for a failure that came while none was up.
+        if self.failure is None:
+            return
+        for app in (self.session.app if self.session is not None else None, self.question):
+            if app is not None and app.is_running and not app.is_done:
+                app.exit(exception=EOFError())
 
     # --------------------------------------------------------------------------------------- the session
 
     async def run(self, history: History) -> Exit:
         firmware = self.printer.firmware.name if self.printer.firmware else "unknown firmware"
         self.say(f"connected to {self.label}: {firmware}", "class:note")
-        self.say("F12 (or ! and Enter): emergency stop.  Ctrl-D: quit.  help: what else there is.", "class:note")
+        self.say(
+            "F12: emergency stop at once (M112 or ! and Enter asks first).  Ctrl-D: quit.  help: what else there is.",
+            "class:note",
+        )
         self.session = PromptSession(
             history=history,
             completer=GcodeCompleter(),
@@ -363,7 +482,9 @@ class _Console:
         )
         polling = contextlib.AsyncExitStack()
         await polling.enter_async_context(self.printer.poll_temperatures(self.settings.poll_interval_s))
-        follower = asyncio.create_task(self.follow_temperatures(), name="console temperatures")
+        follower = asyncio.create_task(
+            self.guarded(self.follow_temperatures(), "following the temperatures"), name="console temperatures"
+        )
         try:
             await self.prompt_loop(self.session)
         finally:
@@ -390,22 +511,39 @@ class _Console:
                 continue  # Ctrl-C: the line is dropped, the session goes on
             except EOFError:
                 break
-            self.handle(text)
+            await self.handle(text)
         if self.running:
             waiting = ", ".join(task.get_name().removeprefix("console ") for task in self.running)
             self.say(f"left without waiting for: {waiting}", "class:note")
 
 
+# Key "presses" that are the terminal answering a query or a mouse report: no answer to a question.
+_NOT_KEYS = frozenset({Keys.CPRResponse, Keys.Vt100MouseEvent, Keys.Ignore, Keys.ScrollUp, Keys.ScrollDown})
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (its type's name if it has none)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _printed(printed: asyncio.Future[None]) -> None:
+    # A line that could not be printed (the terminal gone) has nowhere to say so; its exception is taken here so
+    # the loop does not report it ("exception was never retrieved") over the prompt.
+    if not printed.cancelled():
+        printed.exception()
+
+
 def _open_history(path: Path | None) -> tuple[History, str | None]:
-    """The history file (created if need be), or one for this session only with the reason why."""
+    """The history file (created if need be), or one for this session only with the reason why; either without
+    the emergency stop."""
     if path is None:
-        return InMemoryHistory(), None
+        return HistoryWithoutStops(InMemoryHistory()), None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.touch(exist_ok=True)
     except OSError as exc:
-        return InMemoryHistory(), f"history not kept ({exc.strerror or exc}: {path})"
-    return FileHistory(str(path)), None
+        return HistoryWithoutStops(InMemoryHistory()), f"history not kept ({exc.strerror or exc}: {path})"
+    return HistoryWithoutStops(FileHistory(str(path))), None
 
 
 async def run_console(options: ConnectOptions, settings: ConsoleSettings, errors: Console) -> Exit:
@@ -417,7 +555,7 @@ async def run_console(options: ConnectOptions, settings: ConsoleSettings, errors
     """
     history, problem = _open_history(settings.history_path)
     if problem is not None:
-        errors.print(problem, style="dim")
+        errors.print(problem, style="dim", markup=False, emoji=False, highlight=False)
     async with open_printer(options, errors) as (printer, label):
         with patch_stdout(raw=True):
             return await _Console(printer, label, settings).run(history)
