@@ -560,6 +560,9 @@ _PRINT_HELP = "\n\n".join(
         "Display text (M117, M118, M0/M1) with letters beyond ASCII is sent transliterated (café as "
         "cafe), with a warning. While the printer waits for a heater (M109, M190 in the file) the view says so "
         "instead of a rate.",
+        "While Ctrl-C's question is on screen the print is paused; a cancel during the file's heat-up ends the wait "
+        "at once with M108 where the firmware has the emergency parser. Whenever print exits with heaters on, it "
+        "says which, and how to turn them off (marlin-temp set --off).",
         "Keys on a terminal: p pauses (no new lines are sent; the moves the printer has finish, heaters stay on), "
         "r resumes, ! is the emergency stop: M112 at once, with no question asked; the printer halts and needs a "
         "reset (exit code 7). Ctrl-C asks whether to cancel; a cancel lets the printer finish what it has, then "
@@ -613,7 +616,13 @@ def print_file(
     ] = None,
     force: Annotated[
         bool,
-        typer.Option("--force", help="With --from-line: resume even where the check calls the resume dangerous."),
+        typer.Option(
+            "--force",
+            help="With --from-line: resume even though the checks found that the resume would do harm (absolute "
+            "extrusion resumed from the header's E, pushing out the skipped layers' filament at once; an extrusion "
+            "mode or a heater the skipped part set and the header does not). The reasons are still printed as "
+            "warnings.",
+        ),
     ] = False,
     port: PortOption = None,
     baud: BaudOption = None,

@@ -38,8 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import marlin_aio
-from marlin_aio.gcode import GCodeLine, command_code, parse_gcode, value_float
-from marlin_aio.heaters import DEFAULT_LIMITS, HeaterLimits
+from marlin_aio import GCodeLine, HeaterLimits, command_code, parse_gcode
 
 __all__ = ["SNIFF_BYTES", "GcodePlan", "HeatWait", "plan_print", "transliterate"]
 
@@ -77,7 +76,7 @@ def transliterate(text: str) -> str:
 
 def _parameters(line: GCodeLine) -> dict[str, float]:
     """The parameters with a value, read as Marlin reads them (the last word of a letter given twice wins)."""
-    return {letter: value_float(value) for letter, value in line.words if value is not None}
+    return line.numbers()
 
 
 def _shown(command: str) -> str:
@@ -171,7 +170,11 @@ def plan_print(
         OSError: the file cannot be read.
     """
     if limits is None:
-        limits = DEFAULT_LIMITS
+        limits = HeaterLimits(
+            marlin_aio.DEFAULT_MAX_HOTEND_CELSIUS,
+            marlin_aio.DEFAULT_MAX_BED_CELSIUS,
+            marlin_aio.DEFAULT_MAX_CHAMBER_CELSIUS,
+        )
     stamp = path.stat()  # before the file is read: a change while it is checked is a change too
     _check_text(path)
     first_move = _first_move(path) if from_line is not None else None

@@ -86,6 +86,11 @@ class GCodeLine:
                 found = value
         return found
 
+    def numbers(self) -> dict[str, float]:
+        """The parameters that have a value, by letter, as Marlin's `floatval` reads them (the last word of a
+        letter wins): `G1 X10 E` gives `{"X": 10.0}`."""
+        return {letter: value_float(value) for letter, value in self.words if value is not None}
+
     def seen(self, letter: str) -> bool:
         """Whether the line has parameter `letter`, with or without a value."""
         return any(word == letter for word, _ in self.words)
