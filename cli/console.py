@@ -149,10 +149,10 @@ class ConsoleSettings:
     history_path: Path | None = None
 
 
-# How Marlin reads a line as M112, in either of its two readers. parser.cpp: blanks, an optional `N<number>`, the
-# letter in either case, blanks, the number (leading zeros are just digits: M0112 is 112), then anything but
-# another digit (`M112.1` is M112 with a subcode). The emergency parser (emergency_parser.h) also takes `N` with
-# blanks or nothing before the M (`N 5 M112`, `NM112`). A line either reader takes for M112 matches.
+# `command_code` reads a line as Marlin's parser.cpp does (`m112`, `M0112`, `M 112`, `N5 M112*12`, `M112.0`).
+# Marlin's other reader, the emergency parser (emergency_parser.h), acts on M112 as it arrives and is looser
+# about the line number: `N` with blanks or nothing before the M (`N 5 M112`, `NM112`). This pattern takes what
+# either reader would, and still catches parser.cpp's spellings should `command_code` ever change.
 _M112 = re.compile(r"\s*(?:N[\d\s-]*)?M\s*0*112(?!\d)", re.IGNORECASE)
 
 _STOP_QUESTION = "send the emergency stop M112? the printer halts and needs a reset. y = send, any other key = don't "
@@ -264,6 +264,13 @@ class _Console:
         self.quit = False
         self.question: Application[bool] | None = None  # the emergency stop's question, while it is asked
 
+    @property
+    def limits(self) -> marlin_aio.HeaterLimits:
+        """The printer's target limits (--max-hotend, --max-bed): a line is checked against them as it is entered,
+        so a refusal is said right under it; the client checks again as it sends."""
+        printer = self.printer
+        return marlin_aio.HeaterLimits(printer.max_hotend_celsius, printer.max_bed_celsius, printer.max_chamber_celsius)
+
     # --------------------------------------------------------------------------------------- output
 
     def say(self, text: str, style: str = "") -> None:
@@ -275,8 +282,12 @@ class _Console:
         output = get_app_session().output
 
         def render() -> None:
+            try:
+                shown = lines()
+            except Exception as exc:  # a bug in making the lines: say so in their place, never lose them silently
+                shown = [("class:error", f"error: {_one_line(exc)}")]
             fragments: list[tuple[str, str]] = []
-            for style, text in lines():
+            for style, text in shown:
                 fragments += [(style, text), ("", "\n")]
             print_formatted_text(output, FormattedText(fragments), _STYLE)
             output.flush()
@@ -390,7 +401,7 @@ class _Console:
             self.show_temperatures(self.printer.latest)
         else:
             try:
-                command = check_command(line)
+                command = check_command(line, limits=self.limits)
             except ValueError as exc:
                 self.say(f"error: {_one_line(exc)} (not sent)", "class:error")
                 return
@@ -511,7 +522,7 @@ class _Console:
                 continue  # Ctrl-C: the line is dropped, the session goes on
             except EOFError:
                 break
-            await self.handle(text)
+            await self.guarded(self.handle(text), text.strip())
         if self.running:
             waiting = ", ".join(task.get_name().removeprefix("console ") for task in self.running)
             self.say(f"left without waiting for: {waiting}", "class:note")

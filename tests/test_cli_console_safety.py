@@ -170,14 +170,16 @@ async def test_typed_m112_asks_first_and_any_other_key_sends_nothing(
 async def test_a_refused_command_is_one_error_line_and_the_next_line_is_taken(
     pty_sim: SimulatorServer, tmux: Tmux, tmp_path: Path
 ) -> None:
-    start_terminal(tmux, pty_sim.url, tmp_path, "--no-history")
+    # No temperature lines: the line under each command is its answer.
+    start_terminal(tmux, pty_sim.url, tmp_path, "--no-history", "--temperatures-every", "0", "--max-hotend", "290")
     await wait_for(tmux, lambda s: "marlin>" in s, "the prompt")
 
-    for number, bad in enumerate(["M104 S999", "M104 Sabc", "M140 S-5"]):
+    for number, bad in enumerate(["M104 S999", "M104 Sabc", "M140 S-5", "M104 S291"]):
         typed(tmux, bad, "Enter")
-        screen = await wait_for(tmux, shows(f"error: {bad}:"), f"the error for {bad}")
-        error = [line for line in screen.splitlines() if line.startswith(f"error: {bad}:")]
-        assert len(error) == 1 and error[0].rstrip().endswith("(not sent)"), screen
+        screen = await wait_for(tmux, shows(f"marlin> {bad}\nerror: "), f"the error under {bad}")
+        error = screen.split(f"marlin> {bad}\n", 1)[1].splitlines()
+        assert error[0].rstrip().endswith("(not sent)"), screen  # one line, then the next prompt
+        assert error[1].startswith("marlin>") or not error[1].strip(), screen
         await wait_for(tmux, at_an_empty_prompt, "a fresh prompt")
         typed(tmux, f"M118 E1 next {number}", "Enter")  # not swallowed by a "Press ENTER to continue"
         await wait_for(tmux, shows(f"echo:next {number}"), "the next command's reply")
@@ -186,6 +188,11 @@ async def test_a_refused_command_is_one_error_line_and_the_next_line_is_taken(
     screen = await wait_for(tmux, lambda s: "ok T:" in s, "M105's reply")
     assert "Unhandled exception" not in screen and "Traceback" not in screen and "Press ENTER" not in screen
     assert not any(command.startswith(("M104 S", "M140 S")) for command in pty_sim.printer.executed)
+
+    typed(tmux, "M104 S280", "Enter")  # within --max-hotend 290 (above the default limit): sent
+    await wait_until(lambda: "M104 S280" in pty_sim.printer.executed, "the printer to take M104 S280")
+    typed(tmux, "M104 S0", "Enter")
+    await wait_until(lambda: "M104 S0" in pty_sim.printer.executed, "the printer to take M104 S0")
     typed(tmux, "", "C-d")
     await wait_for(tmux, lambda s: "MARLIN-EXIT=0" in s, "the console to quit with 0")
 
