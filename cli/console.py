@@ -165,9 +165,15 @@ def is_emergency_stop(text: str) -> bool:
     return line == "!" or command_code(line) == "M112" or _M112.match(line) is not None
 
 
+def _kept_out_of_history(line: str) -> bool:
+    """The emergency stop (never to be repeated by Up, Enter) and a password (M511, never to be left in a file)."""
+    return is_emergency_stop(line) or marlin_aio.redact(line) != line
+
+
 class HistoryWithoutStops(History):
     """A history (a file's, or this session's) that never holds the emergency stop: M112 is not written to it, not
-    recalled from it in this session, and not loaded from an old file that has it (older versions kept it).
+    recalled from it in this session, and not loaded from an old file that has it (older versions kept it). A
+    printer password typed as `M511 P...` is kept out the same way.
 
     Composed over the history it filters, so the file format and its locking stay prompt_toolkit's.
     """
@@ -178,16 +184,16 @@ class HistoryWithoutStops(History):
 
     def load_history_strings(self) -> Iterable[str]:
         """The inner history's lines, newest first, without the emergency stop."""
-        return (line for line in self.inner.load_history_strings() if not is_emergency_stop(line))
+        return (line for line in self.inner.load_history_strings() if not _kept_out_of_history(line))
 
     def append_string(self, string: str) -> None:
         """Keep an entered line for Up and Ctrl-R (and the file), unless it is the emergency stop."""
-        if not is_emergency_stop(string):
+        if not _kept_out_of_history(string):
             super().append_string(string)
 
     def store_string(self, string: str) -> None:
         """Write a line to the inner history (never the emergency stop)."""
-        if not is_emergency_stop(string):
+        if not _kept_out_of_history(string):
             self.inner.store_string(string)
 
 
@@ -425,10 +431,10 @@ class _Console:
         try:
             reply = await self.printer.send(command, timeout_s=timeout_s)
         except ValueError as exc:  # refused before anything was written: a target above the limits, ...
-            self.say(f"error: {command}: {_one_line(exc)} (not sent)", "class:error")
+            self.say(f"error: {marlin_aio.redact(command)}: {_one_line(exc)} (not sent)", "class:error")
             return
         except marlin_aio.MarlinError as exc:
-            self.say(f"error: {command}: {_one_line(exc)}", "class:error")
+            self.say(f"error: {marlin_aio.redact(command)}: {_one_line(exc)}", "class:error")
             if isinstance(exc, marlin_aio.PrinterHaltedError):
                 self.halted = True
             elif isinstance(exc, marlin_aio.ConnectionLostError):

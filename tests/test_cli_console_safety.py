@@ -96,6 +96,17 @@ def test_m112_is_never_written_to_the_history_nor_recalled_in_the_session(tmp_pa
     assert session_only.get_strings() == ["G28"]
 
 
+def test_a_typed_password_is_never_written_to_the_history_nor_loaded_from_it(tmp_path: Path) -> None:
+    path = tmp_path / "history"
+    write_old_history(path, ["G28", "M511 P1234"])
+    history = HistoryWithoutStops(FileHistory(str(path)))
+    assert loaded(history) == ["G28"]
+    history.append_string("m511 p4321")
+    history.append_string("M105")
+    assert history.get_strings() == ["G28", "M105"]
+    assert "4321" not in path.read_text()
+
+
 # ------------------------------------------------------------------------------------------- in tmux
 
 
