@@ -105,8 +105,6 @@ class Command:
         return {letter: None if value is None else gcode.value_float(value) for letter, value in self.words.words}
 
 
-
-
 def _strtol(data: bytes, start: int) -> int:
     """C's `strtol(data + start, nullptr, 10)` for a 32-bit long: white space, a sign, digits; 0 if none."""
     match = _LEADING_LONG.match(data, start)
