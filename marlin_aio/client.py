@@ -479,11 +479,8 @@ class Printer:
             ValueError: a target is not a number, negative, or above the client's limit; `tool` is negative.
             MarlinError: as `send`.
         """
-        for command in target_commands(self._limits(), hotend=hotend, bed=bed, chamber=chamber, tool=tool):
+        for command in target_commands(self._heater_limits, hotend=hotend, bed=bed, chamber=chamber, tool=tool):
             await self.send(command)
-
-    def _limits(self) -> HeaterLimits:
-        return self._heater_limits
 
     async def wait_for_temperatures(
         self,
@@ -509,7 +506,7 @@ class Printer:
         """
         if not tolerance_c >= 0:
             raise ValueError(f"tolerance_c must not be negative, got {tolerance_c}")
-        wanted = wanted_targets(self._limits(), hotend=hotend, bed=bed, chamber=chamber, tool=tool)
+        wanted = wanted_targets(self._heater_limits, hotend=hotend, bed=bed, chamber=chamber, tool=tool)
 
         async def watch() -> TemperatureReading:
             readings = self.temperature_readings()
@@ -592,11 +589,11 @@ class Printer:
         if isinstance(source, str | Path):
             return PrintJob.from_path(Path(source), check=check, limits=limits)
         if check and isinstance(source, Sequence):
-            # Before the first line is sent, as for a file: a list over the limits is refused whole. (An iterator
-            # can be read only once: each of its lines is checked as it is fed, and a bad one stops the print.)
-            for _ in gcode_commands(source, limits):
-                pass
-            return PrintJob(source, lines_total=sum(1 for _ in gcode_commands(source)), limits=limits)
+            # Before the first line is sent, as for a file: a list over the limits is refused whole, and counted in
+            # the same pass. (An iterator can be read only once: each of its lines is checked as it is fed, and a
+            # bad one stops the print.)
+            commands = sum(1 for _ in gcode_commands(source, limits))
+            return PrintJob(source, lines_total=commands, limits=limits)
         return PrintJob(source, limits=limits)
 
     async def print_file(

@@ -32,6 +32,7 @@ import re
 from dataclasses import dataclass
 
 __all__ = [
+    "STRING_ARGUMENT_CODES",
     "GCodeLine",
     "command_code",
     "parse_gcode",

@@ -68,11 +68,10 @@ _LONG_MIN, _LONG_MAX = -(2**31), 2**31 - 1  # a long on AVR and 32-bit ARM
 _LEADING_LONG = re.compile(rb"[ \t\n\v\f\r]*([-+]?[0-9]+)")  # strtol skips what isspace() says
 # What the ADVANCED_OK `ok` echoes of a command that starts with N: the N and every signed digit after it.
 _OK_LABEL = re.compile(rb"N[-+0-9]*")
-# parser.cpp: `N` and a digit or sign, more digits, spaces.
 _TO_UPPER = str.maketrans("abcdefghijklmnopqrstuvwxyz", "ABCDEFGHIJKLMNOPQRSTUVWXYZ")
 # Commands whose argument is a string, not parameters (parser.cpp hands them the raw text); M511's password is a
 # number on Marlin, a word here, so it keeps its case too.
-_STRING_ARGUMENT_CODES = frozenset({"M23", "M28", "M30", "M117", "M118", "M928", "M511"})
+_STRING_ARGUMENT_CODES = gcode.STRING_ARGUMENT_CODES | {"M511"}
 # What Marlin's emergency parser (feature/e_parser.h) recognises at the start of a line.
 _EMERGENCY_LINE = re.compile(rb" *(?:N[-0-9 ]*)?M *(108|112|410)")
 _EMERGENCY_HINT = re.compile(rb"1[01][028]|410")
