@@ -126,17 +126,22 @@ def heating_text(wait: HeatWait, reading: marlin_aio.TemperatureReading | None) 
     return f"{verb} {name} {heater.actual:.0f}/{target_text} C"
 
 
+def heaters_on(reading: marlin_aio.TemperatureReading | None) -> list[str]:
+    """The heaters of `reading` that have a target, each as "hotend 198.2/200 C" (none for no reading): what every
+    command that ends with heaters on names (`heaters_on_text` here, `setcmd.heaters_left_on`)."""
+    if reading is None:
+        return []
+    heaters = reading.temperatures.heaters
+    return [
+        f"{marlin_aio.heater_name(key)} {heater.actual:.1f}/{heater.target:g} C"
+        for key, heater in heaters.items()
+        if heater.target and key[:1] in "TBC" and not (key == "T" and "T0" in heaters)  # T is one of T0, T1...
+    ]
+
+
 def heaters_on_text(reading: marlin_aio.TemperatureReading | None) -> str | None:
     """The heaters of `reading` that have a target, as "hotend 198.2/200 C, bed 60.0/60 C"; None if none has."""
-    if reading is None:
-        return None
-    heaters = reading.temperatures.heaters
-    parts = []
-    for key, heater in heaters.items():
-        if key[:1] not in ("T", "B", "C") or (key == "T" and "T0" in heaters) or not heater.target:
-            continue  # the active hotend appears again under its number
-        parts.append(f"{marlin_aio.heater_name(key)} {heater.actual:.1f}/{heater.target:.0f} C")
-    return ", ".join(parts) or None
+    return ", ".join(heaters_on(reading)) or None
 
 
 def temperatures_text(reading: marlin_aio.TemperatureReading | None) -> str:

@@ -28,6 +28,7 @@ import marlin_aio
 
 from .connect import ConnectOptions, Exit, UsageProblem, open_printer
 from .model import heater_name
+from .printview import heaters_on
 
 __all__ = [
     "PrinterHeaters",
@@ -178,12 +179,7 @@ def heaters_left_on(reading: marlin_aio.TemperatureReading | None, ended_by: Bas
     """
     if reading is None or isinstance(ended_by, marlin_aio.PrinterHaltedError | marlin_aio.PrinterResetError):
         return None
-    heaters = reading.temperatures.heaters
-    on = [
-        f"{heater_name(key)} {heater.actual:.1f}/{heater.target:g} C"
-        for key, heater in heaters.items()
-        if heater.target and key[:1] in "TBC" and not (key == "T" and "T0" in heaters)  # T is one of T0, T1...
-    ]
+    on = heaters_on(reading)
     if not on:
         return None
     which = "the heaters stay" if len(on) > 1 else "the heater stays"
