@@ -4,18 +4,17 @@ the progress view as pure functions rendered by a recording Console."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import re
 import shutil
 import signal
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from rich.console import Console
+from test_cli_print_safety import served
 from test_cli_terminal import Tmux
 from typer.testing import CliRunner
 
@@ -284,31 +283,6 @@ def tmux() -> Iterator[Tmux]:
     subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
-@contextlib.contextmanager
-def simulator_in_a_thread(config: SimulatorConfig, time_scale: float) -> Iterator[SimulatorServer]:
-    """A simulated printer served on a pty by an event loop of its own, for a command running in another process."""
-    loop = asyncio.new_event_loop()
-    started = threading.Event()
-    served: list[SimulatorServer] = []
-    stop = asyncio.Event()
-
-    async def serve() -> None:
-        async with serve_pty(config, time_scale=time_scale) as server:
-            served.append(server)
-            started.set()
-            await stop.wait()
-
-    thread = threading.Thread(target=loop.run_until_complete, args=(serve(),), daemon=True)
-    thread.start()
-    try:
-        assert started.wait(30), "the simulator did not start"
-        yield served[0]
-    finally:
-        loop.call_soon_threadsafe(stop.set)
-        thread.join(30)
-        loop.close()
-
-
 def dwells_run(sim: SimulatorServer) -> int:
     return sum(1 for command in list(sim.printer.executed) if command.startswith("G4"))
 
@@ -329,7 +303,7 @@ def test_print_keys_pause_resume_and_emergency_stop(tmux: Tmux, tmp_path: Path) 
     # The hotend heats while the print runs (no wait), so time visibly passes on the screen while it is paused;
     # dwells of 5 ms pace the print (at most 200 lines/s), so it is still running when the keys are pressed.
     gcode.write_text("M104 S260\n" + "G4 P5\n" * 30_000)
-    with simulator_in_a_thread(SimulatorConfig(), time_scale=1) as sim:
+    with served(SimulatorConfig(), time_scale=1) as (sim, _):
         command = f"{sys.executable} -m marlin_temp print {gcode} --port {sim.url}; echo MARLIN-EXIT=$?; sleep 600"
         tmux.run("new-session", "-d", "-s", "w", "-x", "150", "-y", "30", command)
         tmux.wait_for(lambda s: done_lines(s) > 20 and hotend_celsius(s) > 0, "the print to run")
