@@ -147,14 +147,16 @@ async def running(farm: Farm, bridge: Bridge) -> AsyncIterator[None]:
                 await task
 
 
-def farm_and_bridge(specs: list[PrinterSpec], port: int, **settings: Any) -> tuple[Farm, Bridge, list[FarmEvent]]:
+def farm_and_bridge(
+    specs: list[PrinterSpec], port: int, *, farm_backoff_s: tuple[float, float] = (0.2, 0.5), **settings: Any
+) -> tuple[Farm, Bridge, list[FarmEvent]]:
     events: list[FarmEvent] = []
 
     def listen(event: FarmEvent) -> None:
         events.append(event)
         bridge.on_event(event)
 
-    farm = Farm(specs, listen, backoff_start_s=0.2, backoff_max_s=0.5)
+    farm = Farm(specs, listen, backoff_start_s=farm_backoff_s[0], backoff_max_s=farm_backoff_s[1])
     bridge = Bridge(
         farm,
         BrokerSettings(port=port, keepalive_s=5),

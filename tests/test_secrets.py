@@ -17,13 +17,12 @@ import aiomqtt
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from test_farm import MOSQUITTO, Broker, command, running, subscribed
+from test_farm import MOSQUITTO, Broker, command, farm_and_bridge, running, subscribed
 
 import marlin_aio
 from marlin_aio.secrets import redact
 from marlin_aio.simulator import SimulatorConfig, serve_pty
-from marlin_temp.farm import Farm, FarmEvent, PrinterSpec
-from marlin_temp.farmbridge import Bridge, BridgeSettings, BrokerSettings
+from marlin_temp.farm import PrinterSpec
 from marlin_temp.farmconfig import load_config
 
 #: Digits that no time, count or port in a message could make up by chance (unlike "1234" in "+1.234 s").
@@ -188,17 +187,8 @@ async def test_the_farms_topics_and_logs_never_carry_the_password(
             PrinterSpec("locked", locked.url, poll_interval_s=0.05, password=PASSWORD),
             PrinterSpec("plain", plain.url, poll_interval_s=0.05),
         ]
-        events: list[FarmEvent] = []
-
-        def listen(event: FarmEvent) -> None:
-            events.append(event)
-            bridge.on_event(event)
-
         # No second attempt during the test: the failed connection stays the retained state's last error.
-        farm = Farm(specs, listen, backoff_start_s=600, backoff_max_s=600)
-        bridge = Bridge(
-            farm, BrokerSettings(port=broker.port, keepalive_s=5), BridgeSettings(rate_hz=10.0, allow_commands=True)
-        )
+        farm, bridge, events = farm_and_bridge(specs, broker.port, farm_backoff_s=(600, 600), allow_commands=True)
         async with running(farm, bridge):
             # The handshake's M511 loses its ok: the connection fails, said in an event and in the retained state.
             await sub.until(
