@@ -49,6 +49,14 @@ async def pty_sim() -> AsyncIterator[SimulatorServer]:
 
 
 @pytest.fixture
+async def fast_sim() -> AsyncIterator[SimulatorServer]:
+    """The simulated printer on a pseudo-terminal, its moves taking no time and its clock 50 times faster: the link,
+    not the planner, sets the pace of a print."""
+    async with serve_pty(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=50) as server:
+        yield server
+
+
+@pytest.fixture
 async def printer(pty_sim: SimulatorServer) -> AsyncIterator[marlin_aio.Printer]:
     """A client connected to `pty_sim`, with a short command timeout so fault tests stay quick."""
     async with marlin_aio.connect(pty_sim.url, timeout_s=2.0) as connected:

@@ -9,13 +9,13 @@ targets it reports are the evidence.
 from __future__ import annotations
 
 import re
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 import marlin_aio
-from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
+from marlin_aio.simulator import SimulatorServer
 
 SPELLINGS = [
     "M104S280",
@@ -27,12 +27,6 @@ SPELLINGS = [
     "m104 s280",
     "M65640 S280",
 ]
-
-
-@pytest.fixture
-async def fast_sim() -> AsyncIterator[SimulatorServer]:
-    async with serve_pty(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=50) as server:
-        yield server
 
 
 async def targets(printer: marlin_aio.Printer) -> tuple[float | None, float | None]:

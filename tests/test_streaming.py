@@ -8,7 +8,7 @@ the pace.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -45,12 +45,6 @@ def gcode_path(tmp_path: Path) -> Path:
     path = tmp_path / "part.gcode"
     path.write_text("".join(gcode_file()))
     return path
-
-
-@pytest.fixture
-async def fast_sim() -> AsyncIterator[SimulatorServer]:
-    async with serve_pty(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=50) as server:
-        yield server
 
 
 @pytest.mark.parametrize("send_ahead", [True, False], ids=["send-ahead", "ping-pong"])
