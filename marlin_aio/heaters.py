@@ -46,7 +46,7 @@ _TARGET_WORDS: dict[str, dict[str, str]] = {
     "M303": {"S": "hotend"},
 }
 _TARGET_NUMBERS = frozenset(int(code[1:]) for code in _TARGET_WORDS)
-_EMBEDDED_M = re.compile(r"[Mm] *[0-9]")
+_M_WORD = re.compile(r"[Mm] *[0-9]")  # an M command word, as parser.cpp reads one
 _NUMBER = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)")
 
 
@@ -77,8 +77,10 @@ def check_gcode_targets(command: str, limits: HeaterLimits) -> None:
     Raises:
         ValueError: a target is not a number, negative or above its limit; the message names heater and limit.
     """
-    if command_code(command) not in _TARGET_WORDS and _EMBEDDED_M.search(command, 1) is None:
-        return  # most lines (moves) set no target: no need to read their parameters
+    if _M_WORD.search(command) is None:
+        return  # every target is set by an M word: most lines (moves) have none, and cost one search
+    if command_code(command) not in _TARGET_WORDS and _M_WORD.search(command, 1) is None:
+        return  # an M command that sets no target, with no other M word in it
     line = parse_gcode(command)
     codes = [line.code]
     for letter, value in line.words:
