@@ -19,9 +19,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import re
 import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import marlin_aio
@@ -32,10 +34,13 @@ if TYPE_CHECKING:
 __all__ = [
     "BACKOFF_MAX_S",
     "BACKOFF_START_S",
+    "RESERVED_NAMES",
+    "SIM_RECORD_LIMIT",
     "Farm",
     "FarmEvent",
     "FarmPrinter",
     "PrinterSpec",
+    "one_line",
     "redact",
     "redact_payload",
 ]
@@ -47,6 +52,21 @@ BACKOFF_MAX_S = 30.0
 
 #: The library's redaction (an M511's password blanked as `M511 ****`), re-exported for the bridge.
 redact = marlin_aio.redact
+
+#: Names a printer cannot have: `bridge` is the bridge's own topic level (`PREFIX/bridge/availability`).
+RESERVED_NAMES = frozenset({"bridge"})
+
+#: Commands an in-process simulated printer remembers (it counts all): enough to look back on, small enough that
+#: twenty of them polled at 10 Hz for days stay at the same size.
+SIM_RECORD_LIMIT = 1_000
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def one_line(text: str) -> str:
+    """`text` with every control character (a newline, an escape, ...) written as its escape, so that a file name or
+    an error quoting one stays on the one line an event is printed and logged on."""
+    return _CONTROL.sub(lambda match: repr(match.group())[1:-1], text)
 
 
 def redact_payload(value: Any) -> Any:
@@ -111,6 +131,10 @@ class FarmPrinter:
     print_handle: marlin_aio.PrintHandle | None = None
     """The print started over MQTT, if any (finished or not)."""
     print_file: str | None = None
+    print_error: str | None = None
+    """Why the last print failed (halted, reset, link lost, ...), one line; None while it runs or if it did not."""
+    machine: str | None = None
+    """The board's MACHINE_TYPE from M115, if it says."""
     reconnect_at_s: float | None = None
     """While the supervisor waits to reconnect: when it tries again (`time.monotonic()`), else None."""
     reading_listeners: list[Callable[[marlin_aio.TemperatureReading], None]] = field(default_factory=list)
@@ -130,6 +154,7 @@ class FarmPrinter:
             "percent": percent,
             "lines_acked": progress.lines_acked,
             "last_file_line": progress.last_source_line,
+            "error": self.print_error,
         }
 
     @property
@@ -143,6 +168,20 @@ class FarmPrinter:
         self.readings += 1
         for listener in self.reading_listeners:
             listener(reading)
+
+
+def _print_failure(exc: BaseException) -> str:
+    """How a print ended, in a word or two, from the error that ended it."""
+    for kind, words in (
+        (marlin_aio.ThermalRunawayError, "thermal runaway"),
+        (marlin_aio.PrinterHaltedError, "halted"),
+        (marlin_aio.PrinterResetError, "the printer reset"),
+        (marlin_aio.ConnectionLostError, "link lost"),
+        (marlin_aio.PrintStalledError, "stalled"),
+    ):
+        if isinstance(exc, kind):
+            return words
+    return "failed"
 
 
 class Farm:
@@ -166,23 +205,73 @@ class Farm:
         names = [spec.name for spec in specs]
         if len(set(names)) != len(names):
             raise ValueError(f"printer names must be unique: {', '.join(names)}")
+        reserved = RESERVED_NAMES.intersection(names)
+        if reserved:
+            raise ValueError(f"a printer cannot be named {sorted(reserved)[0]!r}: the name is the bridge's own")
         self.printers = {spec.name: FarmPrinter(spec) for spec in specs}
         self._on_event = on_event
         self._backoff_start_s = backoff_start_s
         self._backoff_max_s = backoff_max_s
         self.sims: dict[str, SimulatorServer] = {}
         """The simulated printers' servers, by printer name (tests reach in to unplug one)."""
+        self._group: asyncio.TaskGroup | None = None
 
     async def run(self) -> None:
         """Supervise every printer until cancelled; one task each, named after its printer. The simulated
         printers it served are stopped when it ends."""
         try:
             async with asyncio.TaskGroup() as group:
+                self._group = group  # prints run here, next to their printer's supervisor
                 for farm_printer in self.printers.values():
                     group.create_task(self._supervise(farm_printer), name=f"printer {farm_printer.name}")
         finally:
+            self._group = None
             for server in self.sims.values():
                 await server.aclose()
+
+    async def start_print(self, farm_printer: FarmPrinter, path: Path) -> marlin_aio.PrintHandle:
+        """Start printing `path` on `farm_printer` and follow the print in a task of the farm's own.
+
+        However the print ends (done, cancelled, halted, a reset, the link lost, a stall) becomes one `print_*`
+        event and the printer's print state: an ending that is an error is that printer's news only, never an
+        exception in whoever started it (the bridge), so the farm and the other printers go on.
+
+        Raises:
+            RuntimeError: the farm is not running, the printer is not connected, or a print is already running.
+            ValueError, OSError, MarlinError: as `Printer.start_print` (nothing of the file was sent).
+        """
+        printer = farm_printer.printer
+        if self._group is None:
+            raise RuntimeError("the farm is not running")
+        if printer is None or not farm_printer.link_up:
+            raise RuntimeError(f"printer {farm_printer.name!r} is not connected")
+        handle = farm_printer.print_handle
+        if handle is not None and not handle.finished:
+            raise RuntimeError("a print is already running: cancel it first")
+        handle = await printer.start_print(path)
+        farm_printer.print_handle = handle
+        farm_printer.print_file = path.name
+        farm_printer.print_error = None
+        self.emit(farm_printer, "print_started", f"printing {path.name}")
+        self._group.create_task(self._follow_print(farm_printer, handle), name=f"print on {farm_printer.name}")
+        return handle
+
+    async def _follow_print(self, farm_printer: FarmPrinter, handle: marlin_aio.PrintHandle) -> None:
+        """Wait for a print to end and say how; never raise (but when cancelled)."""
+        try:
+            progress = await handle.wait()
+        except Exception as exc:  # every ending is news of this printer, never a crash of the farm
+            where = handle.progress.last_source_line
+            reason = _print_failure(exc)
+            farm_printer.print_error = one_line(redact(f"{reason}: {exc}"))
+            self.emit(farm_printer, "print_failed", f"{farm_printer.print_file}: {reason} at file line {where}: {exc}")
+            return
+        kind = "print_finished" if progress.state is marlin_aio.PrintState.DONE else "print_cancelled"
+        self.emit(
+            farm_printer,
+            kind,
+            f"{farm_printer.print_file}: {progress.state.value} at file line {progress.last_source_line}",
+        )
 
     def emit(self, farm_printer: FarmPrinter, kind: str, message: str) -> None:
         """Tell the listener that `kind` happened to `farm_printer` (also for events from outside: a print).
@@ -190,7 +279,7 @@ class Farm:
         The message is redacted here, once for the event, the last error and whatever prints or publishes them: it
         is often an error's text, which may quote an `M511 P<password>` from the library or from a user's G-code.
         """
-        message = redact(message)
+        message = one_line(redact(message))
         if kind in ("connection_lost", "halted", "thermal_runaway", "connect_failed", "print_failed"):
             farm_printer.last_error = message
         try:
@@ -241,8 +330,10 @@ class Farm:
                 if server is None:
                     from marlin_aio.simulator import SimulatorConfig, serve_pty
 
-                    # The simulated printer lives as long as the farm: a reconnect finds it as it was left.
-                    server = serve_pty(SimulatorConfig(seed=len(self.sims)), time_scale=spec.sim_speed)
+                    # The simulated printer lives as long as the farm: a reconnect finds it as it was left. Its record
+                    # of commands is small: a farm runs for days.
+                    config = SimulatorConfig(seed=len(self.sims), record_limit=SIM_RECORD_LIMIT)
+                    server = serve_pty(config, time_scale=spec.sim_speed)
                     await server.start()
                     self.sims[spec.name] = server
                 url = server.url
@@ -266,6 +357,7 @@ class Farm:
         farm_printer.link_up = True
         farm_printer.connections += 1
         farm_printer.firmware = printer.firmware.name if printer.firmware is not None else None
+        farm_printer.machine = printer.firmware.fields.get("MACHINE_TYPE") if printer.firmware is not None else None
         farm_printer.last_error = None
         self.emit(
             farm_printer,

@@ -8,16 +8,28 @@ Topics, for a printer named `NAME` under the prefix `P` (default `marlin`):
 - `P/NAME/state` (retained): `{"link": "up" | "down", "firmware", "print", "last_error", "readings_dropped"}`,
   published when it changes.
 - `P/NAME/events` (QoS 1): `{"event", "message", "time"}` for connected, connection_lost, connect_failed, halted,
-  thermal_runaway, reset. Never dropped while the queue has room: kept until the broker acknowledged them.
+  thermal_runaway, reset, print_started, print_finished, print_cancelled, print_failed. Never dropped while the
+  queue has room: kept until the broker acknowledged them.
 - `P/NAME/availability` (retained): `online` while the printer's link is up, else `offline`.
-- `P/bridge/availability` (retained): `online`, and `offline` as the bridge's Last Will, so a crashed bridge shows.
+- `P/bridge/availability` (retained): `online`, and `offline` as the bridge's Last Will, so a killed bridge shows,
+  and on every clean exit. (`bridge` is therefore not a printer name.)
 - `homeassistant/sensor/marlin_NAME/.../config` (retained): Home Assistant discovery.
+- `P/NAME/command` and `P/NAME/response`: commands (with `allow_commands`; see `cli.farmcommands`).
 
-Backpressure: each reading goes, as it is read (at most at the rate), into a bounded buffer whatever the broker
-does, which drops (and counts) the oldest when the broker cannot keep up; the serial loops never wait for the
-broker. Events wait in a queue of their own (bounded too: past the bound the oldest is dropped, counted, and
-logged). When the broker goes away the bridge reconnects with backoff and publishes availability, state and
-discovery again.
+The retained topics are the bridge's: it subscribes to them, and when another client overwrites one (a forged
+`online`, a deleted discovery config) it publishes its own again (at most once a second per topic, logged).
+
+Hostile input: a command is parsed under size, depth and character limits (`cli.farmcommands`); a retained
+command is never run (it would run again at every reconnection); every refusal is one answer on the response
+topic and one log line, never an exception out of the bridge. A print runs as a task of the farm
+(`Farm.start_print`), so however it ends is that printer's event, not the bridge's failure. Sets that other
+clients can grow are bounded (the names of other bridges' printers, the commands waiting per printer).
+
+Backpressure: each reading goes, as it is read (at most at the rate), into its printer's own bounded buffer
+whatever the broker does, which drops (and counts) that printer's oldest when the broker cannot keep up or is
+away: every printer keeps its newest readings. The serial loops never wait for the broker. Events wait in a
+queue of their own (bounded too: past the bound the oldest is dropped, counted, and logged). When the broker
+goes away the bridge reconnects with backoff and publishes availability, state and discovery again.
 
 Secrets: state and events are retained or kept by the broker for any later subscriber, so nothing published or
 logged carries a printer's password: each event, state and answer is redacted (`cli.farm.redact`) before it is
@@ -32,8 +44,10 @@ import contextlib
 import json
 import logging
 import math
+import re
 import ssl
-from collections import deque
+import time
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +57,7 @@ import aiomqtt
 
 import marlin_aio
 
-from .farm import Farm, FarmEvent, FarmPrinter, redact, redact_payload
+from .farm import RESERVED_NAMES, Farm, FarmEvent, FarmPrinter, one_line, redact, redact_payload
 from .farmcommands import CommandError, FarmCommand, parse_command, run_command
 
 __all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug"]
@@ -51,7 +65,15 @@ __all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug"]
 _log = logging.getLogger("marlin_temp.bridge")
 
 EVENT_QUEUE = 10_000
-TELEMETRY_BUFFER = 1_000
+TELEMETRY_BUFFER = 240
+"""Telemetry messages kept per printer while the broker is slow or away (two minutes at the default rate)."""
+MAX_OTHER_PRINTERS = 1_024
+"""Names of other bridges' printers remembered (from their availability topics); past it the oldest is forgotten."""
+MAX_PENDING_COMMANDS = 16
+"""Commands accepted and not yet finished, per printer; past it a command is refused (a flood cannot queue more)."""
+CORRECTION_GAP_S = 1.0
+"""A retained topic someone else overwrote is corrected at most this often (two bridges fighting stay slow)."""
+_OTHER_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 
 
 @dataclass(frozen=True)
@@ -88,7 +110,9 @@ class BridgeSettings:
     """What the bridge publishes and how often."""
 
     prefix: str = "marlin"
-    rate_hz: float = 2.0
+    rate_hz: float = 0.2
+    """Telemetry messages per second and printer. One every 5 s by default: Home Assistant's recorder keeps every
+    state change, and a temperature is a new state at nearly every reading."""
     discovery: bool = True
     discovery_prefix: str = "homeassistant"
     backoff_start_s: float = 1.0
@@ -98,9 +122,12 @@ class BridgeSettings:
     allowed_dir: Path | None = None
     """With commands: the directory prints may be started from (None: no prints over MQTT)."""
     telemetry_buffer: int = TELEMETRY_BUFFER
-    """Telemetry messages kept while the broker is slow or away; past it the oldest is dropped (and counted)."""
+    """Telemetry messages kept per printer while the broker is slow or away; past it that printer's oldest is
+    dropped (and counted)."""
     event_queue: int = EVENT_QUEUE
     """Events and answers kept until delivered; past it the oldest is lost (counted, and logged)."""
+    max_command_age_s: float = 5.0
+    """A command with a `time` older (or further in the future) than this is refused."""
 
 
 def heater_slug(name: str) -> str:
@@ -145,12 +172,27 @@ def _raise_if_cancelled() -> None:
 
 
 def _command_id(payload: bytes) -> object:
-    """The id of a refused command, when its payload is JSON enough to have one (for the answer)."""
+    """The id of a refused command, when its payload is JSON enough to have one (for the answer): a string of at
+    most 128 characters or an integer, else None. Never raises, whatever the payload."""
+    if len(payload) > 65_536 or payload.count(b"[") + payload.count(b"{") > 64:
+        return None  # too big or too deep to be a command: not worth parsing for its id
     try:
         body = json.loads(payload)
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, RecursionError):
         return None
-    return body.get("id") if isinstance(body, dict) else None
+    command_id = body.get("id") if isinstance(body, dict) else None
+    if (isinstance(command_id, str) and len(command_id) <= 128) or (
+        isinstance(command_id, int) and not isinstance(command_id, bool) and abs(command_id) < 2**63
+    ):
+        return command_id
+    return None
+
+
+def _payload_bytes(payload: object) -> bytes:
+    """A message's payload as bytes (aiomqtt gives bytes, or str/int/float/None for some)."""
+    if isinstance(payload, bytes | bytearray):
+        return bytes(payload)
+    return b"" if payload is None else str(payload).encode()
 
 
 def _finite(value: float | None) -> float | None:
@@ -160,21 +202,35 @@ def _finite(value: float | None) -> float | None:
 class Bridge:
     """Publishes `farm`'s printers to the broker until cancelled. Give `on_event` to the farm as its listener.
 
-    Counters (`published`, `telemetry_dropped`, `events_lost`) say what happened to the messages.
+    Counters (`published`, `telemetry_dropped`, `events_lost`, `refused`, `corrections`) say what happened to the
+    messages.
+
+    Raises:
+        ValueError: (when made) a rate that is not positive, or a printer whose name is not one topic level or is
+            reserved (`bridge`).
     """
 
     def __init__(self, farm: Farm, broker: BrokerSettings, settings: BridgeSettings | None = None) -> None:
         settings = settings or BridgeSettings()
         if not settings.rate_hz > 0:
             raise ValueError(f"the telemetry rate must be positive, got {settings.rate_hz}")
+        for name in farm.printers:
+            if not name or any(c in name for c in "/+#") or name in RESERVED_NAMES:
+                raise ValueError(f"printer name {name!r} cannot be a topic level of the bridge")
         self.farm = farm
         self.broker = broker
         self.settings = settings
-        self._telemetry: deque[tuple[str, str]] = deque(maxlen=settings.telemetry_buffer)
+        # Each printer keeps its own newest readings while the broker is away: one busy printer (or fifty) never
+        # pushes another's out.
+        self._telemetry: dict[str, deque[str]] = {
+            name: deque(maxlen=settings.telemetry_buffer) for name in farm.printers
+        }
         # Events and command answers: QoS 1, each kept until the broker acknowledged it.
         self._reliable: deque[tuple[str, str]] = deque()
         self._group: asyncio.TaskGroup | None = None
-        self._elsewhere: set[str] = set()  # printers of other bridges on the same broker
+        # Printers of other bridges on the same broker, newest last; bounded, since anyone can publish a name.
+        self._elsewhere: OrderedDict[str, None] = OrderedDict()
+        self._pending: dict[str, int] = dict.fromkeys(farm.printers, 0)
         self._wake = asyncio.Event()
         self._states_dirty = True
         self._discovery_dirty = True
@@ -186,11 +242,19 @@ class Bridge:
         self._published_states: dict[str, str] = {}
         self._heaters: dict[str, tuple[str, ...]] = {}
         self._announced: dict[str, tuple[str, ...]] = {}
+        # What each of the bridge's retained topics should hold (as last published), to notice an overwrite.
+        self._retained: dict[str, bytes] = {}
+        self._overwritten: set[str] = set()
+        self._corrected_at: dict[str, float] = {}
         self.connected = False
         self.connections = 0
         self.published = 0
         self.telemetry_dropped = 0
         self.events_lost = 0
+        self.refused = 0
+        """Commands refused (bad payload, retained, stale, unknown printer, too many waiting)."""
+        self.corrections = 0
+        """Retained topics of the bridge's that another client overwrote and the bridge published again."""
         self.on_connected: Callable[[], None] | None = None
 
     # ------------------------------------------------------------------------------------------- topics
@@ -208,7 +272,7 @@ class Bridge:
 
     def on_event(self, event: FarmEvent) -> None:
         """Queue a printer's event for delivery (the farm's listener); past the bound the oldest is lost."""
-        payload = {"event": event.kind, "message": redact(event.message), "time": round(event.time_s, 3)}
+        payload = {"event": event.kind, "message": one_line(redact(event.message)), "time": round(event.time_s, 3)}
         self._queue_reliable(self.topic(event.printer, "events"), payload)
 
     def _queue_reliable(self, topic: str, payload: dict[str, Any]) -> None:
@@ -216,23 +280,25 @@ class Bridge:
             lost_topic, lost = self._reliable.popleft()
             self.events_lost += 1
             _log.warning("event queue full (%d): lost %s on %s", self.settings.event_queue, lost, lost_topic)
-        self._reliable.append((topic, json.dumps(payload)))
+        # default=str: an answer's result is JSON-able by construction; if one ever is not, it is still an answer.
+        self._reliable.append((topic, json.dumps(payload, default=str)))
         self._wake.set()
 
     def _listener(self, name: str) -> Callable[[marlin_aio.TemperatureReading], None]:
         return lambda reading: self._on_reading(name, reading)
 
     def _on_reading(self, name: str, reading: marlin_aio.TemperatureReading) -> None:
-        """A printer's reading, as it is read: into the telemetry buffer unless one went out less than a rate's
+        """A printer's reading, as it is read: into its telemetry buffer unless one went out less than a rate's
         period ago (a tenth of it is allowed for jitter, so polls at the rate itself are all sent)."""
         last = self._last_sent_s.get(name)
         if last is not None and reading.monotonic_s - last < self._min_gap_s:
             return
         self._last_sent_s[name] = reading.monotonic_s
         payload = telemetry_payload(reading)
-        if len(self._telemetry) == self._telemetry.maxlen:
-            self.telemetry_dropped += 1  # the oldest goes: a slow broker never slows a printer
-        self._telemetry.append((name, json.dumps(payload, separators=(",", ":"))))
+        buffer = self._telemetry[name]
+        if len(buffer) == buffer.maxlen:
+            self.telemetry_dropped += 1  # this printer's oldest goes: a slow broker never slows a printer
+        buffer.append(json.dumps(payload, separators=(",", ":")))
         heaters = tuple(payload["heaters"])
         if heaters and heaters != self._heaters.get(name):
             self._heaters[name] = heaters
@@ -240,7 +306,7 @@ class Bridge:
         self._wake.set()
 
     def _sample(self) -> None:
-        """Note each printer's state; wake the publisher only when one changed."""
+        """Note each printer's state; wake the publisher only when one changed (or a correction is due)."""
         changed = False
         for farm_printer in self.farm.printers.values():
             state = json.dumps(self._state(farm_printer), separators=(",", ":"))
@@ -250,6 +316,8 @@ class Bridge:
         if changed or len(self._published_states) < len(self._states):
             self._states_dirty = True
             self._wake.set()
+        if self._overwritten:
+            self._wake.set()  # a correction held back by CORRECTION_GAP_S may be due now
 
     def _state(self, farm_printer: FarmPrinter) -> dict[str, Any]:
         state: dict[str, Any] = redact_payload(
@@ -274,7 +342,8 @@ class Bridge:
             group.create_task(self._connection_loop(), name="broker connection")
 
     async def _sampler(self) -> None:
-        interval = 1.0 / self.settings.rate_hz
+        # States are looked at once a second at least, whatever the telemetry rate: a print's end, a link lost.
+        interval = min(1.0 / self.settings.rate_hz, 1.0)
         loop = asyncio.get_running_loop()
         next_at = loop.time()
         while True:
@@ -295,26 +364,29 @@ class Bridge:
                     self.connections += 1
                     delay = self.settings.backoff_start_s
                     _log.info("connected to the broker at %s", self.broker.address)
-                    await self._announce(client)
-                    if self.on_connected is not None:
-                        self.on_connected()
-                    # The message stream ends with an MqttError as soon as the broker goes away, even with nothing
-                    # subscribed: the session ends then, not at the next publish's timeout. (Two tasks and
-                    # asyncio.wait rather than a TaskGroup: on Python 3.11 a TaskGroup whose child fails while it
-                    # waits leaves this task marked as cancelling, which would end the reconnect loop.)
-                    session = [
-                        asyncio.create_task(self._publish_forever(client), name="publisher"),
-                        asyncio.create_task(self._listen(client), name="listener"),
-                    ]
                     try:
-                        done, _ = await asyncio.wait(session, return_when=asyncio.FIRST_COMPLETED)
-                    except asyncio.CancelledError:
-                        await _stop(session)
+                        await self._announce(client)
+                        if self.on_connected is not None:
+                            self.on_connected()
+                        # The message stream ends with an MqttError as soon as the broker goes away, even with
+                        # nothing subscribed: the session ends then, not at the next publish's timeout. (Two tasks
+                        # and asyncio.wait rather than a TaskGroup: on Python 3.11 a TaskGroup whose child fails
+                        # while it waits leaves this task marked as cancelling, which would end the reconnect loop.)
+                        session = [
+                            asyncio.create_task(self._publish_forever(client), name="publisher"),
+                            asyncio.create_task(self._listen(client), name="listener"),
+                        ]
+                        try:
+                            done, _ = await asyncio.wait(session, return_when=asyncio.FIRST_COMPLETED)
+                        finally:
+                            await _stop(session)
+                        for task in done:
+                            task.result()  # the MqttError that ended the session
+                    except BaseException:
+                        # Stopping, or failing: every printer and the bridge offline while the broker still
+                        # listens (a clean disconnect does not fire the Last Will).
                         await self._say_goodbye(client)
                         raise
-                    await _stop(session)
-                    for task in done:
-                        task.result()  # the MqttError that ended the session
             except aiomqtt.MqttError as exc:
                 if self.connected:
                     _log.warning("lost the broker at %s: %s; reconnecting", self.broker.address, exc)
@@ -324,60 +396,108 @@ class Bridge:
                 self.connected = False
                 self._published_states.clear()  # republished in full on the next connection
                 self._announced.clear()
+                self._overwritten.clear()
             await asyncio.sleep(delay)
             delay = min(delay * 2, self.settings.backoff_max_s)
 
     async def _listen(self, client: aiomqtt.Client) -> None:
-        """With commands allowed, take them from `PREFIX/+/command`: each is checked here and run in a task of its
-        own. Either way, return only by raising when the broker is lost.
+        """Watch the bridge's own retained topics and, with commands allowed, take commands from
+        `PREFIX/+/command`: each is checked here and run in a task of its own. Either way, return only by raising
+        when the broker is lost.
 
         Several bridges may share a broker, each with printers of its own: the retained availability topics say
         which printers exist, so a command for another bridge's printer is left to that bridge, and only a name
         no bridge has is answered with an error.
         """
         prefix = self.settings.prefix
+        topics = [(f"{prefix}/+/availability", 1), (f"{prefix}/+/state", 1)]
+        if self.settings.discovery:
+            discovery = self.settings.discovery_prefix
+            topics += [(f"{discovery}/+/marlin_{name}/+/config", 1) for name in self.farm.printers]
         if self.settings.allow_commands:
-            await client.subscribe(f"{prefix}/+/availability", qos=1)
-            await client.subscribe(f"{prefix}/+/command", qos=1)
+            topics.append((f"{prefix}/+/command", 1))
+        await client.subscribe(topics)
         async for message in client.messages:
-            if not self.settings.allow_commands:
-                continue
-            parts = message.topic.value.split("/")
-            if len(parts) < 3:
-                continue
-            name = parts[-2]
-            if parts[-1] == "availability":
-                if name != "bridge" and name not in self.farm.printers:
-                    self._elsewhere.add(name)
-                continue
-            if parts[-1] != "command" or (name not in self.farm.printers and name in self._elsewhere):
-                continue
-            payload = message.payload if isinstance(message.payload, bytes) else str(message.payload).encode()
             try:
-                command = parse_command(name, payload, self.farm.printers, self.settings.allowed_dir)
-            except CommandError as exc:
-                self._answer(name, _command_id(payload), error=str(exc))
-                continue
-            assert self._group is not None
-            self._group.create_task(self._run(command), name=f"command {command.action} on {name}")
+                self._on_message(message.topic.value, _payload_bytes(message.payload), message.retain)
+            except Exception:  # a bug here must cost one message, not the bridge
+                _log.exception("could not handle a message on %s", one_line(message.topic.value[:200]))
+
+    def _on_message(self, topic: str, payload: bytes, retained: bool) -> None:
+        if topic in self._retained:
+            if payload != self._retained[topic]:
+                self._overwritten.add(topic)
+                self._wake.set()
+            return
+        parts = topic.split("/")
+        name = parts[-2] if len(parts) >= 3 else ""
+        if parts[-1] == "availability":
+            if name in self.farm.printers or name in RESERVED_NAMES or not _OTHER_NAME.fullmatch(name):
+                return
+            self._elsewhere.pop(name, None)
+            if payload:  # an empty retained message deletes the topic: that printer is gone
+                self._elsewhere[name] = None
+                if len(self._elsewhere) > MAX_OTHER_PRINTERS:
+                    self._elsewhere.popitem(last=False)
+            return
+        if parts[-1] != "command" or not self.settings.allow_commands:
+            return
+        if name not in self.farm.printers and name in self._elsewhere:
+            return  # another bridge's printer: its bridge answers
+        if retained:
+            # A retained command would run again at every reconnection of this bridge (and at every restart of
+            # the broker); MQTT marks such a message, and it is never taken as a command.
+            self._refuse(
+                name,
+                _command_id(payload),
+                "refused: a retained message is never run as a command (publish commands without the retain flag)",
+            )
+            return
+        try:
+            command = parse_command(
+                name,
+                payload,
+                self.farm.printers,
+                self.settings.allowed_dir,
+                now_s=time.time(),
+                max_age_s=self.settings.max_command_age_s,
+            )
+        except CommandError as exc:
+            self._refuse(name, _command_id(payload), str(exc))
+            return
+        if self._pending[command.printer] >= MAX_PENDING_COMMANDS:
+            self._refuse(
+                name, command.id, f"busy: {MAX_PENDING_COMMANDS} commands are waiting for this printer; try again"
+            )
+            return
+        assert self._group is not None
+        self._pending[command.printer] += 1
+        self._group.create_task(self._run(command), name=f"command {command.action} on {command.printer}")
+
+    def _refuse(self, printer: str, command_id: object, error: str) -> None:
+        self.refused += 1
+        self._answer(printer, command_id, error=error)
 
     async def _run(self, command: FarmCommand) -> None:
+        """Run a checked command and answer it; whatever happens, an answer, never an exception."""
         farm_printer = self.farm.printers[command.printer]
         try:
-            result = await run_command(command, farm_printer)
-        except (CommandError, ValueError, RuntimeError, marlin_aio.MarlinError) as exc:
-            self._answer(command.printer, command.id, error=str(exc))
-            return
-        self._answer(command.printer, command.id, result=result)
-        if command.action == "print" and farm_printer.print_handle is not None:
-            self.farm.emit(farm_printer, "print_started", f"printing {farm_printer.print_file}")
-            progress = await farm_printer.print_handle.wait()
-            kind = {"done": "print_finished", "cancelled": "print_cancelled"}.get(progress.state.value, "print_failed")
-            self.farm.emit(
-                farm_printer,
-                kind,
-                f"{farm_printer.print_file}: {progress.state.value} at file line {progress.last_source_line}",
-            )
+            if command.action == "print":
+                assert command.path is not None
+                # The farm follows the print and says how it ended: this task only starts it.
+                await self.farm.start_print(farm_printer, command.path)
+                result: Any = {"started": command.path.name}
+            else:
+                result = await run_command(command, farm_printer)
+        except (CommandError, ValueError, RuntimeError, OSError, marlin_aio.MarlinError) as exc:
+            self._answer(command.printer, command.id, error=str(exc) or type(exc).__name__)
+        except Exception as exc:
+            _log.exception("command %s on %s failed", command.action, command.printer)
+            self._answer(command.printer, command.id, error=f"internal error: {type(exc).__name__}: {exc}")
+        else:
+            self._answer(command.printer, command.id, result=result)
+        finally:
+            self._pending[command.printer] -= 1
 
     def _answer(self, printer: str, command_id: object, *, result: Any = None, error: str | None = None) -> None:
         # The answer goes to every subscriber of the response topic, not only to whoever sent the command: a G-code
@@ -386,10 +506,10 @@ class Bridge:
         if error is None:
             answer["result"] = result
         else:
-            answer["error"] = error
+            answer["error"] = one_line(error.splitlines()[0] if error.strip() else error)
         answer = redact_payload(answer)
         if error is not None:
-            _log.warning("command for %s refused or failed: %s", printer, answer["error"])
+            _log.warning("command for %r refused or failed: %s", printer[:64], answer["error"])
         self._queue_reliable(self.topic(printer, "response"), answer)
 
     def _client(self) -> aiomqtt.Client:
@@ -405,8 +525,14 @@ class Bridge:
             will=aiomqtt.Will(self.bridge_availability_topic, "offline", qos=1, retain=True),
         )
 
+    async def _publish_retained(self, client: aiomqtt.Client, topic: str, payload: str) -> None:
+        """Publish one of the bridge's retained topics and remember what it holds."""
+        self._retained[topic] = payload.encode()
+        await client.publish(topic, payload, qos=1, retain=True)
+        self.published += 1
+
     async def _announce(self, client: aiomqtt.Client) -> None:
-        await client.publish(self.bridge_availability_topic, "online", qos=1, retain=True)
+        await self._publish_retained(client, self.bridge_availability_topic, "online")
         self._sample()
         await self._publish_states(client)
 
@@ -415,8 +541,8 @@ class Bridge:
         with contextlib.suppress(aiomqtt.MqttError, TimeoutError):
             async with asyncio.timeout(2.0):
                 for name in self.farm.printers:
-                    await client.publish(self.topic(name, "availability"), "offline", qos=1, retain=True)
-                await client.publish(self.bridge_availability_topic, "offline", qos=1, retain=True)
+                    await self._publish_retained(client, self.topic(name, "availability"), "offline")
+                await self._publish_retained(client, self.bridge_availability_topic, "offline")
 
     async def _publish_forever(self, client: aiomqtt.Client) -> None:
         self._states_dirty = self._discovery_dirty = True  # a new session publishes both in full
@@ -429,29 +555,44 @@ class Bridge:
             if self._discovery_dirty:
                 self._discovery_dirty = False
                 await self._publish_discovery(client)
+            if self._overwritten:
+                await self._publish_corrections(client)
             while self._reliable:
                 topic, payload_text = self._reliable[0]
                 await client.publish(topic, payload_text, qos=1)
                 self._reliable.popleft()  # only once the broker has it: a broken link leaves it queued
                 self.published += 1
-            while self._telemetry:
-                name, payload_text = self._telemetry.popleft()
-                await client.publish(self.topic(name, "telemetry"), payload_text, qos=0)
-                self.published += 1
+            for name, buffer in self._telemetry.items():
+                if buffer:
+                    topic = self.topic(name, "telemetry")
+                    while buffer:
+                        await client.publish(topic, buffer.popleft(), qos=0)
+                        self.published += 1
             _raise_if_cancelled()
             await self._wake.wait()
+
+    async def _publish_corrections(self, client: aiomqtt.Client) -> None:
+        """Publish again each retained topic of ours that another client overwrote, unless it was corrected less
+        than CORRECTION_GAP_S ago (then the sampler's next wake-up comes back for it)."""
+        now = time.monotonic()
+        for topic in list(self._overwritten):
+            last = self._corrected_at.get(topic)
+            if last is not None and now - last < CORRECTION_GAP_S:
+                continue
+            self._overwritten.discard(topic)
+            self._corrected_at[topic] = now
+            self.corrections += 1
+            _log.warning("%s was overwritten by another client: published the bridge's own again", topic)
+            await self._publish_retained(client, topic, self._retained[topic].decode())
 
     async def _publish_states(self, client: aiomqtt.Client) -> None:
         for name, state in list(self._states.items()):
             if self._published_states.get(name) == state:
                 continue
             link_up = self.farm.printers[name].link_up
-            await client.publish(self.topic(name, "state"), state, qos=1, retain=True)
-            await client.publish(
-                self.topic(name, "availability"), "online" if link_up else "offline", qos=1, retain=True
-            )
+            await self._publish_retained(client, self.topic(name, "state"), state)
+            await self._publish_retained(client, self.topic(name, "availability"), "online" if link_up else "offline")
             self._published_states[name] = state
-            self.published += 2
 
     async def _publish_discovery(self, client: aiomqtt.Client) -> None:
         if not self.settings.discovery:
@@ -460,27 +601,42 @@ class Bridge:
             if self._announced.get(name) == heaters:
                 continue
             for topic, config in self.discovery_messages(name, heaters):
-                await client.publish(topic, json.dumps(config), qos=1, retain=True)
-                self.published += 1
+                await self._publish_retained(client, topic, json.dumps(config))
             self._announced[name] = heaters
 
     # ------------------------------------------------------------------------------------------- discovery
 
     def discovery_messages(self, name: str, heaters: tuple[str, ...]) -> list[tuple[str, dict[str, Any]]]:
         """Home Assistant MQTT discovery for one printer: a device with, per heater, a temperature sensor, a target
-        sensor and a power sensor, and a link sensor; each available while the bridge and the printer are."""
+        sensor and a power sensor, and a link sensor; each available while the bridge and the printer are.
+
+        As Home Assistant's MQTT documentation asks: an `origin` (this software and its version), the device's
+        firmware as `sw_version`, `device_class: temperature` on temperatures and target numbers, no device class on
+        a heater's power (a duty cycle in percent is not one of the classes), and `expire_after` on the telemetry
+        sensors so a bridge that hangs without dying shows its readings as unavailable.
+        """
         node = f"marlin_{name}"
-        device = {
+        farm_printer = self.farm.printers[name]
+        device: dict[str, Any] = {
             "identifiers": [node],
             "name": name,
             "manufacturer": "Marlin",
-            "model": (self.farm.printers[name].firmware or "Marlin printer"),
+            "model": farm_printer.machine or "Marlin printer",
         }
+        if farm_printer.firmware:
+            device["sw_version"] = farm_printer.firmware
         availability = [
             {"topic": self.bridge_availability_topic},
             {"topic": self.topic(name, "availability")},
         ]
-        base = {"device": device, "availability": availability, "availability_mode": "all"}
+        base = {
+            "device": device,
+            "origin": {"name": "marlin_aio", "sw_version": marlin_aio.__version__},
+            "availability": availability,
+            "availability_mode": "all",
+        }
+        # Ten telemetry periods, and a minute at least: missed messages at QoS 0 are not an outage.
+        expire_after = max(60, math.ceil(10 / self.settings.rate_hz))
         messages: list[tuple[str, dict[str, Any]]] = []
         prefix = self.settings.discovery_prefix
         for heater in heaters:
@@ -488,24 +644,21 @@ class Bridge:
             for what, unit, device_class, label in (
                 ("actual", "°C", "temperature", heater),
                 ("target", "°C", "temperature", f"{heater} target"),
-                ("power_percent", "%", "power_factor", f"{heater} power"),
+                ("power_percent", "%", None, f"{heater} power"),
             ):
                 object_id = f"{slug}_{what}"
-                messages.append(
-                    (
-                        f"{prefix}/sensor/{node}/{object_id}/config",
-                        base
-                        | {
-                            "name": label,
-                            "unique_id": f"{node}_{object_id}",
-                            "state_topic": self.topic(name, "telemetry"),
-                            "value_template": f"{{{{ value_json.heaters['{heater}'].{what} }}}}",
-                            "unit_of_measurement": unit,
-                            "device_class": device_class,
-                            "state_class": "measurement",
-                        },
-                    )
-                )
+                config = base | {
+                    "name": label,
+                    "unique_id": f"{node}_{object_id}",
+                    "state_topic": self.topic(name, "telemetry"),
+                    "value_template": f"{{{{ value_json.heaters['{heater}'].{what} }}}}",
+                    "unit_of_measurement": unit,
+                    "state_class": "measurement",
+                    "expire_after": expire_after,
+                }
+                if device_class is not None:
+                    config["device_class"] = device_class
+                messages.append((f"{prefix}/sensor/{node}/{object_id}/config", config))
         if self.settings.allow_commands:
             spec = self.farm.printers[name].spec
             for heater in heaters:
@@ -531,6 +684,7 @@ class Bridge:
                             "step": 1,
                             "mode": "box",
                             "unit_of_measurement": "°C",
+                            "device_class": "temperature",
                         },
                     )
                 )

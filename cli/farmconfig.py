@@ -30,7 +30,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from .farm import PrinterSpec
+from .farm import RESERVED_NAMES, PrinterSpec
 
 __all__ = ["NAME_RULE", "check_unique", "load_config", "specs_from_options"]
 
@@ -52,6 +52,9 @@ _FIELDS = {
 def _check_name(name: str, where: str) -> str:
     if not _NAME.fullmatch(name):
         raise ValueError(f"{where}: printer name {name!r} must be {NAME_RULE}")
+    if name in RESERVED_NAMES:
+        # `PREFIX/bridge/availability` is the bridge's own: a printer of that name would overwrite it.
+        raise ValueError(f"{where}: printer name {name!r} is reserved (the bridge's own topic); choose another")
     return name
 
 

@@ -882,8 +882,13 @@ def farm(
     tls_key: Annotated[Path | None, typer.Option("--tls-key", help="Client certificate's key.")] = None,
     prefix: Annotated[str, typer.Option("--prefix", help="Topic prefix.")] = "marlin",
     rate: Annotated[
-        float, typer.Option("--rate", help="Telemetry messages per second and printer (at most the poll rate).")
-    ] = 2.0,
+        float,
+        typer.Option(
+            "--rate",
+            help="Telemetry messages per second and printer (at most the poll rate). The default, one every 5 s, "
+            "keeps Home Assistant's recorder small; dashboards may want 1 or 2.",
+        ),
+    ] = 0.2,
     discovery: Annotated[
         bool, typer.Option("--discovery/--no-discovery", help="Publish Home Assistant MQTT discovery.")
     ] = True,

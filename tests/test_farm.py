@@ -595,19 +595,28 @@ async def test_tls_with_our_own_certificate_authority_and_a_client_certificate(t
             assert await publishes(farm, Bridge(farm, signed, BridgeSettings()))
 
 
-async def test_an_absent_broker_never_slows_the_printers_and_drops_the_oldest_telemetry(tmp_path: Path) -> None:
+async def test_an_absent_broker_never_slows_the_printers_and_each_keeps_its_own_newest_telemetry(
+    tmp_path: Path,
+) -> None:
     nobody = free_port()  # nothing listens here
-    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
-        spec = [PrinterSpec("a", sim.url, poll_interval_s=0.02)]
-        farm, bridge, _ = farm_and_bridge(spec, nobody, telemetry_buffer=10, rate_hz=50.0)
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=20) as busy,
+        serve_pty(SimulatorConfig(), time_scale=20) as slow,
+    ):
+        specs = [PrinterSpec("busy", busy.url, poll_interval_s=0.02), PrinterSpec("slow", slow.url, poll_interval_s=0.2)]
+        farm, bridge, _ = farm_and_bridge(specs, nobody, telemetry_buffer=10, rate_hz=50.0)
         async with running(farm, bridge):
-            for _ in range(400):
-                if farm.printers["a"].readings > 100:
+            for _ in range(600):
+                if farm.printers["busy"].readings > 100 and farm.printers["slow"].readings > 15:
                     break
                 await asyncio.sleep(0.05)  # polling a condition (readings flow), bounded
-        assert farm.printers["a"].readings > 100  # polls went on at their rate
-        assert bridge.telemetry_dropped > 50  # the buffer kept the newest 10 and counted the rest
-        assert len(bridge._telemetry) == 10
+        assert farm.printers["busy"].readings > 100  # polls went on at their rate
+        assert bridge.telemetry_dropped > 50  # each buffer kept its newest 10 and counted the rest
+        # The busy printer's readings did not push the slow one's out: each printer has its own newest ten.
+        assert {name: len(buffer) for name, buffer in bridge._telemetry.items()} == {"busy": 10, "slow": 10}
+        newest_slow = json.loads(bridge._telemetry["slow"][-1])["time"]
+        latest = farm.printers["slow"].latest
+        assert latest is not None and newest_slow == round(latest.wall_time_s, 3)
         assert bridge.connections == 0
 
 
