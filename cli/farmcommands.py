@@ -46,14 +46,7 @@ import marlin_aio
 
 from .farm import FarmPrinter
 
-__all__ = [
-    "ACTIONS",
-    "MAX_COMMAND_AGE_S",
-    "CommandError",
-    "FarmCommand",
-    "parse_command",
-    "run_command",
-]
+__all__ = ["ACTIONS", "MAX_COMMAND_AGE_S", "CommandError", "FarmCommand", "parse_command", "run_command"]
 
 ACTIONS = ("set_temperatures", "set_target", "gcode", "print", "pause", "resume", "cancel", "emergency_stop")
 MAX_PAYLOAD_BYTES = 65_536
@@ -240,10 +233,11 @@ def _refuse_constant(name: str) -> float:
     raise CommandError(f"not JSON: {name} is not a number JSON allows")
 
 
-def _parse_int(digits: str) -> int:
-    if len(digits.lstrip("-")) > MAX_INTEGER_DIGITS:
-        raise CommandError(f"a number in the command is too long ({len(digits)} digits, at most {MAX_INTEGER_DIGITS})")
-    return int(digits)
+def _parse_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INTEGER_DIGITS:
+        raise CommandError(f"a number in the command is too long ({digits} digits, at most {MAX_INTEGER_DIGITS})")
+    return int(text)
 
 
 def _parse_float(text: str) -> float:
@@ -334,8 +328,8 @@ def _check(
         _check_time(body["time"], now_s, max_age_s)  # a stale command goes no further
     extra = set(body) - _COMMON_FIELDS - _FIELDS[action]
     if extra:
-        takes = ", ".join(sorted(_FIELDS[action])) or "nothing"
-        raise CommandError(f"{action} takes no {_show(min(extra))} (it takes: {takes}; and id, time)")
+        takes = ", ".join([*sorted(_FIELDS[action]), *sorted(_COMMON_FIELDS - {"action"})])
+        raise CommandError(f"{action} takes no {_show(min(extra))} (it takes: {takes})")
     for name, value in body.items():
         _check_strings(name, value)
     if action == "set_temperatures":
