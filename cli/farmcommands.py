@@ -12,9 +12,9 @@ A command is a JSON object published to `PREFIX/NAME/command`; its answer goes t
 
 Every action may also carry `"time": <epoch seconds>`, when it was sent: given the bridge's clock, a command sent
 more than `MAX_COMMAND_AGE_S` before it (a queued "set the bed to 100" delivered an hour late, a replayed message)
-or as far after it (a wrong clock) is refused. `"id"` is a string of at most 128 characters or an integer. Retained
-messages are never taken as commands: the bridge drops them, since a retained "print" would run again at every
-reconnect.
+or as far after it (a wrong clock) is refused. `"id"` is a string of at most 128 characters or a 64-bit integer.
+Retained messages are never taken as commands: the bridge drops them, since a retained "print" would run again at
+every reconnect.
 
 Everything is checked before anything is written: bad JSON, an unknown printer or action, a target of 900 or
 `abc`, a newline inside a G-code command, a G-code command setting a target above the printer's limit however it
@@ -266,10 +266,10 @@ def _command_id(body: dict[str, Any]) -> str | int | None:
     if isinstance(command_id, str) and len(command_id) <= MAX_ID_CHARS:
         _check_text("id", command_id)
         return command_id
-    if isinstance(command_id, int) and not isinstance(command_id, bool):
-        return command_id
+    if isinstance(command_id, int) and not isinstance(command_id, bool) and abs(command_id) < 2**63:
+        return command_id  # within 64 bits, which any client's JSON reads back as the integer it sent
     raise CommandError(
-        f"id must be a string of at most {MAX_ID_CHARS} characters or an integer, got {_show(command_id)}"
+        f"id must be a string of at most {MAX_ID_CHARS} characters or a 64-bit integer, got {_show(command_id)}"
     )
 
 

@@ -125,7 +125,7 @@ def check(
     assert command.action in ACTIONS and command.action != "set_target"  # set_target becomes set_temperatures
     assert (
         command.id is None
-        or (isinstance(command.id, int) and not isinstance(command.id, bool))
+        or (isinstance(command.id, int) and not isinstance(command.id, bool) and abs(command.id) < 2**63)
         or (isinstance(command.id, str) and len(command.id) <= 128 and not _UNSAFE.search(command.id))
     )
     for heater, celsius in command.targets.items():
@@ -307,6 +307,7 @@ def test_command_shaped_json_gives_a_command_within_limits_or_one_clean_line(
         pytest.param(b'{"id": 1.5, "action": "pause"}', "id must be", id="float id"),
         pytest.param(b'{"id": true, "action": "pause"}', "id must be", id="bool id"),
         pytest.param(b'{"id": [1], "action": "pause"}', "id must be", id="list id"),
+        pytest.param(f'{{"id": {2**63}, "action": "pause"}}'.encode(), "64-bit integer", id="id past 64 bits"),
         pytest.param(('{"id": "' + "x" * 129 + '", "action": "pause"}').encode(), "id must be", id="long id"),
         pytest.param(b'{"id": "a\\u001bb", "action": "pause"}', "id contains a control character", id="ESC id"),
         pytest.param(b'{"id": "\\ud800", "action": "pause"}', "lone surrogate", id="surrogate id"),
@@ -455,4 +456,5 @@ def test_valid_commands_parse_as_before(jobs: Path) -> None:
     for action in ("pause", "resume", "cancel", "emergency_stop"):
         assert accepted({"id": 5, "action": action}) == FarmCommand("a", action, 5)
     assert accepted({"action": "pause", "id": "é-1"}).id == "é-1"
-    assert accepted({"action": "pause", "id": 10**29}).id == 10**29
+    assert accepted({"action": "pause", "id": 2**63 - 1}).id == 2**63 - 1
+    assert accepted({"action": "pause", "id": -(2**63) + 1}).id == -(2**63) + 1
