@@ -175,7 +175,7 @@ def _print_failure(exc: BaseException) -> str:
     for kind, words in (
         (marlin_aio.ThermalRunawayError, "thermal runaway"),
         (marlin_aio.PrinterHaltedError, "halted"),
-        (marlin_aio.PrinterResetError, "the printer reset"),
+        (marlin_aio.PrinterResetError, "reset"),
         (marlin_aio.ConnectionLostError, "link lost"),
         (marlin_aio.PrintStalledError, "stalled"),
     ):

@@ -382,6 +382,8 @@ class Bridge:
                             await _stop(session)
                         for task in done:
                             task.result()  # the MqttError that ended the session
+                    except aiomqtt.MqttError:
+                        raise  # the broker is gone: nobody to say goodbye to
                     except BaseException:
                         # Stopping, or failing: every printer and the bridge offline while the broker still
                         # listens (a clean disconnect does not fire the Last Will).
@@ -463,7 +465,8 @@ class Bridge:
                 max_age_s=self.settings.max_command_age_s,
             )
         except CommandError as exc:
-            self._refuse(name, _command_id(payload), str(exc))
+            # The id as parse_command checked it; a refusal before that (an unknown printer) looks for one.
+            self._refuse(name, exc.command_id if exc.command_id is not None else _command_id(payload), str(exc))
             return
         if self._pending[command.printer] >= MAX_PENDING_COMMANDS:
             self._refuse(

@@ -474,13 +474,8 @@ async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
             printer.emergency_stop()
             return {"sent": "M112"}
         case "print":
-            assert command.path is not None
-            handle = farm_printer.print_handle
-            if handle is not None and not handle.finished:
-                raise CommandError("a print is already running: cancel it first")
-            farm_printer.print_handle = await printer.start_print(command.path)
-            farm_printer.print_file = command.path.name
-            return {"started": command.path.name}
+            # A print outlives this call: the farm starts and follows it (`Farm.start_print`), the bridge asks it.
+            raise ValueError("a print is started with Farm.start_print, not run_command")
         case _:
             handle = farm_printer.print_handle
             if handle is None or handle.finished:

@@ -6,11 +6,16 @@ import os
 import pty
 import tty
 from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 import marlin_aio
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty, serve_tcp
+
+if TYPE_CHECKING:
+    from test_farm import Broker
 
 # Simulated seconds per real second: heating and homing finish quickly, yet the client sees Marlin's timing shapes.
 TIME_SCALE = 20.0
@@ -73,3 +78,17 @@ def dead_pty() -> Iterator[tuple[int, str]]:
     finally:
         os.close(master)
         os.close(slave)
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[Broker]:
+    """A real Mosquitto on 127.0.0.1 and a free port (`test_farm.Broker`), stopped at the end; the MQTT tests skip
+    themselves when Mosquitto is not installed."""
+    from test_farm import Broker
+
+    running = Broker(tmp_path)
+    running.start()
+    try:
+        yield running
+    finally:
+        running.stop()

@@ -83,16 +83,6 @@ class Broker:
         self.process = None
 
 
-@pytest.fixture
-def broker(tmp_path: Path) -> Iterator[Broker]:
-    running = Broker(tmp_path)
-    running.start()
-    try:
-        yield running
-    finally:
-        running.stop()
-
-
 class Subscriber:
     """Every message under `#` with its topic, kept in order; `until()` waits for a condition on them."""
 
@@ -603,7 +593,10 @@ async def test_an_absent_broker_never_slows_the_printers_and_each_keeps_its_own_
         serve_pty(SimulatorConfig(), time_scale=20) as busy,
         serve_pty(SimulatorConfig(), time_scale=20) as slow,
     ):
-        specs = [PrinterSpec("busy", busy.url, poll_interval_s=0.02), PrinterSpec("slow", slow.url, poll_interval_s=0.2)]
+        specs = [
+            PrinterSpec("busy", busy.url, poll_interval_s=0.02),
+            PrinterSpec("slow", slow.url, poll_interval_s=0.2),
+        ]
         farm, bridge, _ = farm_and_bridge(specs, nobody, telemetry_buffer=10, rate_hz=50.0)
         async with running(farm, bridge):
             for _ in range(600):

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Iterator
 from pathlib import Path
 
 import aiomqtt
@@ -158,21 +157,10 @@ def test_a_printer_spec_never_shows_its_password(tmp_path: Path) -> None:
     assert spec.password == PASSWORD and PASSWORD not in repr(spec)
 
 
-@pytest.fixture
-def mosquitto(tmp_path: Path) -> Iterator[Broker]:
-    running = Broker(tmp_path)
-    running.start()
-    try:
-        yield running
-    finally:
-        running.stop()
-
-
 @pytest.mark.skipif(MOSQUITTO is None, reason="Mosquitto is not installed: apt-get install mosquitto")
 async def test_the_farms_topics_and_logs_never_carry_the_password(
-    mosquitto: Broker, caplog: pytest.LogCaptureFixture
+    broker: Broker, caplog: pytest.LogCaptureFixture
 ) -> None:
-    broker = mosquitto
     caplog.set_level(logging.DEBUG)
     async with (
         serve_pty(SimulatorConfig(password=PASSWORD), time_scale=20) as lost,

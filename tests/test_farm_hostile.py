@@ -1,0 +1,519 @@
+"""A farm that one message cannot knock over: hostile payloads, prints that end badly, forged retained topics,
+retained and stale commands, floods, broker restarts; each against a real Mosquitto on 127.0.0.1 (as `test_farm`),
+and each ending with the farm still publishing for every printer.
+
+The command handler's property test (arbitrary topics, payloads and retain flags into `Bridge._on_message`) needs
+no broker: it runs the handler with a task group of its own and counts the answers it queues.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import random
+import time
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_farm import (
+    MOSQUITTO,
+    Broker,
+    Subscriber,
+    command,
+    farm_and_bridge,
+    not_polls,
+    running,
+    subscribed,
+)
+from typer.testing import CliRunner
+
+import marlin_aio
+from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
+from marlin_temp.farm import SIM_RECORD_LIMIT, Farm, FarmEvent, PrinterSpec
+from marlin_temp.farmbridge import MAX_OTHER_PRINTERS, MAX_PENDING_COMMANDS, Bridge, BridgeSettings, BrokerSettings
+from marlin_temp.main import app
+
+needs_broker = pytest.mark.skipif(
+    MOSQUITTO is None, reason="Mosquitto is not installed: apt-get install mosquitto (.ci/run installs it)"
+)
+
+
+def events_of(sub: Subscriber, printer: str) -> list[str]:
+    return [event["event"] for event in sub.payloads(f"marlin/{printer}/events")]
+
+
+async def publishing_for_all(sub: Subscriber, printers: list[str], more: int = 3) -> None:
+    """Wait until every printer has `more` telemetry messages beyond what it had: the farm is alive and publishing."""
+    seen = {name: len(sub.payloads(f"marlin/{name}/telemetry")) for name in printers}
+    await sub.until(
+        lambda: all(len(sub.payloads(f"marlin/{name}/telemetry")) >= seen[name] + more for name in printers),
+        f"telemetry from every printer ({', '.join(printers)}) afterwards",
+    )
+
+
+def moves(count: int) -> str:
+    """A print file of `count` long moves (each takes simulated time, so a print lasts)."""
+    return "".join(f"G1 X{100 * (index % 2)} Y{50 * (index % 2)} F3000\n" for index in range(count))
+
+
+def hostile_payloads(jobs: Path) -> dict[str, bytes]:
+    """Every payload the issue reports as fatal, and their cousins, by what each is."""
+    return {
+        "deep list (50 KB)": b"[" * 50_000,
+        "deep object": b'{"a":' * 20_000,
+        "null byte in a path": b'{"id": "nul", "action": "print", "path": "a\\u0000b"}',
+        "symlink loop": b'{"id": "loop", "action": "print", "path": "loop/x.gcode"}',
+        "10,000-character path": json.dumps({"id": "long", "action": "print", "path": "x" * 10_000}).encode(),
+        "absolute path": b'{"id": "abs", "action": "print", "path": "/etc/passwd"}',
+        "NaN target": b'{"id": "nan", "action": "set_temperatures", "hotend": NaN}',
+        "5000-digit target": b'{"id": "big", "action": "set_temperatures", "hotend": ' + b"9" * 5000 + b"}",
+        "not UTF-8": b'{"id": "utf", "action": "gcode", "command": "M105 \xff\xfe"}',
+        "over the size limit": b'{"id": "size", "action": "gcode", "command": "' + b"M" * 70_000 + b'"}',
+        "escape in G-code": b'{"id": "esc", "action": "gcode", "command": "M117 \\u001b[2J"}',
+        "list of 1000 commands": json.dumps({"id": "many", "action": "gcode", "commands": ["M105"] * 1000}).encode(),
+        "id that is an object": b'{"id": {"x": 1}, "action": "pause"}',
+        "empty": b"",
+        "a JSON string": b'"hello"',
+        "stale": json.dumps(
+            {"id": "stale", "action": "gcode", "command": "M118 E1 late", "time": time.time() - 60}
+        ).encode(),
+    }
+
+
+@needs_broker
+async def test_each_hostile_payload_is_one_refusal_and_one_log_line_and_the_farm_goes_on(
+    broker: Broker, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    jobs = tmp_path / "jobs"
+    jobs.mkdir()
+    (jobs / "loop").symlink_to(jobs / "loop")
+    payloads = hostile_payloads(jobs)
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_a,
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_b,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="attacker") as attacker,
+    ):
+        specs = [PrinterSpec("a", sim_a.url, poll_interval_s=0.05), PrinterSpec("b", sim_b.url, poll_interval_s=0.05)]
+        farm, bridge, _ = farm_and_bridge(specs, broker.port, allow_commands=True, allowed_dir=jobs)
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up and farm.printers["b"].link_up, "both connected")
+            before = not_polls(list(sim_a.printer.executed))
+            caplog.clear()
+            with caplog.at_level(logging.WARNING, logger="marlin_temp.bridge"):
+                for payload in payloads.values():
+                    await attacker.publish("marlin/a/command", payload, qos=1)
+                await sub.until(
+                    lambda: len(sub.payloads("marlin/a/response")) >= len(payloads), "an answer to each payload"
+                )
+                await publishing_for_all(sub, ["a", "b"])
+            answers = sub.payloads("marlin/a/response")
+            assert len(answers) == len(payloads)  # one answer each, no more
+            assert all(answer["ok"] is False for answer in answers), answers
+            by_id = {answer["id"]: answer["error"] for answer in answers if answer["id"] is not None}
+            assert "outside the allowed directory" in by_id["abs"]
+            assert "stale" in by_id["stale"]
+            assert "NUL" in by_id["nul"] or "control" in by_id["nul"], by_id["nul"]
+            assert "loop" in by_id["loop"]
+            errors = [answer["error"] for answer in answers]
+            assert any("deep" in error for error in errors), errors
+            assert all("\n" not in error and len(error) <= 300 for error in errors)
+            refusals = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+            assert len(refusals) == len(payloads)  # one log line per refusal ...
+            assert all("\n" not in line and len(line) < 400 for line in refusals)  # ... and each one line
+            assert not_polls(list(sim_a.printer.executed)) == before  # nothing of any of them was written
+            assert farm.printers["a"].link_up and farm.printers["b"].link_up
+            assert bridge.refused == len(payloads)
+
+
+@needs_broker
+async def test_seeded_fuzz_of_command_payloads_leaves_one_answer_each_and_every_printer_published(
+    broker: Broker, tmp_path: Path
+) -> None:
+    """300 payloads drawn from a seed (the seed is printed when it fails): mutated valid commands, random bytes,
+    random JSON. Whatever runs, runs on its own printer; every payload gets one answer; the farm goes on."""
+    seed = 21
+    draw = random.Random(seed)
+    valid: list[dict[str, Any]] = [
+        {"action": "gcode", "command": "M105"},
+        {"action": "set_temperatures", "hotend": 40},
+        {"action": "set_target", "heater": "bed", "celsius": 30},
+        {"action": "pause"},
+        {"action": "print", "path": "none.gcode"},
+    ]
+    payloads: list[bytes] = []
+    for _ in range(300):
+        kind = draw.randrange(4)
+        if kind == 0:
+            payloads.append(bytes(draw.randrange(256) for _ in range(draw.randrange(1, 200))))
+        elif kind == 1:
+            body: dict[str, Any] = dict(draw.choice(valid))
+            field = draw.choice([*body, "id", "time", "extra", "command", "path"])
+            body[field] = draw.choice(
+                [None, True, -1, 1e308, "", "\x00", "M104 S999", "../../etc", [[[[[]]]]], {"a": {}}, "é" * 50]
+            )
+            payloads.append(json.dumps(body).encode())
+        elif kind == 2:
+            text = json.dumps(draw.choice(valid))
+            cut = draw.randrange(len(text))
+            payloads.append(text[:cut].encode() + bytes([draw.randrange(256)]) + text[cut + 1 :].encode())
+        else:
+            depth = draw.randrange(1, 3000)
+            payloads.append(b"[" * depth + b"]" * draw.randrange(depth + 1))
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_a,
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_b,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="fuzzer") as fuzzer,
+    ):
+        specs = [PrinterSpec("a", sim_a.url, poll_interval_s=0.05), PrinterSpec("b", sim_b.url, poll_interval_s=0.05)]
+        farm, bridge, _ = farm_and_bridge(specs, broker.port, allow_commands=True, allowed_dir=tmp_path)
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up and farm.printers["b"].link_up, "both connected")
+            for payload in payloads:
+                await fuzzer.publish("marlin/a/command", payload, qos=1)
+            try:
+                await sub.until(
+                    lambda: len(sub.payloads("marlin/a/response")) >= len(payloads), "an answer to each", 60
+                )
+                await publishing_for_all(sub, ["a", "b"])
+            except (TimeoutError, AssertionError):
+                pytest.fail(f"seed {seed}: {len(sub.payloads('marlin/a/response'))} answers to {len(payloads)}")
+            assert len(sub.payloads("marlin/a/response")) == len(payloads), f"seed {seed}"
+            assert not_polls(list(sim_b.printer.executed)) == []  # b was never touched
+            assert all(t.done() is False for t in asyncio.all_tasks() if t.get_name() == "farm")
+
+
+async def until_state(sub: Subscriber, printer: str, check: Any, what: str, timeout_s: float = 30) -> dict[str, Any]:
+    await sub.until(lambda: any(check(s) for s in sub.payloads(f"marlin/{printer}/state")), what, timeout_s)
+    state: dict[str, Any] = next(s for s in reversed(sub.payloads(f"marlin/{printer}/state")) if check(s))
+    return state
+
+
+def printing(state: dict[str, Any]) -> bool:
+    return (state["print"] or {}).get("state") == "running" and (state["print"]["lines_acked"] or 0) > 20
+
+
+@needs_broker
+@pytest.mark.parametrize("ending", ["emergency stop", "reset", "unplugged"])
+async def test_a_print_that_ends_badly_is_that_printers_print_failed_and_the_farm_goes_on(
+    broker: Broker, tmp_path: Path, ending: str
+) -> None:
+    jobs = tmp_path / "jobs"
+    jobs.mkdir()
+    (jobs / "long.gcode").write_text(moves(400))
+    async with (
+        serve_tcp(SimulatorConfig(), time_scale=50) as sim_a,
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_b,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="home-assistant") as ha,
+    ):
+        specs = [PrinterSpec("a", sim_a.url, poll_interval_s=0.05), PrinterSpec("b", sim_b.url, poll_interval_s=0.05)]
+        farm, bridge, events = farm_and_bridge(specs, broker.port, allow_commands=True, allowed_dir=jobs)
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up and farm.printers["b"].link_up, "both connected")
+            answer = await command(sub, ha, "a", '{"id": 1, "action": "print", "path": "long.gcode"}', 1)
+            assert answer == {"id": 1, "ok": True, "result": {"started": "long.gcode"}}
+            await until_state(sub, "a", printing, "the print under way")
+            if ending == "emergency stop":
+                # Home Assistant's own button.
+                answer = await command(sub, ha, "a", '{"id": 2, "action": "emergency_stop"}', 2)
+                assert answer["ok"] is True
+            elif ending == "reset":
+                sim_a.printer.reset(sim_a.now())
+                sim_a.poke()
+            else:
+                await sim_a.disconnect()
+            await sub.until(lambda: "print_failed" in events_of(sub, "a"), "print_failed")
+            failed = next(e for e in sub.payloads("marlin/a/events") if e["event"] == "print_failed")
+            word = {"emergency stop": "halted", "reset": "reset", "unplugged": "link lost"}[ending]
+            assert failed["message"].startswith(f"long.gcode: {word} at file line "), failed
+            state = await until_state(
+                sub, "a", lambda s: (s["print"] or {}).get("state") == "failed", "the state to say failed"
+            )
+            assert word in state["print"]["error"]
+            await publishing_for_all(sub, ["b"])
+            if ending == "reset":
+                # The link outlived the reset: the printer is reported reset, and polled on.
+                await sub.until(lambda: "reset" in events_of(sub, "a"), "the reset event")
+            else:
+                # The link ended: the printer's supervisor connects it again (a halted board was reset by it).
+                await sub.until(lambda: events_of(sub, "a").count("connected") >= 2, "a reconnected")
+            await publishing_for_all(sub, ["a", "b"])
+            # No second print_* event, and nothing of this print on b.
+            assert [e for e in events_of(sub, "a") if e.startswith("print_")] == ["print_started", "print_failed"]
+            assert [event.kind for event in events if event.printer == "b"] == ["connected"]
+            assert bridge.connections == 1  # the bridge never went down
+
+
+@needs_broker
+async def test_a_print_finished_or_cancelled_over_mqtt_is_an_event_and_a_state(broker: Broker, tmp_path: Path) -> None:
+    jobs = tmp_path / "jobs"
+    jobs.mkdir()
+    (jobs / "short.gcode").write_text(moves(10))
+    (jobs / "long.gcode").write_text(moves(400))
+    (jobs / "two\nlines.gcode").write_text(moves(4))
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="home-assistant") as ha,
+    ):
+        farm, bridge, events = farm_and_bridge(
+            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True, allowed_dir=jobs
+        )
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up, "connected")
+            await command(sub, ha, "a", '{"id": 1, "action": "print", "path": "short.gcode"}', 1)
+            await sub.until(lambda: "print_finished" in events_of(sub, "a"), "print_finished")
+            await command(sub, ha, "a", '{"id": 2, "action": "print", "path": "long.gcode"}', 2)
+            await until_state(sub, "a", printing, "the long print under way")
+            answer = await command(sub, ha, "a", '{"id": 3, "action": "cancel"}', 3)
+            assert answer["ok"] is True
+            await sub.until(lambda: "print_cancelled" in events_of(sub, "a"), "print_cancelled")
+            await until_state(sub, "a", lambda s: (s["print"] or {}).get("state") == "cancelled", "cancelled state")
+            # A file name with a line break is refused (and its answer and log line are one line each).
+            answer = await command(
+                sub, ha, "a", json.dumps({"id": 4, "action": "print", "path": "two\nlines.gcode"}), 4
+            )
+            assert answer["ok"] is False and "path contains a line break" in answer["error"], answer
+            assert "\n" not in answer["error"]
+    kinds = [e for e in events_of(sub, "a") if e.startswith("print_")]
+    assert kinds == ["print_started", "print_finished", "print_started", "print_cancelled"]
+    finished = next(e for e in sub.payloads("marlin/a/events") if e["event"] == "print_finished")
+    assert finished["message"] == "short.gcode: done at file line 10"
+    assert all("\n" not in event.message for event in events)
+
+
+@needs_broker
+async def test_forged_retained_topics_are_put_back_and_a_clean_exit_leaves_everything_offline(
+    broker: Broker,
+) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="forger") as forger,
+    ):
+        farm, bridge, _ = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port)
+        async with running(farm, bridge):
+            config = "homeassistant/sensor/marlin_a/hotend_actual/config"
+            await sub.until(
+                lambda: bool(sub.texts(config)) and sub.texts("marlin/a/availability")[-1:] == ["online"],
+                "discovery, and the printer online",
+            )
+            ours = {
+                "marlin/a/availability": b"online",
+                "marlin/bridge/availability": b"online",
+                "marlin/a/state": bridge._retained["marlin/a/state"],
+                config: bridge._retained[config],
+            }
+            forged = {
+                "marlin/a/availability": b"offline",
+                "marlin/bridge/availability": b"offline",
+                "marlin/a/state": b'{"link": "down", "print": {"state": "running", "percent": 14.4}}',
+                config: b"",  # deleted
+            }
+            for topic, payload in forged.items():
+                await forger.publish(topic, payload, qos=1, retain=True)
+            await sub.until(
+                lambda: bridge.corrections >= len(forged), f"every forgery corrected ({bridge.corrections})"
+            )
+            # A client that comes now finds the bridge's own, not the forgeries.
+            async with subscribed(broker.port, identifier="latecomer") as late:
+                await late.until(
+                    lambda: all(any(t == topic for t, _, _ in late.messages) for topic in ours), "the retained topics"
+                )
+                retained = {t: p for t, p, r in late.messages if r and t in ours}
+            assert retained == ours
+            await publishing_for_all(sub, ["a"])
+        # Stopped cleanly (cancelled): the bridge and its printer say offline, and it stays so.
+        async with subscribed(broker.port, identifier="after") as after:
+            topics = ("marlin/a/availability", "marlin/bridge/availability")
+            await after.until(lambda: all(after.texts(t) for t in topics), "retained availability")
+            assert [after.texts(t)[-1] for t in topics] == ["offline", "offline"]
+    assert bridge.corrections == len(forged)  # no fight: each forgery put right once
+
+
+@needs_broker
+async def test_a_retained_command_never_runs_across_broker_restarts(broker: Broker) -> None:
+    # A persistent session (QoS 1, not clean) for the watcher: answers published while it is away wait for it.
+    async with subscribed(broker.port, identifier="watcher", clean=False):
+        pass
+    refusals: list[dict[str, Any]] = []
+    async with serve_pty(SimulatorConfig(), time_scale=50) as sim:
+        async with aiomqtt.Client("127.0.0.1", broker.port, identifier="stale-publisher") as publisher:
+            payload = '{"id": "retained", "action": "gcode", "command": "M118 E1 stale"}'
+            await publisher.publish("marlin/a/command", payload, qos=1, retain=True)
+        farm, bridge, _ = farm_and_bridge(
+            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True
+        )
+        async with running(farm, bridge):
+            for restart in range(3):
+                async with subscribed(broker.port, identifier="watcher", clean=False) as sub:
+
+                    def answers() -> list[dict[str, Any]]:
+                        return [a for a in sub.payloads("marlin/a/response") if a["id"] == "retained"]
+
+                    # One refusal per connection of the bridge (each time the broker hands it the retained one).
+                    wanted = restart + 1 - len(refusals)
+                    await sub.until(lambda: len(answers()) >= wanted, "the retained command refused")  # noqa: B023
+                    await publishing_for_all(sub, ["a"])
+                    refusals += answers()
+                if restart < 2:
+                    connections = bridge.connections
+                    broker.stop()
+                    broker.start()
+                    for _ in range(400):
+                        if bridge.connections > connections:
+                            break
+                        await asyncio.sleep(0.05)  # polling a condition (the bridge is back), bounded
+                    assert bridge.connections > connections
+    assert len(refusals) == 3
+    assert all(a["ok"] is False and "retained" in a["error"] for a in refusals)
+    assert "M118 E1 stale" not in list(sim.printer.executed)  # before: it ran 1, 2, then 3 times
+    assert bridge.connections == 3
+
+
+@needs_broker
+async def test_outsiders_cannot_grow_the_bridge_without_bound(broker: Broker) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=1) as sim,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="flooder") as flooder,
+    ):
+        farm, bridge, _ = farm_and_bridge(
+            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True
+        )
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up, "connected")
+            names = MAX_OTHER_PRINTERS + 500
+            for index in range(names):
+                await flooder.publish(f"marlin/made-up-{index}/availability", "online", qos=0)
+            await flooder.publish("marlin/last/availability", "online", qos=1)
+            await sub.until(lambda: bool(sub.texts("marlin/last/availability")), "the flood delivered")
+            await sub.until(lambda: "last" in bridge._elsewhere, "the bridge has read the flood")
+            assert len(bridge._elsewhere) == MAX_OTHER_PRINTERS  # the oldest names were forgotten
+            # A flood of slow commands: a bounded number wait for the printer, the rest are refused at once.
+            flood = MAX_PENDING_COMMANDS + 10
+            for index in range(flood):
+                await flooder.publish(
+                    "marlin/a/command", json.dumps({"id": index, "action": "gcode", "command": "G4 S30"})
+                )
+            await sub.until(lambda: len(sub.payloads("marlin/a/response")) >= 10, "the refusals")
+            busy = [a for a in sub.payloads("marlin/a/response") if "busy" in a.get("error", "")]
+            assert len(busy) == 10
+            assert bridge._pending["a"] == MAX_PENDING_COMMANDS
+            await publishing_for_all(sub, ["a"])
+
+
+def test_reserved_and_topic_breaking_names_are_refused_at_start_up(tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["farm", "--port", "bridge=socket://127.0.0.1:1", "--duration", "1"])
+    assert result.exit_code == 2
+    assert "printer name 'bridge' is reserved" in result.output
+    config = tmp_path / "farm.toml"
+    config.write_text('[[printer]]\nname = "a/b"\nport = "/dev/ttyUSB0"\n')
+    result = CliRunner().invoke(app, ["farm", "--config", str(config), "--duration", "1"])
+    assert result.exit_code == 2 and "must be letters, digits" in result.output
+    with pytest.raises(ValueError, match="cannot be named 'bridge'"):
+        Farm([PrinterSpec("bridge", "socket://127.0.0.1:1")], lambda event: None)
+    farm = Farm([PrinterSpec("a+#", "socket://127.0.0.1:1")], lambda event: None)
+    with pytest.raises(ValueError, match="cannot be a topic level"):
+        Bridge(farm, BrokerSettings())
+
+
+async def test_in_process_simulated_printers_keep_a_small_record() -> None:
+    """`farm --sims 20` ran for hours: each simulated printer kept 100,000 commands. The farm's keep 1,000."""
+    farm = Farm([PrinterSpec("sim1", None, poll_interval_s=0.005, sim=True, sim_speed=20)], lambda event: None)
+    task = asyncio.create_task(farm.run())
+    try:
+        for _ in range(600):
+            if "sim1" in farm.sims and farm.sims["sim1"].printer.executed_count > SIM_RECORD_LIMIT + 100:
+                break
+            await asyncio.sleep(0.05)  # polling a condition (the polls add up), bounded
+        printer = farm.sims["sim1"].printer
+        assert printer.executed_count > SIM_RECORD_LIMIT + 100
+        assert len(printer.executed) == SIM_RECORD_LIMIT == 1_000
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
+# --------------------------------------------------------------------------------- the handler, without a broker
+
+_topic_names = st.one_of(
+    st.sampled_from(["a", "b", "bridge", "nobody", "", "made-up"]),
+    st.text(min_size=0, max_size=80),
+)
+_payloads = st.one_of(
+    st.binary(max_size=300),
+    st.integers(1, 5_000).map(lambda n: b"[" * n),
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=40),
+        lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=10), children, max_size=4),
+        max_leaves=20,
+    ).map(lambda value: json.dumps(value).encode()),
+    st.fixed_dictionaries(
+        {"action": st.sampled_from(["gcode", "print", "set_temperatures", "set_target", "cancel", "x"])},
+        optional={
+            "id": st.integers() | st.text(max_size=200) | st.none(),
+            "command": st.text(max_size=120),
+            "commands": st.lists(st.text(max_size=20), max_size=5),
+            "path": st.sampled_from(["a\x00b", "../x", "/etc/passwd", "loop/x", "x" * 5000, "ok.gcode", "a\nb"]),
+            "hotend": st.floats() | st.integers() | st.text(max_size=5),
+            "time": st.floats() | st.text(max_size=5),
+        },
+    ).map(lambda body: json.dumps(body).encode()),
+)
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    messages=st.lists(
+        st.tuples(_topic_names, st.sampled_from(["command", "availability", "state"]), _payloads, st.booleans()),
+        min_size=1,
+        max_size=12,
+    )
+)
+def test_the_command_handler_answers_every_command_once_and_never_raises(
+    tmp_path: Path, messages: list[tuple[str, str, bytes, bool]]
+) -> None:
+    """Whatever arrives on whatever topic (names from topic levels, any payload, retained or not), the handler
+    raises nothing, answers each command for a printer no other bridge has exactly once (here: the printers are not
+    connected, so even a valid command is answered with an error), and keeps its sets bounded."""
+    (tmp_path / "loop").mkdir(exist_ok=True)
+    (tmp_path / "ok.gcode").write_text("G28\n")
+
+    async def handle() -> None:
+        farm = Farm([PrinterSpec("a", "socket://127.0.0.1:1"), PrinterSpec("b", "socket://127.0.0.1:1")], print)
+        bridge = Bridge(farm, BrokerSettings(), BridgeSettings(allow_commands=True, allowed_dir=tmp_path))
+        expected = 0
+        async with asyncio.TaskGroup() as group:
+            bridge._group = group
+            for name, leaf, payload, retained in messages:
+                before = set(bridge._elsewhere)
+                bridge._on_message(f"marlin/{name}/{leaf}", payload, retained)
+                if leaf == "command" and not (name not in farm.printers and name in before):
+                    expected += 1
+        answers = [json.loads(text) for topic, text in bridge._reliable if topic.endswith("/response")]
+        assert len(answers) == expected
+        assert all(answer["ok"] is False for answer in answers)  # nothing is connected: nothing ran
+        assert all("\n" not in answer["error"] for answer in answers)
+        assert len(bridge._elsewhere) <= MAX_OTHER_PRINTERS
+        assert all(count == 0 for count in bridge._pending.values())
+
+    asyncio.run(handle())
+
+
+def test_events_are_one_line_whatever_their_message() -> None:
+    seen: list[FarmEvent] = []
+    farm = Farm([PrinterSpec("a", "socket://127.0.0.1:1")], seen.append)
+    farm.emit(farm.printers["a"], "print_failed", "x\ny\r\x1b[2J\u2028 M511 P1234")
+    assert seen[0].message == "x\\ny\\r\\x1b[2J\\u2028 M511 ****"
+    assert farm.printers["a"].last_error == seen[0].message
+    assert marlin_aio.redact("M511 P1234") == "M511 ****"
