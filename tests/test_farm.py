@@ -52,13 +52,15 @@ class Broker:
     directory: Path
     port: int = field(default_factory=free_port)
     process: subprocess.Popen[bytes] | None = None
+    extra: str = ""
+    """More lines for mosquitto.conf."""
 
     def start(self) -> None:
         config = self.directory / "mosquitto.conf"
         # Persistence keeps a subscriber's session across a restart (SIGTERM saves it), as a production broker would.
         config.write_text(
             f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence true\n"
-            f"persistence_location {self.directory}/\nautosave_interval 1\n{AS_US}"
+            f"persistence_location {self.directory}/\nautosave_interval 1\n{AS_US}{self.extra}"
         )
         assert MOSQUITTO is not None
         self.process = subprocess.Popen(
@@ -699,5 +701,6 @@ async def test_sigterm_stops_the_farm_as_cleanly_as_its_duration_does(broker: Br
                 process.kill()
                 await process.wait()
         await sub.until(lambda: sub.texts("marlin/sim1/availability")[-1:] == ["offline"], "the printer offline")
+        await sub.until(lambda: sub.texts("marlin/bridge/availability")[-1:] == ["offline"], "the bridge offline")
     assert process.returncode == 0
     assert b"farm: stopped after" in stderr

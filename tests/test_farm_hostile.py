@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import logging
 import random
@@ -377,6 +378,66 @@ async def test_a_retained_command_never_runs_across_broker_restarts(broker: Brok
     assert all(a["ok"] is False and "retained" in a["error"] for a in refusals)
     assert "M118 E1 stale" not in list(sim.printer.executed)  # before: it ran 1, 2, then 3 times
     assert bridge.connections == 3
+
+
+@needs_broker
+async def test_after_a_broker_outage_every_printer_has_its_own_readings_of_the_outage(tmp_path: Path) -> None:
+    """Before: one 1,000-message buffer for all printers left every printer a gap of most of the outage. Now each
+    printer keeps its own newest readings (240 by default), so a short outage leaves no gap in any printer's
+    telemetry once the broker is back: each reading's time follows the one before within a few periods."""
+    # QoS 0 telemetry is kept for the watcher's persistent session while it is away (Mosquitto's option).
+    broker = Broker(tmp_path, extra="queue_qos0_messages true\nmax_queued_messages 100000\n")
+    broker.start()
+    names = ["a", "b", "c"]
+    try:
+        async with subscribed(broker.port, identifier="watcher", clean=False):
+            pass
+        async with (
+            serve_pty(SimulatorConfig(), time_scale=20) as sim_a,
+            serve_pty(SimulatorConfig(), time_scale=20) as sim_b,
+            serve_pty(SimulatorConfig(), time_scale=20) as sim_c,
+        ):
+            sims = (sim_a, sim_b, sim_c)
+            specs = [PrinterSpec(name, sim.url, poll_interval_s=0.05) for name, sim in zip(names, sims, strict=True)]
+            farm, bridge, _ = farm_and_bridge(specs, broker.port, rate_hz=10.0)
+            times: dict[str, list[float]] = {name: [] for name in names}
+            async with running(farm, bridge):
+                async with subscribed(broker.port, identifier="watcher", clean=False) as sub:
+                    await sub.until(lambda: all(sub.payloads(f"marlin/{n}/telemetry") for n in names), "telemetry")
+                for name in names:
+                    times[name] += [t["time"] for t in sub.payloads(f"marlin/{name}/telemetry")]
+                broker.stop()
+                down_at = time.time()
+                for _ in range(400):
+                    if not bridge.connected:
+                        break
+                    await asyncio.sleep(0.05)  # polling a condition (the bridge saw the broker go), bounded
+                readings = {name: farm.printers[name].readings for name in names}
+                for _ in range(400):  # an outage of 80 readings of each printer at least
+                    if all(farm.printers[name].readings > readings[name] + 80 for name in names):
+                        break
+                    await asyncio.sleep(0.05)  # polling a condition (readings during the outage), bounded
+                broker.start()
+                up_at = time.time()
+                async with subscribed(broker.port, identifier="watcher", clean=False) as sub:
+                    await sub.until(
+                        lambda: all(
+                            any(t["time"] > up_at + 0.5 for t in sub.payloads(f"marlin/{n}/telemetry")) for n in names
+                        ),
+                        "telemetry after the restart",
+                    )
+                for name in names:
+                    times[name] += [t["time"] for t in sub.payloads(f"marlin/{name}/telemetry")]
+    finally:
+        broker.stop()
+    assert up_at - down_at > 1.0
+    for name in names:
+        series = sorted(times[name])
+        gaps = [after - before for before, after in itertools.pairwise(series)]
+        during = [t for t in series if down_at < t < up_at]
+        assert len(during) >= 20, f"{name}: {len(during)} readings of the outage"
+        assert max(gaps) < 0.5, f"{name}: a gap of {max(gaps):.2f} s in its telemetry"
+    assert bridge.telemetry_dropped == 0
 
 
 @needs_broker
