@@ -24,6 +24,7 @@ from typing import Any
 import aiomqtt
 import pytest
 
+import marlin_aio
 from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
 from marlin_temp.farm import Farm, FarmEvent, PrinterSpec
 from marlin_temp.farmbridge import Bridge, BridgeSettings, BrokerSettings
@@ -222,6 +223,15 @@ async def test_discovery_describes_each_heater_of_each_printer_with_valid_topics
             heater = config["value_template"].split("'")[1]
             field_name = config["value_template"].split("].")[1].split()[0]
             assert field_name in telemetry["heaters"][heater]
+            # Unavailable if telemetry stops (a bridge that hangs without dying): ten periods, a minute at least.
+            assert config["expire_after"] == 60
+        # As Home Assistant's MQTT documentation asks: who published it, the firmware as the device's software.
+        assert config["origin"] == {"name": "marlin_aio", "sw_version": marlin_aio.__version__}
+        assert config["device"]["sw_version"].startswith("Marlin 2.1")
+        assert config.get("device_class") in (None, "temperature")  # no power_factor on a heater's duty
+    power = configs["homeassistant/sensor/marlin_p1/hotend_power_percent/config"]
+    assert "device_class" not in power and power["unit_of_measurement"] == "%"
+    assert configs["homeassistant/sensor/marlin_p1/hotend_target/config"]["device_class"] == "temperature"
     # Retained: Home Assistant started later still finds the printer.
     async with subscribed(broker.port, identifier="late") as late:
         await late.until(
@@ -416,6 +426,7 @@ async def test_commands_run_and_bad_payloads_are_refused_with_nothing_written(br
             configs = {t: json.loads(p) for t, p, _ in sub.messages if t.startswith("homeassistant/")}
             number = configs["homeassistant/number/marlin_a/hotend_target/config"]
             assert number["command_topic"] == "marlin/a/command" and number["max"] == 260
+            assert number["device_class"] == "temperature"
             assert json.loads(number["command_template"].replace("{{ value }}", "42"))["celsius"] == 42
             button = configs["homeassistant/button/marlin_a/emergency_stop/config"]
             assert json.loads(button["payload_press"]) == {"action": "emergency_stop"}
