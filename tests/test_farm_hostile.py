@@ -341,6 +341,32 @@ async def test_forged_retained_topics_are_put_back_and_a_clean_exit_leaves_every
 
 
 @needs_broker
+async def test_a_bridge_that_fails_says_offline_on_its_way_out(broker: Broker) -> None:
+    """Before, an exception out of the bridge ended its MQTT session with a clean DISCONNECT, which tells the broker
+    to drop the Last Will: the retained availability stayed `online` for a dead farm. Now any failure publishes
+    `offline` for the bridge and its printers before the session ends."""
+
+    def bug() -> None:
+        raise RuntimeError("a bug in a hook")
+
+    async with serve_pty(SimulatorConfig(), time_scale=50) as sim, subscribed(broker.port) as sub:
+        farm, bridge, _ = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port)
+        bridge.on_connected = bug
+        farm_task = asyncio.create_task(farm.run())
+        try:
+            with pytest.raises(ExceptionGroup) as caught:
+                await asyncio.wait_for(bridge.run(), 30)
+        finally:
+            farm_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await farm_task
+        assert caught.value.subgroup(RuntimeError) is not None
+        await sub.until(lambda: sub.texts("marlin/bridge/availability")[-1:] == ["offline"], "the bridge offline")
+        await sub.until(lambda: sub.texts("marlin/a/availability")[-1:] == ["offline"], "its printer offline")
+        assert sub.texts("marlin/bridge/availability")[0] == "online"
+
+
+@needs_broker
 async def test_a_retained_command_never_runs_across_broker_restarts(broker: Broker) -> None:
     # A persistent session (QoS 1, not clean) for the watcher: answers published while it is away wait for it.
     async with subscribed(broker.port, identifier="watcher", clean=False):
