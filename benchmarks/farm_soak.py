@@ -50,6 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sims", type=int, default=20, help="simulated printers (default 20)")
     parser.add_argument("--minutes", type=float, default=10.0, help="how long (default 10)")
     parser.add_argument("--interval", type=float, default=0.1, help="seconds between polls of each printer")
+    parser.add_argument("--rate", type=float, default=None, help="telemetry per second and printer (farm's default)")
     parser.add_argument("--every", type=float, default=10.0, help="seconds between RSS samples (default 10)")
     parser.add_argument("--pythonpath", default=None, help="put this folder first on the farm's PYTHONPATH")
     args = parser.parse_args(argv)
@@ -65,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             "farm",
             *("--sims", str(args.sims), "--interval", str(args.interval)),
             *("--broker", f"127.0.0.1:{broker.port}", "--duration", str(duration_s)),
+            *(("--rate", str(args.rate)) if args.rate is not None else ()),
         ]
         load_start = os.getloadavg()
         # Started in the scratch folder: `python -m` puts its working directory first on the path, which would
