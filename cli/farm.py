@@ -131,6 +131,9 @@ class FarmPrinter:
     print_handle: marlin_aio.PrintHandle | None = None
     """The print started over MQTT, if any (finished or not)."""
     print_file: str | None = None
+    """The file name of that print."""
+    print_starting: bool = False
+    """True while a print is being started (its M110 in flight): a second one is refused, not started too."""
     print_error: str | None = None
     """Why the last print failed (halted, reset, link lost, ...), one line; None while it runs or if it did not."""
     machine: str | None = None
@@ -146,6 +149,11 @@ class FarmPrinter:
         if handle is None:
             return None
         progress = handle.progress
+        error = self.print_error
+        if error is None and progress.state is marlin_aio.PrintState.FAILED and handle.job.error is not None:
+            # Failed, and the farm's follower has not run yet: the job's own error, so the state is never
+            # "failed" without why.
+            error = one_line(redact(str(handle.job.error)))
         total = progress.source_bytes_total
         percent = round(100 * progress.source_bytes_acked / total, 1) if total else None
         return {
@@ -154,7 +162,7 @@ class FarmPrinter:
             "percent": percent,
             "lines_acked": progress.lines_acked,
             "last_file_line": progress.last_source_line,
-            "error": self.print_error,
+            "error": error,
         }
 
     @property
@@ -246,14 +254,20 @@ class Farm:
         if printer is None or not farm_printer.link_up:
             raise RuntimeError(f"printer {farm_printer.name!r} is not connected")
         handle = farm_printer.print_handle
-        if handle is not None and not handle.finished:
+        if farm_printer.print_starting or (handle is not None and not handle.finished):
             raise RuntimeError("a print is already running: cancel it first")
-        handle = await printer.start_print(path)
+        # Marked before the first await: two print commands back to back (a double press, a redelivered message)
+        # must not both pass the check above while the first one's M110 is on its way.
+        farm_printer.print_starting = True
+        try:
+            handle = await printer.start_print(path)
+        finally:
+            farm_printer.print_starting = False
         farm_printer.print_handle = handle
         farm_printer.print_file = path.name
         farm_printer.print_error = None
-        self.emit(farm_printer, "print_started", f"printing {path.name}")
         self._group.create_task(self._follow_print(farm_printer, handle), name=f"print on {farm_printer.name}")
+        self.emit(farm_printer, "print_started", f"printing {path.name}")
         return handle
 
     async def _follow_print(self, farm_printer: FarmPrinter, handle: marlin_aio.PrintHandle) -> None:

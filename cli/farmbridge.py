@@ -44,7 +44,6 @@ import contextlib
 import json
 import logging
 import math
-import re
 import ssl
 import time
 from collections import OrderedDict, deque
@@ -58,13 +57,33 @@ import aiomqtt
 import marlin_aio
 
 from .farm import RESERVED_NAMES, Farm, FarmEvent, FarmPrinter, one_line, redact, redact_payload
-from .farmcommands import CommandError, FarmCommand, parse_command, run_command
+from .farmcommands import (
+    MAX_COMMAND_AGE_S,
+    UNQUEUED_ACTIONS,
+    CommandError,
+    FarmCommand,
+    command_id_of,
+    parse_command,
+    run_command,
+)
+from .farmconfig import NAME_PATTERN
 
 __all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug"]
 
 _log = logging.getLogger("marlin_temp.bridge")
 
 EVENT_QUEUE = 10_000
+"""Events kept until the broker has them (a long outage); past it the oldest is lost (counted, and logged)."""
+ANSWER_QUEUE = 1_000
+"""Answers to commands kept until published; past it the oldest is dropped (counted): a flood of commands from
+outside fills this queue, never the events' one."""
+ANSWER_BATCH = 64
+"""Answers published between two looks at states, events and telemetry: a flood of answers delays them little."""
+FIGHT_LIMIT = 5
+"""Corrections of one topic within FIGHT_WINDOW_S after which the bridge stops correcting it (for the session) and
+says so: another client that keeps publishing there (a second bridge with a printer of the same name) is not
+fought for ever."""
+FIGHT_WINDOW_S = 60.0
 TELEMETRY_BUFFER = 240
 """Telemetry messages kept per printer while the broker is slow or away (two minutes at the default rate)."""
 MAX_OTHER_PRINTERS = 1_024
@@ -73,7 +92,6 @@ MAX_PENDING_COMMANDS = 16
 """Commands accepted and not yet finished, per printer; past it a command is refused (a flood cannot queue more)."""
 CORRECTION_GAP_S = 1.0
 """A retained topic someone else overwrote is corrected at most this often (two bridges fighting stay slow)."""
-_OTHER_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 
 
 @dataclass(frozen=True)
@@ -110,6 +128,10 @@ class BridgeSettings:
     """What the bridge publishes and how often."""
 
     prefix: str = "marlin"
+    name: str = "bridge"
+    """The bridge's own topic level: its availability is `PREFIX/NAME/availability`. Bridges that share a broker
+    and a prefix each need their own (else one's Last Will is the other's to correct, and a killed bridge's printers
+    stay available in Home Assistant)."""
     rate_hz: float = 0.2
     """Telemetry messages per second and printer. One every 5 s by default: Home Assistant's recorder keeps every
     state change, and a temperature is a new state at nearly every reading."""
@@ -126,7 +148,7 @@ class BridgeSettings:
     dropped (and counted)."""
     event_queue: int = EVENT_QUEUE
     """Events and answers kept until delivered; past it the oldest is lost (counted, and logged)."""
-    max_command_age_s: float = 5.0
+    max_command_age_s: float = MAX_COMMAND_AGE_S
     """A command with a `time` older (or further in the future) than this is refused."""
 
 
@@ -171,23 +193,6 @@ def _raise_if_cancelled() -> None:
         raise asyncio.CancelledError
 
 
-def _command_id(payload: bytes) -> object:
-    """The id of a refused command, when its payload is JSON enough to have one (for the answer): a string of at
-    most 128 characters or an integer, else None. Never raises, whatever the payload."""
-    if len(payload) > 65_536 or payload.count(b"[") + payload.count(b"{") > 64:
-        return None  # too big or too deep to be a command: not worth parsing for its id
-    try:
-        body = json.loads(payload)
-    except (ValueError, RecursionError):
-        return None
-    command_id = body.get("id") if isinstance(body, dict) else None
-    if (isinstance(command_id, str) and len(command_id) <= 128) or (
-        isinstance(command_id, int) and not isinstance(command_id, bool) and abs(command_id) < 2**63
-    ):
-        return command_id
-    return None
-
-
 def _payload_bytes(payload: object) -> bytes:
     """A message's payload as bytes (aiomqtt gives bytes, or str/int/float/None for some)."""
     if isinstance(payload, bytes | bytearray):
@@ -214,8 +219,10 @@ class Bridge:
         settings = settings or BridgeSettings()
         if not settings.rate_hz > 0:
             raise ValueError(f"the telemetry rate must be positive, got {settings.rate_hz}")
+        if not NAME_PATTERN.fullmatch(settings.name):
+            raise ValueError(f"the bridge's name {settings.name!r} must be letters, digits, '-' and '_'")
         for name in farm.printers:
-            if not name or any(c in name for c in "/+#") or name in RESERVED_NAMES:
+            if not name or any(c in name for c in "/+#") or name in RESERVED_NAMES | {settings.name}:
                 raise ValueError(f"printer name {name!r} cannot be a topic level of the bridge")
         self.farm = farm
         self.broker = broker
@@ -225,8 +232,10 @@ class Bridge:
         self._telemetry: dict[str, deque[str]] = {
             name: deque(maxlen=settings.telemetry_buffer) for name in farm.printers
         }
-        # Events and command answers: QoS 1, each kept until the broker acknowledged it.
-        self._reliable: deque[tuple[str, str]] = deque()
+        # Events and command answers: QoS 1, each kept until the broker acknowledged it; apart, so that answers to
+        # a flood of commands never push an event (a thermal runaway) out.
+        self._events: deque[tuple[str, str]] = deque()
+        self._answers: deque[tuple[str, str]] = deque()
         self._group: asyncio.TaskGroup | None = None
         # Printers of other bridges on the same broker, newest last; bounded, since anyone can publish a name.
         self._elsewhere: OrderedDict[str, None] = OrderedDict()
@@ -245,17 +254,29 @@ class Bridge:
         # What each of the bridge's retained topics should hold (as last published), to notice an overwrite.
         self._retained: dict[str, bytes] = {}
         self._overwritten: set[str] = set()
-        self._corrected_at: dict[str, float] = {}
+        self._corrected_at: dict[str, deque[float]] = {}
+        self._given_up: set[str] = set()
         self.connected = False
+        """True while a session with the broker is open."""
         self.connections = 0
+        """Sessions opened with the broker so far."""
         self.published = 0
+        """Messages handed to the broker."""
         self.telemetry_dropped = 0
+        """Telemetry messages dropped from a full per-printer buffer (the oldest)."""
         self.events_lost = 0
+        """Events dropped from a full event queue (the oldest)."""
+        self.answers_dropped = 0
+        """Answers dropped from a full answer queue (the oldest)."""
         self.refused = 0
         """Commands refused (bad payload, retained, stale, unknown printer, too many waiting)."""
+        self.ignored = 0
+        """Messages on a command topic no answer was owed for: a name that cannot be a printer's, or a retained
+        command for a printer this bridge does not have."""
         self.corrections = 0
         """Retained topics of the bridge's that another client overwrote and the bridge published again."""
         self.on_connected: Callable[[], None] | None = None
+        """Called after each (re)connection to the broker, once availability and states are published."""
 
     # ------------------------------------------------------------------------------------------- topics
 
@@ -266,22 +287,18 @@ class Bridge:
     @property
     def bridge_availability_topic(self) -> str:
         """The bridge's own availability (its Last Will sets it offline)."""
-        return f"{self.settings.prefix}/bridge/availability"
+        return f"{self.settings.prefix}/{self.settings.name}/availability"
 
     # ------------------------------------------------------------------------------------------- intake
 
     def on_event(self, event: FarmEvent) -> None:
         """Queue a printer's event for delivery (the farm's listener); past the bound the oldest is lost."""
         payload = {"event": event.kind, "message": one_line(redact(event.message)), "time": round(event.time_s, 3)}
-        self._queue_reliable(self.topic(event.printer, "events"), payload)
-
-    def _queue_reliable(self, topic: str, payload: dict[str, Any]) -> None:
-        if len(self._reliable) >= self.settings.event_queue:
-            lost_topic, lost = self._reliable.popleft()
+        if len(self._events) >= self.settings.event_queue:
+            lost_topic, lost = self._events.popleft()
             self.events_lost += 1
             _log.warning("event queue full (%d): lost %s on %s", self.settings.event_queue, lost, lost_topic)
-        # default=str: an answer's result is JSON-able by construction; if one ever is not, it is still an answer.
-        self._reliable.append((topic, json.dumps(payload, default=str)))
+        self._events.append((self.topic(event.printer, "events"), json.dumps(payload)))
         self._wake.set()
 
     def _listener(self, name: str) -> Callable[[marlin_aio.TemperatureReading], None]:
@@ -399,6 +416,7 @@ class Bridge:
                 self._published_states.clear()  # republished in full on the next connection
                 self._announced.clear()
                 self._overwritten.clear()
+                self._given_up.clear()  # a new session: a fight that ended may be over
             await asyncio.sleep(delay)
             delay = min(delay * 2, self.settings.backoff_max_s)
 
@@ -427,14 +445,16 @@ class Bridge:
 
     def _on_message(self, topic: str, payload: bytes, retained: bool) -> None:
         if topic in self._retained:
-            if payload != self._retained[topic]:
+            # A retained message comes only as a subscription starts, and each session publishes all of the
+            # bridge's topics anew: only a live message is someone else writing over them now.
+            if not retained and payload != self._retained[topic] and topic not in self._given_up:
                 self._overwritten.add(topic)
                 self._wake.set()
             return
         parts = topic.split("/")
         name = parts[-2] if len(parts) >= 3 else ""
         if parts[-1] == "availability":
-            if name in self.farm.printers or name in RESERVED_NAMES or not _OTHER_NAME.fullmatch(name):
+            if name in self.farm.printers or name == self.settings.name or not NAME_PATTERN.fullmatch(name):
                 return
             self._elsewhere.pop(name, None)
             if payload:  # an empty retained message deletes the topic: that printer is gone
@@ -444,14 +464,18 @@ class Bridge:
             return
         if parts[-1] != "command" or not self.settings.allow_commands:
             return
-        if name not in self.farm.printers and name in self._elsewhere:
-            return  # another bridge's printer: its bridge answers
+        if name not in self.farm.printers and (name in self._elsewhere or retained or not NAME_PATTERN.fullmatch(name)):
+            # Another bridge's printer (its bridge answers), a retained command for a printer nobody has (it
+            # would be answered at every reconnection), or a name no printer can have (its answer's topic could
+            # be longer than MQTT allows): no answer owed, and none that outsiders could multiply.
+            self.ignored += 1
+            return
         if retained:
             # A retained command would run again at every reconnection of this bridge (and at every restart of
             # the broker); MQTT marks such a message, and it is never taken as a command.
             self._refuse(
                 name,
-                _command_id(payload),
+                command_id_of(payload),
                 "refused: a retained message is never run as a command (publish commands without the retain flag)",
             )
             return
@@ -466,9 +490,9 @@ class Bridge:
             )
         except CommandError as exc:
             # The id as parse_command checked it; a refusal before that (an unknown printer) looks for one.
-            self._refuse(name, exc.command_id if exc.command_id is not None else _command_id(payload), str(exc))
+            self._refuse(name, exc.command_id if exc.command_id is not None else command_id_of(payload), str(exc))
             return
-        if self._pending[command.printer] >= MAX_PENDING_COMMANDS:
+        if command.action not in UNQUEUED_ACTIONS and self._pending[command.printer] >= MAX_PENDING_COMMANDS:
             self._refuse(
                 name, command.id, f"busy: {MAX_PENDING_COMMANDS} commands are waiting for this printer; try again"
             )
@@ -509,11 +533,17 @@ class Bridge:
         if error is None:
             answer["result"] = result
         else:
-            answer["error"] = one_line(error.splitlines()[0] if error.strip() else error)
+            lines = error.strip().splitlines()
+            answer["error"] = one_line(lines[0]) if lines else "failed"  # the first line says what was wrong
         answer = redact_payload(answer)
         if error is not None:
             _log.warning("command for %r refused or failed: %s", printer[:64], answer["error"])
-        self._queue_reliable(self.topic(printer, "response"), answer)
+        if len(self._answers) >= ANSWER_QUEUE:
+            self._answers.popleft()
+            self.answers_dropped += 1
+        # default=str: a result is JSON-able by construction; if one ever is not, it is still an answer.
+        self._answers.append((self.topic(printer, "response"), json.dumps(answer, default=str)))
+        self._wake.set()
 
     def _client(self) -> aiomqtt.Client:
         broker = self.broker
@@ -560,11 +590,10 @@ class Bridge:
                 await self._publish_discovery(client)
             if self._overwritten:
                 await self._publish_corrections(client)
-            while self._reliable:
-                topic, payload_text = self._reliable[0]
-                await client.publish(topic, payload_text, qos=1)
-                self._reliable.popleft()  # only once the broker has it: a broken link leaves it queued
-                self.published += 1
+            while self._events:
+                await self._publish_queued(client, self._events)
+            for _ in range(min(ANSWER_BATCH, len(self._answers))):
+                await self._publish_queued(client, self._answers)
             for name, buffer in self._telemetry.items():
                 if buffer:
                     topic = self.topic(name, "telemetry")
@@ -572,18 +601,41 @@ class Bridge:
                         await client.publish(topic, buffer.popleft(), qos=0)
                         self.published += 1
             _raise_if_cancelled()
-            await self._wake.wait()
+            if not self._answers:  # else straight on with the next batch
+                await self._wake.wait()
+
+    async def _publish_queued(self, client: aiomqtt.Client, queue: deque[tuple[str, str]]) -> None:
+        """Publish the oldest message of `queue` (QoS 1) and take it off only once the broker has it: a broken link
+        leaves it queued. One the MQTT client refuses outright (a topic too long) is dropped, with a log line."""
+        topic, payload_text = queue[0]
+        try:
+            await client.publish(topic, payload_text, qos=1)
+        except ValueError as exc:
+            _log.error("could not publish to %r: %s; dropped", topic[:100], exc)
+        else:
+            self.published += 1
+        queue.popleft()
 
     async def _publish_corrections(self, client: aiomqtt.Client) -> None:
         """Publish again each retained topic of ours that another client overwrote, unless it was corrected less
         than CORRECTION_GAP_S ago (then the sampler's next wake-up comes back for it)."""
         now = time.monotonic()
         for topic in list(self._overwritten):
-            last = self._corrected_at.get(topic)
-            if last is not None and now - last < CORRECTION_GAP_S:
+            recent = self._corrected_at.setdefault(topic, deque(maxlen=FIGHT_LIMIT))
+            if recent and now - recent[-1] < CORRECTION_GAP_S:
                 continue
             self._overwritten.discard(topic)
-            self._corrected_at[topic] = now
+            if len(recent) == FIGHT_LIMIT and now - recent[0] < FIGHT_WINDOW_S:
+                self._given_up.add(topic)
+                _log.error(
+                    "%s: another client keeps publishing there (%d times in %g s); no longer correcting it. Is a "
+                    "second bridge using the same printer or bridge name on this broker and prefix?",
+                    topic,
+                    FIGHT_LIMIT + 1,
+                    FIGHT_WINDOW_S,
+                )
+                continue
+            recent.append(now)
             self.corrections += 1
             _log.warning("%s was overwritten by another client: published the bridge's own again", topic)
             await self._publish_retained(client, topic, self._retained[topic].decode())

@@ -13,8 +13,8 @@ A command is a JSON object published to `PREFIX/NAME/command`; its answer goes t
 Every action may also carry `"time": <epoch seconds>`, when it was sent: given the bridge's clock, a command sent
 more than `MAX_COMMAND_AGE_S` before it (a queued "set the bed to 100" delivered an hour late, a replayed message)
 or as far after it (a wrong clock) is refused. `"id"` is a string of at most 128 characters or a 64-bit integer.
-Retained messages are never taken as commands: the bridge drops them, since a retained "print" would run again at
-every reconnect.
+Retained messages are never taken as commands: the bridge refuses them (one answer for each of its own printers at
+each connection; nothing for a name it does not have), since a retained "print" would run again at every reconnect.
 
 Everything is checked before anything is written: bad JSON, an unknown printer or action, a target of 900 or
 `abc`, a newline inside a G-code command, a G-code command setting a target above the printer's limit however it
@@ -46,23 +46,42 @@ import marlin_aio
 
 from .farm import FarmPrinter
 
-__all__ = ["ACTIONS", "MAX_COMMAND_AGE_S", "CommandError", "FarmCommand", "parse_command", "run_command"]
+__all__ = [
+    "ACTIONS",
+    "MAX_COMMAND_AGE_S",
+    "UNQUEUED_ACTIONS",
+    "CommandError",
+    "FarmCommand",
+    "command_id_of",
+    "parse_command",
+    "run_command",
+]
 
 ACTIONS = ("set_temperatures", "set_target", "gcode", "print", "pause", "resume", "cancel", "emergency_stop")
+"""What a command can ask for (its "action")."""
+UNQUEUED_ACTIONS = frozenset({"emergency_stop", "pause", "resume", "cancel"})
+"""Actions that wait for no command before them and take no time: never refused for being too many waiting (a
+flood of slow commands must not keep the emergency stop out)."""
 MAX_PAYLOAD_BYTES = 65_536
+"""The largest payload read (a list of 100 commands of 96 characters is about 10 KB)."""
 MAX_GCODE_COMMANDS = 100
+"""G-code commands in one `commands` list."""
 MAX_JSON_DEPTH = 4
 """Containers inside containers: a command object holding a list of strings is depth 2."""
 MAX_INTEGER_DIGITS = 30
 """Python refuses to convert more than 4300 digits (with a ValueError from inside json.loads); no field needs 30."""
 MAX_ID_CHARS = 128
+"""The longest string id (it is echoed in the answer)."""
 MAX_GCODE_CHARS = 96
 """Marlin's MAX_CMD_SIZE: a longer line is cut short by the printer's serial buffer."""
 MAX_PATH_CHARS = 255
+"""The longest print path (a file name's limit on most file systems)."""
 MAX_COMMAND_AGE_S = 5.0
 """A command whose "time" is further than this from the bridge's clock (either way) is refused."""
 MAX_ERROR_CHARS = 200
+"""The longest refusal message (answers and log lines stay one short line)."""
 SHOWN_VALUE_CHARS = 60
+"""How much of a value from the payload a refusal shows."""
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _SURROGATE = re.compile(r"[\ud800-\udfff]")
@@ -259,6 +278,16 @@ def _unique_fields(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return body
 
 
+def command_id_of(payload: bytes) -> str | int | None:
+    """The id of a command payload, for the answer to a command refused before it was read (a retained one, an
+    unknown printer): the id if the payload is a JSON object within the limits and its id is valid, else None.
+    Never raises."""
+    try:
+        return _command_id(_decode(payload))
+    except CommandError:
+        return None
+
+
 def _command_id(body: dict[str, Any]) -> str | int | None:
     command_id = body.get("id")
     if command_id is None:
@@ -445,8 +474,8 @@ async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
 
     Raises:
         CommandError: the printer is not connected, or no print is running to pause, resume or cancel.
-        ValueError: the file has a line that is not a valid command, or a G-code command sets a target above the
-            limits (the library checks every command it is given; nothing of it is sent).
+        ValueError: a G-code command sets a target above the limits (the library checks every command it is given;
+            nothing of it is sent), or the command is a print (`Farm.start_print` starts those).
         MarlinError: as the library raises it.
     """
     printer = farm_printer.printer

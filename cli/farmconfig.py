@@ -32,10 +32,11 @@ from typing import Any
 
 from .farm import RESERVED_NAMES, PrinterSpec
 
-__all__ = ["NAME_RULE", "check_unique", "load_config", "specs_from_options"]
+__all__ = ["NAME_PATTERN", "NAME_RULE", "check_unique", "load_config", "specs_from_options"]
 
 NAME_RULE = "letters, digits, '-' and '_' (it becomes an MQTT topic level)"
-_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
+"""What a printer name may be (`NAME_RULE` says it in words)."""
 _FIELDS = {
     "name": str,
     "port": str,
@@ -50,7 +51,7 @@ _FIELDS = {
 
 
 def _check_name(name: str, where: str) -> str:
-    if not _NAME.fullmatch(name):
+    if not NAME_PATTERN.fullmatch(name):
         raise ValueError(f"{where}: printer name {name!r} must be {NAME_RULE}")
     if name in RESERVED_NAMES:
         # `PREFIX/bridge/availability` is the bridge's own: a printer of that name would overwrite it.

@@ -881,6 +881,14 @@ def farm(
     tls_cert: Annotated[Path | None, typer.Option("--tls-cert", help="Client certificate for TLS.")] = None,
     tls_key: Annotated[Path | None, typer.Option("--tls-key", help="Client certificate's key.")] = None,
     prefix: Annotated[str, typer.Option("--prefix", help="Topic prefix.")] = "marlin",
+    bridge_name: Annotated[
+        str,
+        typer.Option(
+            "--bridge-name",
+            help="The bridge's own topic level (PREFIX/NAME/availability); give each bridge sharing a broker and "
+            "prefix its own.",
+        ),
+    ] = "bridge",
     rate: Annotated[
         float,
         typer.Option(
@@ -919,6 +927,10 @@ def farm(
     for name, value in (("--prefix", prefix), ("--discovery-prefix", discovery_prefix)):
         if not value or any(c in value for c in "#+ ") or value.startswith("/") or value.endswith("/"):
             fail(f"{name} {value!r}: a topic prefix without '#', '+', spaces or a leading or trailing '/'", Exit.USAGE)
+    from .farmconfig import NAME_PATTERN, NAME_RULE
+
+    if not NAME_PATTERN.fullmatch(bridge_name):
+        fail(f"--bridge-name {bridge_name!r} must be {NAME_RULE}", Exit.USAGE)
     try:
         specs = load_config(config) if config is not None else []
         if ports or sims or not specs:
@@ -945,12 +957,15 @@ def farm(
         fail(str(exc), Exit.USAGE)
     except OSError as exc:
         fail(f"{config}: {exc.strerror or exc}", Exit.USAGE)
+    if any(spec.name == bridge_name for spec in specs):
+        fail(f"printer name {bridge_name!r} is the bridge's own (--bridge-name); choose another", Exit.USAGE)
     if allowed_dir is not None and not allow_commands:
         fail(f"--allowed-dir {allowed_dir} is for prints over MQTT: give --allow-commands too", Exit.USAGE)
     if allowed_dir is not None and not allowed_dir.is_dir():
         fail(f"--allowed-dir {allowed_dir}: no such folder", Exit.USAGE)
     settings = BridgeSettings(
         prefix=prefix,
+        name=bridge_name,
         rate_hz=rate,
         discovery=discovery,
         discovery_prefix=discovery_prefix,

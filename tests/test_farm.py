@@ -329,7 +329,9 @@ def not_polls(commands: list[str]) -> list[str]:
     return [c for c in commands if c.split()[0] not in ("M105", "M155", "M110", "M115")]
 
 
-async def command(sub: Subscriber, client: aiomqtt.Client, printer: str, payload: str, id_: int) -> dict[str, Any]:
+async def command(
+    sub: Subscriber, client: aiomqtt.Client, printer: str, payload: str, id_: int | str
+) -> dict[str, Any]:
     """Publish a command and wait for its answer (matched by id)."""
     await client.publish(f"marlin/{printer}/command", payload, qos=1)
     topic = f"marlin/{printer}/response"

@@ -37,7 +37,15 @@ from typer.testing import CliRunner
 import marlin_aio
 from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
 from marlin_temp.farm import SIM_RECORD_LIMIT, Farm, FarmEvent, PrinterSpec
-from marlin_temp.farmbridge import MAX_OTHER_PRINTERS, MAX_PENDING_COMMANDS, Bridge, BridgeSettings, BrokerSettings
+from marlin_temp.farmbridge import (
+    FIGHT_LIMIT,
+    MAX_OTHER_PRINTERS,
+    MAX_PENDING_COMMANDS,
+    Bridge,
+    BridgeSettings,
+    BrokerSettings,
+)
+from marlin_temp.farmconfig import NAME_PATTERN
 from marlin_temp.main import app
 
 needs_broker = pytest.mark.skipif(
@@ -495,13 +503,124 @@ async def test_outsiders_cannot_grow_the_bridge_without_bound(broker: Broker) ->
             busy = [a for a in sub.payloads("marlin/a/response") if "busy" in a.get("error", "")]
             assert len(busy) == 10
             assert bridge._pending["a"] == MAX_PENDING_COMMANDS
+            # A command to a name no printer can have (here one whose answer's topic would be longer than MQTT
+            # allows: it ended the bridge) is not answered; a name that could be a printer's is, once.
+            ignored = bridge.ignored
+            await flooder.publish("marlin/" + "x" * 65_500 + "/command", '{"id": 1, "action": "pause"}', qos=1)
+            await flooder.publish("marlin/nobody/command", '{"id": 2, "action": "pause"}', qos=1)
+            await sub.until(lambda: bool(sub.payloads("marlin/nobody/response")), "the answer to nobody")
+            assert bridge.ignored == ignored + 1
             await publishing_for_all(sub, ["a"])
+            # The slow commands still wait, and the emergency stop is never kept out by them.
+            assert bridge._pending["a"] == MAX_PENDING_COMMANDS
+            answer = await command(sub, flooder, "a", '{"id": "stop", "action": "emergency_stop"}', "stop")
+            assert answer["ok"] is True
+            await sub.until(lambda: "halted" in events_of(sub, "a"), "the printer halted")
+    assert [a["id"] for a in sub.payloads("marlin/nobody/response")] == [2]
+
+
+@needs_broker
+async def test_a_flood_of_answers_never_pushes_an_event_out(broker: Broker) -> None:
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=20) as sim,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier="flooder") as flooder,
+    ):
+        farm, bridge, _ = farm_and_bridge(
+            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True
+        )
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up, "connected")
+            for index in range(3_000):  # each a name no bridge has: each answered, 3,000 answers
+                await flooder.publish(f"marlin/x{index}/command", '{"action": "pause"}', qos=0)
+            sim.printer.thermal_runaway(sim.now())
+            sim.poke()
+            await sub.until(lambda: "thermal_runaway" in events_of(sub, "a"), "the thermal runaway event", 60)
+            await sub.until(lambda: bridge.refused + bridge.ignored == 3_000, "the flood read")
+    assert bridge.events_lost == 0
+    assert bridge.refused + bridge.ignored == 3_000
+
+
+async def test_two_prints_started_at_once_start_one(tmp_path: Path) -> None:
+    """Two print commands back to back (a double press, a redelivered message) both passed the "already running"
+    check while the first one's M110 was on its way, and the file printed twice. Started in the same loop turn
+    here, so the race is certain."""
+    (tmp_path / "long.gcode").write_text(moves(400))
+    async with serve_pty(SimulatorConfig(), time_scale=50) as sim:
+        farm = Farm([PrinterSpec("a", sim.url, poll_interval_s=0.05)], lambda event: None)
+        task = asyncio.create_task(farm.run())
+        try:
+            for _ in range(400):
+                if farm.printers["a"].link_up:
+                    break
+                await asyncio.sleep(0.05)  # polling a condition (the printer connected), bounded
+            farm_printer = farm.printers["a"]
+            path = tmp_path / "long.gcode"
+            results = await asyncio.gather(
+                farm.start_print(farm_printer, path), farm.start_print(farm_printer, path), return_exceptions=True
+            )
+            refused = [r for r in results if isinstance(r, BaseException)]
+            assert len(refused) == 1 and str(refused[0]) == "a print is already running: cancel it first"
+            handle = farm_printer.print_handle
+            assert handle is not None
+            await handle.cancel()
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+    assert list(sim.printer.executed).count("M110 N0") == 2  # the handshake's, and one print's
+
+
+@needs_broker
+async def test_bridges_sharing_a_broker_keep_to_their_own_topics(
+    broker: Broker, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two bridges with their own names: one going offline is not the other's to correct. Two bridges that both
+    have a printer `a` (a mistake) correct each other a bounded number of times, then say so and stop."""
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_1,
+        serve_pty(SimulatorConfig(), time_scale=50) as sim_2,
+        subscribed(broker.port) as sub,
+    ):
+        farm_1, bridge_1, _ = farm_and_bridge(
+            [PrinterSpec("a", sim_1.url, poll_interval_s=0.05)], broker.port, name="host1"
+        )
+        farm_2, bridge_2, _ = farm_and_bridge(
+            [PrinterSpec("a", sim_2.url, poll_interval_s=0.05)], broker.port, name="host2"
+        )
+        async with running(farm_2, bridge_2):
+            async with running(farm_1, bridge_1):
+                await sub.until(
+                    lambda: all(sub.texts(f"marlin/host{n}/availability")[-1:] == ["online"] for n in (1, 2)),
+                    "both bridges online",
+                )
+                # Both publish marlin/a/state, with different ports in it: a fight, bounded.
+                await sub.until(
+                    lambda: "marlin/a/state" in bridge_1._given_up or "marlin/a/state" in bridge_2._given_up,
+                    "one bridge giving up the fight",
+                    60,
+                )
+            # Bridge 1 stopped: its own availability says so, and bridge 2 leaves it so.
+            await sub.until(lambda: sub.texts("marlin/host1/availability")[-1:] == ["offline"], "host1 offline")
+            await publishing_for_all(sub, ["a"])
+            assert sub.texts("marlin/host1/availability")[-1] == "offline"
+            assert sub.texts("marlin/host2/availability")[-1] == "online"
+    # At most FIGHT_LIMIT corrections of each topic the bridges share, then they stop.
+    assert bridge_1.corrections <= FIGHT_LIMIT * len(bridge_1._retained)
+    assert bridge_2.corrections <= FIGHT_LIMIT * len(bridge_2._retained)
+    assert any("another client keeps publishing there" in r.getMessage() for r in caplog.records)
 
 
 def test_reserved_and_topic_breaking_names_are_refused_at_start_up(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["farm", "--port", "bridge=socket://127.0.0.1:1", "--duration", "1"])
     assert result.exit_code == 2
     assert "printer name 'bridge' is reserved" in result.output
+    result = CliRunner().invoke(
+        app, ["farm", "--bridge-name", "host1", "--port", "host1=socket://127.0.0.1:1", "--duration", "1"]
+    )
+    assert result.exit_code == 2 and "printer name 'host1' is the bridge's own (--bridge-name)" in result.output
+    result = CliRunner().invoke(app, ["farm", "--bridge-name", "a/b", "--sims", "1", "--duration", "1"])
+    assert result.exit_code == 2 and "--bridge-name 'a/b' must be letters, digits" in result.output
     config = tmp_path / "farm.toml"
     config.write_text('[[printer]]\nname = "a/b"\nport = "/dev/ttyUSB0"\n')
     result = CliRunner().invoke(app, ["farm", "--config", str(config), "--duration", "1"])
@@ -571,8 +690,9 @@ def test_the_command_handler_answers_every_command_once_and_never_raises(
     tmp_path: Path, messages: list[tuple[str, str, bytes, bool]]
 ) -> None:
     """Whatever arrives on whatever topic (names from topic levels, any payload, retained or not), the handler
-    raises nothing, answers each command for a printer no other bridge has exactly once (here: the printers are not
-    connected, so even a valid command is answered with an error), and keeps its sets bounded."""
+    raises nothing, answers exactly once each command owed an answer (for its own printers; for a name no bridge
+    has, when the name could be a printer's and the message is not retained) and no other (here the printers are
+    not connected, so even a valid command is answered with an error), and keeps its sets bounded."""
     (tmp_path / "loop").mkdir(exist_ok=True)
     (tmp_path / "ok.gcode").write_text("G28\n")
 
@@ -585,9 +705,12 @@ def test_the_command_handler_answers_every_command_once_and_never_raises(
             for name, leaf, payload, retained in messages:
                 before = set(bridge._elsewhere)
                 bridge._on_message(f"marlin/{name}/{leaf}", payload, retained)
-                if leaf == "command" and not (name not in farm.printers and name in before):
+                owed = name in farm.printers or (
+                    name not in before and not retained and NAME_PATTERN.fullmatch(name) is not None
+                )
+                if leaf == "command" and owed:
                     expected += 1
-        answers = [json.loads(text) for topic, text in bridge._reliable if topic.endswith("/response")]
+        answers = [json.loads(text) for _, text in bridge._answers]
         assert len(answers) == expected
         assert all(answer["ok"] is False for answer in answers)  # nothing is connected: nothing ran
         assert all("\n" not in answer["error"] for answer in answers)
