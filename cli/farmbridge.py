@@ -570,12 +570,17 @@ class Bridge:
         await self._publish_states(client)
 
     async def _say_goodbye(self, client: aiomqtt.Client) -> None:
-        """Stopping: every printer and the bridge offline (retained), as the Last Will would say after a crash."""
+        """Stopping: the bridge and every printer offline, and each printer's state with its link down (retained:
+        nobody watches the link once the bridge is gone). The Last Will covers only the bridge's own topic, for
+        when the process dies without this."""
         with contextlib.suppress(aiomqtt.MqttError, TimeoutError):
             async with asyncio.timeout(2.0):
+                await self._publish_retained(client, self.bridge_availability_topic, "offline")
                 for name in self.farm.printers:
                     await self._publish_retained(client, self.topic(name, "availability"), "offline")
-                await self._publish_retained(client, self.bridge_availability_topic, "offline")
+                    if name in self._states:
+                        state = json.loads(self._states[name]) | {"link": "down"}
+                        await self._publish_retained(client, self.topic(name, "state"), json.dumps(state))
 
     async def _publish_forever(self, client: aiomqtt.Client) -> None:
         self._states_dirty = self._discovery_dirty = True  # a new session publishes both in full

@@ -343,8 +343,11 @@ async def test_forged_retained_topics_are_put_back_and_a_clean_exit_leaves_every
         # Stopped cleanly (cancelled): the bridge and its printer say offline, and it stays so.
         async with subscribed(broker.port, identifier="after") as after:
             topics = ("marlin/a/availability", "marlin/bridge/availability")
-            await after.until(lambda: all(after.texts(t) for t in topics), "retained availability")
+            await after.until(
+                lambda: all(after.texts(t) for t in topics) and bool(after.texts("marlin/a/state")), "retained topics"
+            )
             assert [after.texts(t)[-1] for t in topics] == ["offline", "offline"]
+            assert after.payloads("marlin/a/state")[-1]["link"] == "down"  # not the "up" of a bridge now gone
     assert bridge.corrections == len(forged)  # no fight: each forgery put right once
 
 
