@@ -703,8 +703,8 @@ async def lean_floor_many(spec: Result) -> Result:
 async def farm_run(spec: Result) -> Result:
     """`marlin-temp farm`'s own code, N printers polled at `interval_s`: with the MQTT bridge publishing each
     printer's telemetry at `rate_hz` to the broker on `broker_port` (client "bridge"), or without it ("plain")."""
-    from marlin_temp.farm import Farm, FarmEvent, PrinterSpec
-    from marlin_temp.farmbridge import Bridge, BridgeSettings, BrokerSettings
+    from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
+    from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
     specs = [PrinterSpec(f"p{i + 1}", url, poll_interval_s=spec["interval_s"]) for i, url in enumerate(spec["urls"])]
     bridge: Bridge | None = None

@@ -19,9 +19,10 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
+from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
+from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
+
 from .connect import UsageProblem
-from .farm import Farm, FarmEvent, PrinterSpec
-from .farmbridge import Bridge, BridgeSettings, BrokerSettings
 
 __all__ = ["PASSWORD_ENV", "FarmOptions", "broker_settings", "run_farm"]
 

@@ -26,7 +26,8 @@ from rich.console import Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
-from .farm import FarmPrinter
+from marlin_aio.farm.supervisor import FarmPrinter
+
 from .model import WatchModel, heater_name
 from .render import watch_view
 

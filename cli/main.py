@@ -307,7 +307,7 @@ def watch(
     if len(ports) + sims + int(sim) > 1:
         from dataclasses import replace
 
-        from .farmconfig import specs_from_options
+        from marlin_aio.farm.config import specs_from_options
 
         try:
             farm_specs = specs_from_options(
@@ -916,9 +916,10 @@ def farm(
     ] = None,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
 ) -> None:
-    from .farmbridge import BridgeSettings
+    from marlin_aio.farm.bridge import BridgeSettings
+    from marlin_aio.farm.config import check_unique, load_config, specs_from_options
+
     from .farmcmd import FarmOptions, broker_settings, run_farm
-    from .farmconfig import check_unique, load_config, specs_from_options
 
     if duration is not None and not duration > 0:
         fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
@@ -927,7 +928,7 @@ def farm(
     for name, value in (("--prefix", prefix), ("--discovery-prefix", discovery_prefix)):
         if not value or any(c in value for c in "#+ ") or value.startswith("/") or value.endswith("/"):
             fail(f"{name} {value!r}: a topic prefix without '#', '+', spaces or a leading or trailing '/'", Exit.USAGE)
-    from .farmconfig import NAME_PATTERN, NAME_RULE
+    from marlin_aio.farm.config import NAME_PATTERN, NAME_RULE
 
     if not NAME_PATTERN.fullmatch(bridge_name):
         fail(f"--bridge-name {bridge_name!r} must be {NAME_RULE}", Exit.USAGE)

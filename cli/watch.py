@@ -30,9 +30,9 @@ from rich.live import Live
 from rich.text import Text
 
 import marlin_aio
+from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
 from .connect import ConnectOptions, Exit, open_printer
-from .farm import Farm, FarmEvent, PrinterSpec
 from .farmview import FarmKeys, detail_view, farm_row, farm_view, json_lines, plain_lines
 from .logfile import TemperatureLog
 from .model import (

@@ -13,22 +13,9 @@ from __future__ import annotations
 
 import logging
 
-from marlin_aio._serial import PortInfo, list_ports
-from marlin_aio.client import BAUD_RATES, DEFAULT_BAUDRATE, Printer, PrintHandle, connect
-from marlin_aio.commands import (
-    DEFAULT_MAX_BED_CELSIUS,
-    DEFAULT_MAX_CHAMBER_CELSIUS,
-    DEFAULT_MAX_HOTEND_CELSIUS,
-    MAX_COMMAND_BYTES,
-    check_target,
-    checksum,
-    command_code,
-    encode_command,
-    number_command,
-    strip_comment,
-    validate_command,
-)
-from marlin_aio.connection import Command, Connection, Reply
+from marlin_aio.aio._serial import PortInfo, list_ports
+from marlin_aio.aio.printer import BAUD_RATES, DEFAULT_BAUDRATE, Printer, PrintHandle, connect
+from marlin_aio.aio.printhandle import COOL_DOWN
 from marlin_aio.errors import (
     ChecksumRequiredError,
     CommandNotExecutedError,
@@ -52,7 +39,21 @@ from marlin_aio.errors import (
     TemperatureTimeoutError,
     ThermalRunawayError,
 )
-from marlin_aio.events import (
+from marlin_aio.protocol.commands import (
+    DEFAULT_MAX_BED_CELSIUS,
+    DEFAULT_MAX_CHAMBER_CELSIUS,
+    DEFAULT_MAX_HOTEND_CELSIUS,
+    MAX_COMMAND_BYTES,
+    check_target,
+    checksum,
+    command_code,
+    encode_command,
+    number_command,
+    strip_comment,
+    validate_command,
+)
+from marlin_aio.protocol.connection import Command, Connection, Reply
+from marlin_aio.protocol.events import (
     BusyKeepalive,
     Capability,
     EchoMessage,
@@ -68,11 +69,11 @@ from marlin_aio.events import (
     TemperatureReport,
     UnrecognisedLine,
 )
-from marlin_aio.framing import LineSplitter
-from marlin_aio.gcode import GCodeLine, parse_gcode
-from marlin_aio.heaters import HeaterLimits, check_gcode_targets
-from marlin_aio.linkstate import LinkState
-from marlin_aio.motion import (
+from marlin_aio.protocol.framing import LineSplitter
+from marlin_aio.protocol.gcode import GCodeLine, parse_gcode
+from marlin_aio.protocol.heaters import HeaterLimits, check_gcode_targets
+from marlin_aio.protocol.linkstate import LinkState
+from marlin_aio.protocol.motion import (
     LONG_COMMAND_TIMEOUT_S,
     LONG_COMMANDS,
     MAX_DISTANCE_MM,
@@ -83,12 +84,11 @@ from marlin_aio.motion import (
     home_command,
     move_commands,
 )
-from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
-from marlin_aio.printhandle import COOL_DOWN
-from marlin_aio.printjob import PrintJob, PrintProgress, PrintState
-from marlin_aio.secrets import redact
-from marlin_aio.stats import LinkStats
-from marlin_aio.temperatures import (
+from marlin_aio.protocol.parsing import EventParser, classify_line, parse_endstops, parse_position
+from marlin_aio.protocol.printjob import PrintJob, PrintProgress, PrintState
+from marlin_aio.protocol.secrets import redact
+from marlin_aio.protocol.stats import LinkStats
+from marlin_aio.protocol.temperatures import (
     HEATER_NAMES,
     HeaterReading,
     ReadingSource,
@@ -97,7 +97,7 @@ from marlin_aio.temperatures import (
     heater_name,
     parse_temperatures,
 )
-from marlin_aio.trace import Trace, TraceEntry
+from marlin_aio.protocol.trace import Trace, TraceEntry
 
 __version__ = "0.1.0"
 

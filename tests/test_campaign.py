@@ -14,7 +14,7 @@ from collections import Counter
 
 import pytest
 
-from marlin_aio.printjob import PrintState
+from marlin_aio.protocol.printjob import PrintState
 from marlin_aio.simulator._campaign import CampaignResult, Scenario, mixed_scenario, run_print
 
 MIXED_RUNS = 2_000

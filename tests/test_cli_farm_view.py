@@ -27,9 +27,9 @@ from typer.testing import CliRunner
 
 import marlin_aio
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio.farm.config import specs_from_options
+from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
 from marlin_aio.simulator import SimulatorConfig, serve_tcp
-from marlin_temp.farm import FarmPrinter, PrinterSpec
-from marlin_temp.farmconfig import specs_from_options
 from marlin_temp.farmview import (
     FarmKeys,
     FarmRow,

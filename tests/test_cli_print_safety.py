@@ -23,7 +23,7 @@ from rich.console import Console
 from test_cli_terminal import Tmux
 from typer.testing import CliRunner
 
-from marlin_aio.heaters import HeaterLimits
+from marlin_aio.protocol.heaters import HeaterLimits
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.connect import ConnectOptions, Exit
 from marlin_temp.main import app

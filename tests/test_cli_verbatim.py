@@ -19,9 +19,9 @@ from typer.testing import CliRunner
 
 import marlin_aio
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
 from marlin_aio.simulator import SimulatorConfig, serve_pty
 from marlin_temp.connect import ConnectOptions, Exit
-from marlin_temp.farm import FarmPrinter, PrinterSpec
 from marlin_temp.farmview import detail_view, farm_row, farm_view, plain_lines
 from marlin_temp.logcmd import LogSettings, log_temperatures
 from marlin_temp.main import app

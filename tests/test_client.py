@@ -432,7 +432,7 @@ async def wait_until_sent(printer: marlin_aio.Printer, text: str) -> None:
 def test_a_port_that_went_away_is_said_in_words_whichever_way_pyserial_noticed(error: str) -> None:
     import serial
 
-    from marlin_aio.link import _why_lost
+    from marlin_aio.aio.link import _why_lost
 
     assert _why_lost(serial.SerialException(error)).startswith(": the port went away")
     assert _why_lost(ValueError("something else")) == ": something else"

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from marlin_aio.commands import (
+from marlin_aio.protocol.commands import (
     DEFAULT_MAX_BED_CELSIUS,
     DEFAULT_MAX_HOTEND_CELSIUS,
     MAX_COMMAND_BYTES,

@@ -14,8 +14,6 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from marlin_aio.commands import checksum, encode_command, number_command
-from marlin_aio.connection import CALM_LINES, MAX_REPLY_LINES, Command, Connection, Reply
 from marlin_aio.errors import (
     ChecksumRequiredError,
     CommandNotExecutedError,
@@ -29,10 +27,12 @@ from marlin_aio.errors import (
     ResendLimitError,
     ThermalRunawayError,
 )
-from marlin_aio.events import BusyKeepalive, EchoMessage, Event, Ok, TemperatureReport, UnrecognisedLine
-from marlin_aio.linkstate import LinkState
-from marlin_aio.parsing import parse_endstops
-from marlin_aio.printjob import PrintJob, PrintState
+from marlin_aio.protocol.commands import checksum, encode_command, number_command
+from marlin_aio.protocol.connection import CALM_LINES, MAX_REPLY_LINES, Command, Connection, Reply
+from marlin_aio.protocol.events import BusyKeepalive, EchoMessage, Event, Ok, TemperatureReport, UnrecognisedLine
+from marlin_aio.protocol.linkstate import LinkState
+from marlin_aio.protocol.parsing import parse_endstops
+from marlin_aio.protocol.printjob import PrintJob, PrintState
 
 Outcome = Reply | MarlinError
 

@@ -15,7 +15,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from marlin_aio.events import (
+from marlin_aio.protocol.events import (
     BusyKeepalive,
     Capability,
     EchoMessage,
@@ -34,8 +34,8 @@ from marlin_aio.events import (
     UnknownCommand,
     UnrecognisedLine,
 )
-from marlin_aio.parsing import EventParser, classify_line, parse_endstops, parse_position
-from marlin_aio.temperatures import HeaterReading
+from marlin_aio.protocol.parsing import EventParser, classify_line, parse_endstops, parse_position
+from marlin_aio.protocol.temperatures import HeaterReading
 
 EVENT_TYPES: tuple[type, ...] = typing.get_args(Event)
 

@@ -1,4 +1,4 @@
-"""The state tables (`marlin_aio.states`): every move is in the table, final states stay final, and the core's
+"""The state tables (`marlin_aio.protocol.states`): every move is in the table, final states stay final, and the core's
 link state is moved by the table (no flags behind it)."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ from collections.abc import Iterator
 
 import pytest
 
-from marlin_aio.connection import Command, Connection
-from marlin_aio.printjob import PrintJob, PrintState
-from marlin_aio.states import (
+from marlin_aio.protocol.connection import Command, Connection
+from marlin_aio.protocol.printjob import PrintJob, PrintState
+from marlin_aio.protocol.states import (
     FINAL_LINE_STATES,
     LINE_TRANSITIONS,
     LINK_TRANSITIONS,

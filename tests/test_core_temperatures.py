@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from marlin_aio.temperatures import HeaterReading, Temperatures, parse_fields, parse_temperatures
+from marlin_aio.protocol.temperatures import HeaterReading, Temperatures, parse_fields, parse_temperatures
 
 
 def parse(text: str) -> Temperatures:

@@ -25,9 +25,9 @@ import aiomqtt
 import pytest
 
 import marlin_aio
+from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
+from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
-from marlin_temp.farm import Farm, FarmEvent, PrinterSpec
-from marlin_temp.farmbridge import Bridge, BridgeSettings, BrokerSettings
 
 MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if os.path.exists("/usr/sbin/mosquitto") else None)
 pytestmark = pytest.mark.skipif(

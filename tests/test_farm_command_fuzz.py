@@ -26,8 +26,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from marlin_temp.farm import FarmPrinter, PrinterSpec
-from marlin_temp.farmcommands import (
+from marlin_aio.farm.commands import (
     ACTIONS,
     MAX_COMMAND_AGE_S,
     MAX_ERROR_CHARS,
@@ -37,6 +36,7 @@ from marlin_temp.farmcommands import (
     FarmCommand,
     parse_command,
 )
+from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
 
 NOW_S = 1_750_000_000.0
 SPEC = PrinterSpec("a", "socket://127.0.0.1:1")

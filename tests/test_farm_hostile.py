@@ -35,9 +35,7 @@ from test_farm import (
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
-from marlin_temp.farm import SIM_RECORD_LIMIT, Farm, FarmEvent, PrinterSpec
-from marlin_temp.farmbridge import (
+from marlin_aio.farm.bridge import (
     FIGHT_LIMIT,
     MAX_OTHER_PRINTERS,
     MAX_PENDING_COMMANDS,
@@ -45,7 +43,9 @@ from marlin_temp.farmbridge import (
     BridgeSettings,
     BrokerSettings,
 )
-from marlin_temp.farmconfig import NAME_PATTERN
+from marlin_aio.farm.config import NAME_PATTERN
+from marlin_aio.farm.supervisor import SIM_RECORD_LIMIT, Farm, FarmEvent, PrinterSpec
+from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
 from marlin_temp.main import app
 
 needs_broker = pytest.mark.skipif(

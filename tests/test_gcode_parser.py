@@ -1,4 +1,4 @@
-"""The one G-code reading (`marlin_aio.gcode`) against Marlin's parser.cpp, and the heater limits built on it.
+"""The one G-code reading (`marlin_aio.protocol.gcode`) against Marlin's parser.cpp, and the heater limits built on it.
 
 Three holds:
 - a second, independent reading: `reference_parse` below is parser.cpp's `GCodeParser::parse` (bugfix-2.1.x, char
@@ -19,8 +19,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from marlin_aio import HeaterLimits, check_gcode_targets, command_code
-from marlin_aio.commands import encode_command, validate_command
-from marlin_aio.gcode import parse_gcode, value_celsius, value_float
+from marlin_aio.protocol.commands import encode_command, validate_command
+from marlin_aio.protocol.gcode import parse_gcode, value_celsius, value_float
 from marlin_aio.simulator import SimulatedPrinter, SimulatorConfig
 
 _STRING_CODES = {("M", 23), ("M", 28), ("M", 30), ("M", 117), ("M", 118), ("M", 928)}

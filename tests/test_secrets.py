@@ -19,10 +19,10 @@ from hypothesis import strategies as st
 from test_farm import MOSQUITTO, Broker, command, farm_and_bridge, running, subscribed
 
 import marlin_aio
-from marlin_aio.secrets import redact
+from marlin_aio.farm.config import load_config
+from marlin_aio.farm.supervisor import PrinterSpec
+from marlin_aio.protocol.secrets import redact
 from marlin_aio.simulator import SimulatorConfig, serve_pty
-from marlin_temp.farm import PrinterSpec
-from marlin_temp.farmconfig import load_config
 
 #: Digits that no time, count or port in a message could make up by chance (unlike "1234" in "+1.234 s").
 PASSWORD = "271828"

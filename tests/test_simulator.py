@@ -15,8 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from marlin_aio.commands import number_command
-from marlin_aio.events import (
+from marlin_aio.protocol.commands import number_command
+from marlin_aio.protocol.events import (
     BusyKeepalive,
     ErrorKind,
     ErrorMessage,
@@ -25,7 +25,7 @@ from marlin_aio.events import (
     TargetTemperature,
     TemperatureReport,
 )
-from marlin_aio.parsing import classify_line, parse_position
+from marlin_aio.protocol.parsing import classify_line, parse_position
 from marlin_aio.simulator import Faults, SimulatedPrinter, SimulatorConfig, generate_moves
 from marlin_aio.simulator._wire import Wire
 

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from marlin_aio.commands import checksum, number_command
+from marlin_aio.protocol.commands import checksum, number_command
 from marlin_aio.simulator import Faults, SimulatedPrinter, SimulatorConfig
 
 IDLE_M105 = "ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0"

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from marlin_aio.commands import number_command
+from marlin_aio.protocol.commands import number_command
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, generate_moves, serve_pty, serve_tcp
 
 TIME_SCALE = 50.0

@@ -1,7 +1,7 @@
 """A seeded, model-based fault campaign in simulated time: the protocol core against the simulated firmware.
 
 One `run_print()` is one print of a generated file over a simulated serial line, driven by a discrete-event loop:
-the host side is a `marlin_aio.connection.Connection` fed by the same calls the asyncio client makes (a poller
+the host side is a `marlin_aio.protocol.connection.Connection` fed by the same calls the asyncio client makes (a poller
 sending M105 every 10 ms, any number of users sending commands whose answers identify themselves, some of whom
 give up waiting, the print job, paused or cancelled on the way), the printer is a `SimulatedPrinter` whose line
 intake is Marlin's, with its faults switched on (bit flips anywhere in what the host sends, damaged lines, lost
@@ -34,10 +34,10 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 
-from marlin_aio.commands import number_command
-from marlin_aio.connection import Command, Connection, Output, Reply
 from marlin_aio.errors import MarlinError
-from marlin_aio.printjob import PrintJob, PrintState
+from marlin_aio.protocol.commands import number_command
+from marlin_aio.protocol.connection import Command, Connection, Output, Reply
+from marlin_aio.protocol.printjob import PrintJob, PrintState
 from marlin_aio.simulator._printer import Faults, SimulatedPrinter, SimulatorConfig
 
 __all__ = ["CampaignResult", "Scenario", "mixed_scenario", "print_lines", "run_print"]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from marlin_aio.gcode import value_celsius
+from marlin_aio.protocol.gcode import value_celsius
 from marlin_aio.simulator._config import US_PER_S
 from marlin_aio.simulator._intake import Command
 from marlin_aio.simulator._thermal import STEP_US, Heater

@@ -53,8 +53,8 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from marlin_aio import gcode
-from marlin_aio.gcode import GCodeLine
+from marlin_aio.protocol import gcode
+from marlin_aio.protocol.gcode import GCodeLine
 from marlin_aio.simulator._config import Faults, SimulatorConfig
 
 __all__ = ["Command", "LineReader", "WireFlips"]
@@ -95,7 +95,7 @@ class Command:
     line_number: int | None
     """5 for a numbered line (its own number, also for an M110 line), None for an unnumbered one."""
     words: GCodeLine
-    """The line as parser.cpp reads it (`marlin_aio.gcode`, the library's own reading): its parameters, with
+    """The line as parser.cpp reads it (`marlin_aio.protocol.gcode`, the library's own reading): its parameters, with
     Marlin's rules for values (`value_celsius`), are what the handlers act on."""
 
     def parameters(self) -> dict[str, float | None]:
@@ -455,7 +455,7 @@ class LineReader:
 
     def _parse(self, text: str, line_label: str | None, line_number: int | None) -> Command:
         """parser.cpp's `parse()` of a line without its leading spaces: the library's own reading of it
-        (`marlin_aio.gcode.parse_gcode`), so what the host checks is what the board runs."""
+        (`marlin_aio.protocol.gcode.parse_gcode`), so what the host checks is what the board runs."""
         case_insensitive = self._config.case_insensitive
         words = gcode.parse_gcode(text, case_insensitive=case_insensitive)
         code, args = words.code, words.args

@@ -1,0 +1,519 @@
+"""Commands to the farm's printers over MQTT: each payload checked as the CLI checks its arguments, then run.
+
+A command is a JSON object published to `PREFIX/NAME/command`; its answer goes to `PREFIX/NAME/response` as
+`{"id": <the command's id>, "ok": true, "result": ...}` or `{"id": ..., "ok": false, "error": "..."}`:
+
+    {"id": 1, "action": "set_temperatures", "hotend": 200, "bed": 60}
+    {"id": 2, "action": "set_target", "heater": "hotend", "celsius": 210}    (Home Assistant's number entities)
+    {"id": 3, "action": "gcode", "command": "G28"}                            (or "commands": ["G28", "M114"])
+    {"id": 4, "action": "print", "path": "benchy.gcode"}                      (inside --allowed-dir only)
+    {"id": 5, "action": "pause"} / "resume" / "cancel"
+    {"id": 6, "action": "emergency_stop"}
+
+Every action may also carry `"time": <epoch seconds>`, when it was sent: given the bridge's clock, a command sent
+more than `MAX_COMMAND_AGE_S` before it (a queued "set the bed to 100" delivered an hour late, a replayed message)
+or as far after it (a wrong clock) is refused. `"id"` is a string of at most 128 characters or a 64-bit integer.
+Retained messages are never taken as commands: the bridge refuses them (one answer for each of its own printers at
+each connection; nothing for a name it does not have), since a retained "print" would run again at every reconnect.
+
+Everything is checked before anything is written: bad JSON, an unknown printer or action, a target of 900 or
+`abc`, a newline inside a G-code command, a G-code command setting a target above the printer's limit however it
+is spelt (`M104S280`, `m0104 s280`, `M104 B1000`: the library's `check_gcode_targets`, which reads it as Marlin
+does), a path outside the allowed directory each get an error answer and write nothing to any printer.
+`parse_command` does the checking (no I/O but stat calls on the path), `run_command` the running.
+
+One message must not knock the farm over: whatever the topic and bytes, `parse_command` returns a `FarmCommand` or
+raises `CommandError` whose message is one printable line of at most `MAX_ERROR_CHARS` (values from the payload are
+shown with repr, cut at `SHOWN_VALUE_CHARS`). Hence the limits, each refused with its own message: the payload's
+size (`MAX_PAYLOAD_BYTES`), UTF-8, the JSON nesting (`MAX_JSON_DEPTH`, scanned before the JSON is parsed: 50 KB of
+`[` would otherwise blow the parser's recursion), NaN, Infinity and numbers that overflow to them, integers longer
+than `MAX_INTEGER_DIGITS`, repeated fields, control characters (C0, DEL, C1) and lone surrogates in any string, a
+G-code command longer than `MAX_GCODE_CHARS` or not printable ASCII, a path longer than `MAX_PATH_CHARS` or one the
+file system cannot resolve (a symlink loop, a name too long).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import marlin_aio
+
+from .supervisor import FarmPrinter
+
+__all__ = [
+    "ACTIONS",
+    "MAX_COMMAND_AGE_S",
+    "UNQUEUED_ACTIONS",
+    "CommandError",
+    "FarmCommand",
+    "command_id_of",
+    "parse_command",
+    "run_command",
+]
+
+ACTIONS = ("set_temperatures", "set_target", "gcode", "print", "pause", "resume", "cancel", "emergency_stop")
+"""What a command can ask for (its "action")."""
+UNQUEUED_ACTIONS = frozenset({"emergency_stop", "pause", "resume", "cancel"})
+"""Actions that wait for no command before them and take no time: never refused for being too many waiting (a
+flood of slow commands must not keep the emergency stop out)."""
+MAX_PAYLOAD_BYTES = 65_536
+"""The largest payload read (a list of 100 commands of 96 characters is about 10 KB)."""
+MAX_GCODE_COMMANDS = 100
+"""G-code commands in one `commands` list."""
+MAX_JSON_DEPTH = 4
+"""Containers inside containers: a command object holding a list of strings is depth 2."""
+MAX_INTEGER_DIGITS = 30
+"""Python refuses to convert more than 4300 digits (with a ValueError from inside json.loads); no field needs 30."""
+MAX_ID_CHARS = 128
+"""The longest string id (it is echoed in the answer)."""
+MAX_GCODE_CHARS = 96
+"""Marlin's MAX_CMD_SIZE: a longer line is cut short by the printer's serial buffer."""
+MAX_PATH_CHARS = 255
+"""The longest print path (a file name's limit on most file systems)."""
+MAX_COMMAND_AGE_S = 5.0
+"""A command whose "time" is further than this from the bridge's clock (either way) is refused."""
+MAX_ERROR_CHARS = 200
+"""The longest refusal message (answers and log lines stay one short line)."""
+SHOWN_VALUE_CHARS = 60
+"""How much of a value from the payload a refusal shows."""
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+_SURROGATE = re.compile(r"[\ud800-\udfff]")
+# A JSON string (to the end of the text if it is not closed, so the match cannot fail and backtrack) or a bracket.
+# The depth scan reads only the brackets outside strings.
+_JSON_TOKEN = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"?|[\[\]{}]', re.DOTALL)
+_HOTEND_N = re.compile(r"hotend ([0-9]{1,3})")
+
+
+class CommandError(ValueError):
+    """A command refused before anything was written; the message says why, for the response topic.
+
+    `command_id` is the refused command's id when it got as far as having a valid one (to answer with), else None.
+    """
+
+    def __init__(self, message: str, command_id: str | int | None = None) -> None:
+        super().__init__(message)
+        self.command_id = command_id
+
+
+@dataclass(frozen=True)
+class FarmCommand:
+    """A checked command for one printer."""
+
+    printer: str
+    action: str
+    id: str | int | None = None
+    targets: dict[str, float | int] = field(default_factory=dict)
+    """For set_temperatures: hotend, bed, chamber (degrees C) and tool."""
+    gcode: tuple[str, ...] = ()
+    path: Path | None = None
+
+
+def _show(value: object) -> str:
+    """A value from the payload for an error message: its repr (so printable and one line), cut short, with an M511
+    password redacted (the answer goes to every subscriber of the response topic)."""
+    text = repr(marlin_aio.redact(value) if isinstance(value, str) else value)
+    return text if len(text) <= SHOWN_VALUE_CHARS else text[: SHOWN_VALUE_CHARS - 3] + "..."
+
+
+def _one_line(exc: Exception) -> str:
+    """An error's message as one line, for an answer (the first line says what was wrong)."""
+    lines = str(exc).splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
+def _clip(message: str) -> str:
+    """`message` as the contract promises it: one printable line of at most MAX_ERROR_CHARS.
+
+    Messages built here already are; this holds for the library's messages too (which show whole values).
+    """
+    if not message.isprintable():
+        message = repr(message)[1:-1]
+    return message if len(message) <= MAX_ERROR_CHARS else message[: MAX_ERROR_CHARS - 3] + "..."
+
+
+def _targets(values: dict[str, Any], farm_printer: FarmPrinter) -> dict[str, float | int]:
+    spec = farm_printer.spec
+    limits = {"hotend": spec.max_hotend_celsius, "bed": spec.max_bed_celsius, "chamber": spec.max_chamber_celsius}
+    targets: dict[str, float | int] = {}
+    for heater, limit in limits.items():
+        if heater in values:
+            try:
+                targets[heater] = marlin_aio.check_target(heater, values[heater], limit)
+            except ValueError as exc:
+                raise CommandError(_one_line(exc)) from None
+    if "tool" in values:
+        tool = values["tool"]
+        if isinstance(tool, bool) or not isinstance(tool, int) or tool < 0:
+            raise CommandError(f"tool must be a hotend number (0, 1, ...), got {_show(tool)}")
+        targets["tool"] = tool
+    if not targets.keys() - {"tool"}:
+        raise CommandError("set_temperatures needs at least one of hotend, bed, chamber")
+    return targets
+
+
+def parse_command(
+    printer: str,
+    payload: bytes,
+    printers: Mapping[str, FarmPrinter],
+    allowed_dir: Path | None,
+    *,
+    now_s: float | None = None,
+    max_age_s: float = MAX_COMMAND_AGE_S,
+) -> FarmCommand:
+    """Check one command payload for `printer` (a topic level: any text).
+
+    `now_s` is the bridge's clock (`time.time()`); given it, a command whose "time" is more than `max_age_s` from
+    it either way is refused. Nothing is written or opened: a print's path is only resolved and stat'ed.
+
+    Raises:
+        CommandError: anything wrong with it, and nothing else whatever the bytes; the message is one printable
+            line of at most MAX_ERROR_CHARS characters, the answer to publish.
+    """
+    try:
+        return _parse(printer, payload, printers, allowed_dir, now_s, max_age_s)
+    except CommandError as exc:
+        raise CommandError(_clip(str(exc)), exc.command_id) from None
+
+
+def _parse(
+    printer: str,
+    payload: bytes,
+    printers: Mapping[str, FarmPrinter],
+    allowed_dir: Path | None,
+    now_s: float | None,
+    max_age_s: float,
+) -> FarmCommand:
+    if printer not in printers:
+        raise CommandError(f"no printer named {_show(printer)} (printers: {', '.join(printers)})")
+    body = _decode(payload)
+    command_id = _command_id(body)
+    try:
+        return _check(printer, body, command_id, printers[printer], allowed_dir, now_s, max_age_s)
+    except CommandError as exc:
+        exc.command_id = command_id
+        raise
+
+
+def _decode(payload: bytes) -> dict[str, Any]:
+    """The payload's JSON object, within the limits."""
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise CommandError(f"command payload too large ({len(payload)} bytes, at most {MAX_PAYLOAD_BYTES})")
+    try:
+        text = payload.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CommandError(f"not JSON: not UTF-8 text (byte 0x{payload[exc.start]:02x} at {exc.start})") from None
+    depth = _json_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise CommandError(f"not a command: JSON nested too deep (more than {MAX_JSON_DEPTH} levels)")
+    try:
+        body = json.loads(
+            text,
+            parse_constant=_refuse_constant,
+            parse_int=_parse_int,
+            parse_float=_parse_float,
+            object_pairs_hook=_unique_fields,
+        )
+    except CommandError:
+        raise
+    except RecursionError:
+        # Cannot happen past the depth scan; kept so that a scan missing some nesting still cannot end the farm.
+        raise CommandError("not a command: JSON nested too deep") from None
+    except ValueError as exc:
+        raise CommandError(f"not JSON: {_one_line(exc)}") from None
+    if not isinstance(body, dict):
+        raise CommandError('a command is a JSON object such as {"action": "gcode", "command": "M105"}')
+    return body
+
+
+def _json_depth(text: str) -> int:
+    """How deep the text's brackets nest, strings skipped: cheap enough to run before json.loads, whose recursion it
+    bounds. Not a validation: mismatched brackets are json.loads's to refuse."""
+    depth = deepest = 0
+    for match in _JSON_TOKEN.finditer(text):
+        token = match.group()
+        if token in ("[", "{"):
+            depth += 1
+            if depth > MAX_JSON_DEPTH:
+                return depth  # no need to read the rest of a 50 KB run of brackets
+            deepest = max(deepest, depth)
+        elif token in ("]", "}"):
+            depth = max(depth - 1, 0)
+    return deepest
+
+
+def _refuse_constant(name: str) -> float:
+    raise CommandError(f"not JSON: {name} is not a number JSON allows")
+
+
+def _parse_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INTEGER_DIGITS:
+        raise CommandError(f"a number in the command is too long ({digits} digits, at most {MAX_INTEGER_DIGITS})")
+    return int(text)
+
+
+def _parse_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise CommandError(f"a number in the command is out of range: {_show(text)}")
+    return value
+
+
+def _unique_fields(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    # Parsers disagree on which of two equal keys wins; a command whose meaning depends on that is refused.
+    body = dict(pairs)
+    if len(body) < len(pairs):
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise CommandError(f"the field {_show(key)} appears twice")
+            seen.add(key)
+    return body
+
+
+def command_id_of(payload: bytes) -> str | int | None:
+    """The id of a command payload, for the answer to a command refused before it was read (a retained one, an
+    unknown printer): the id if the payload is a JSON object within the limits and its id is valid, else None.
+    Never raises."""
+    try:
+        return _command_id(_decode(payload))
+    except CommandError:
+        return None
+
+
+def _command_id(body: dict[str, Any]) -> str | int | None:
+    command_id = body.get("id")
+    if command_id is None:
+        return None
+    if isinstance(command_id, str) and len(command_id) <= MAX_ID_CHARS:
+        _check_text("id", command_id)
+        return command_id
+    if isinstance(command_id, int) and not isinstance(command_id, bool) and abs(command_id) < 2**63:
+        return command_id  # within 64 bits, which any client's JSON reads back as the integer it sent
+    raise CommandError(
+        f"id must be a string of at most {MAX_ID_CHARS} characters or a 64-bit integer, got {_show(command_id)}"
+    )
+
+
+def _check_text(name: str, text: str) -> None:
+    """Refuse a string value with a control character or a lone surrogate (which could not even be encoded back)."""
+    control = _CONTROL.search(text)
+    if control is not None:
+        char = control.group()
+        what = "a line break" if char in "\r\n" else "a control character"
+        raise CommandError(f"{name} contains {what} ({char!r}): {_show(text)}")
+    if _SURROGATE.search(text) is not None:
+        raise CommandError(f"{name} is not valid Unicode (a lone surrogate): {_show(text)}")
+
+
+def _check_strings(name: str, value: object) -> None:
+    """Every string in a field's value (however nested, within MAX_JSON_DEPTH) through `_check_text`."""
+    if isinstance(value, str):
+        _check_text(name, value)
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            _check_strings(f"{name}[{index}]", item)
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _check_strings(f"{name}[{_show(key)}]", item)
+
+
+def _check_time(sent: object, now_s: float | None, max_age_s: float) -> None:
+    if isinstance(sent, bool) or not isinstance(sent, int | float) or not math.isfinite(sent):
+        raise CommandError(f"time must be the epoch seconds when the command was sent, got {_show(sent)}")
+    if now_s is None:
+        return
+    age_s = now_s - sent
+    if age_s > max_age_s:
+        raise CommandError(f"stale: sent {_seconds(age_s)} s ago, commands older than {max_age_s:g} s are refused")
+    if -age_s > max_age_s:
+        raise CommandError(f"sent {_seconds(-age_s)} s in the future: are the clocks set?")
+
+
+def _seconds(value: float) -> str:
+    return f"{value:.1f}" if value < 1e9 else f"{value:.3g}"
+
+
+def _check(
+    printer: str,
+    body: dict[str, Any],
+    command_id: str | int | None,
+    farm_printer: FarmPrinter,
+    allowed_dir: Path | None,
+    now_s: float | None,
+    max_age_s: float,
+) -> FarmCommand:
+    action = body.get("action")
+    if not isinstance(action, str) or action not in ACTIONS:
+        raise CommandError(f"unknown action {_show(action)} (actions: {', '.join(ACTIONS)})")
+    if "time" in body:
+        _check_time(body["time"], now_s, max_age_s)  # a stale command goes no further
+    extra = set(body) - _COMMON_FIELDS - _FIELDS[action]
+    if extra:
+        takes = ", ".join([*sorted(_FIELDS[action]), *sorted(_COMMON_FIELDS - {"action"})])
+        raise CommandError(f"{action} takes no {_show(min(extra))} (it takes: {takes})")
+    for name, value in body.items():
+        _check_strings(name, value)
+    if action == "set_temperatures":
+        return FarmCommand(printer, action, command_id, targets=_targets(body, farm_printer))
+    if action == "set_target":
+        heater = body.get("heater")
+        tool: int | None = None
+        if isinstance(heater, str):
+            heater = heater.replace("_", " ")  # "hotend_1", as Home Assistant's entity ids spell it
+            numbered = _HOTEND_N.fullmatch(heater)
+            if numbered is not None:
+                heater, tool = "hotend", int(numbered.group(1))
+        if heater not in ("hotend", "bed", "chamber"):
+            raise CommandError(f"heater must be hotend, 'hotend N', bed or chamber, got {_show(heater)}")
+        values: dict[str, Any] = {heater: body.get("celsius")}
+        if tool is not None:
+            values["tool"] = tool
+        # The same command as set_temperatures, with one heater.
+        return FarmCommand(printer, "set_temperatures", command_id, targets=_targets(values, farm_printer))
+    if action == "gcode":
+        return FarmCommand(printer, action, command_id, gcode=_gcode(body, farm_printer))
+    if action == "print":
+        return FarmCommand(printer, action, command_id, path=_allowed_path(body.get("path"), allowed_dir))
+    return FarmCommand(printer, action, command_id)
+
+
+_COMMON_FIELDS = {"id", "action", "time"}
+_FIELDS: dict[str, set[str]] = {
+    "set_temperatures": {"hotend", "bed", "chamber", "tool"},
+    "set_target": {"heater", "celsius"},
+    "gcode": {"command", "commands"},
+    "print": {"path"},
+    "pause": set(),
+    "resume": set(),
+    "cancel": set(),
+    "emergency_stop": set(),
+}
+
+
+def _gcode(body: dict[str, Any], farm_printer: FarmPrinter) -> tuple[str, ...]:
+    commands = body.get("commands", [body["command"]] if "command" in body else None)
+    if not isinstance(commands, list) or not commands or not all(isinstance(c, str) for c in commands):
+        raise CommandError('gcode needs "command": "G28" or "commands": ["G28", "M114"]')
+    if len(commands) > MAX_GCODE_COMMANDS:
+        raise CommandError(f"at most {MAX_GCODE_COMMANDS} commands at once, got {len(commands)}")
+    checked = []
+    spec = farm_printer.spec
+    limits = marlin_aio.HeaterLimits(spec.max_hotend_celsius, spec.max_bed_celsius, spec.max_chamber_celsius)
+    for text in commands:
+        if len(text) > MAX_GCODE_CHARS:
+            # Not shown: it may carry a password (M511), which only the library's own messages redact.
+            raise CommandError(f"a G-code command is {len(text)} characters long, at most {MAX_GCODE_CHARS}")
+        try:
+            checked.append(marlin_aio.validate_command(text))
+            # Printer.send refuses such a target too (the library's own check, reading the command as Marlin's
+            # parser does), but only when its turn comes: checked here, a list with one bad target writes
+            # nothing at all.
+            marlin_aio.check_gcode_targets(text, limits)
+        except ValueError as exc:
+            raise CommandError(_one_line(exc)) from None
+    return tuple(checked)
+
+
+def _allowed_path(value: object, allowed_dir: Path | None) -> Path:
+    if allowed_dir is None:
+        raise CommandError("prints over MQTT are off: start the bridge with --allowed-dir DIR")
+    if not isinstance(value, str) or not value:
+        raise CommandError('print needs "path": a G-code file inside the allowed directory')
+    if len(value) > MAX_PATH_CHARS:
+        raise CommandError(f"path is {len(value)} characters long, at most {MAX_PATH_CHARS}: {_show(value)}")
+    try:
+        root = allowed_dir.resolve()
+        path = (root / value).resolve()
+        inside = path.is_relative_to(root)
+        found = inside and path.is_file()
+    except RuntimeError:  # 3.11's resolve() on a symlink loop
+        raise CommandError(f"{_show(value)}: a symlink loop in the allowed directory") from None
+    except OSError as exc:  # a name too long, a directory we may not search...
+        reason = exc.strerror or type(exc).__name__
+        raise CommandError(f"{_show(value)}: cannot be looked up in the allowed directory ({reason})") from None
+    except ValueError:  # a NUL or a surrogate reaching the OS (the string checks refuse both first)
+        raise CommandError(f"{_show(value)}: not a valid file name") from None
+    if not inside:
+        raise CommandError(f"{_show(value)} is outside the allowed directory")
+    if not found:
+        raise CommandError(f"{_show(value)}: no such file in the allowed directory")
+    return path
+
+
+def _check_heaters(targets: dict[str, float | int], farm_printer: FarmPrinter) -> None:
+    """Refuse a target for a heater the printer does not report, as `marlin-temp set` does: nothing is sent."""
+    reading = farm_printer.latest
+    if reading is None:
+        raise CommandError(f"printer {farm_printer.name!r} has not reported its heaters yet; try again")
+    keys = set(reading.temperatures.heaters)
+    hotends = sorted(int(key[1:]) for key in keys if key[:1] == "T" and key[1:].isdigit()) or (
+        [0] if "T" in keys else []
+    )
+    has = [f"{len(hotends)} hotend{'s' if len(hotends) != 1 else ''}"] + [
+        name for key, name in (("B", "bed"), ("C", "chamber")) if key in keys
+    ]
+    tool = targets.get("tool")
+    missing = []
+    if "hotend" in targets and (not hotends or (tool is not None and int(tool) not in hotends)):
+        missing.append("hotend" if tool is None else f"hotend {tool}")
+    missing += [name for key, name in (("B", "bed"), ("C", "chamber")) if name in targets and key not in keys]
+    if missing:
+        raise CommandError(f"printer {farm_printer.name!r} has no {', '.join(missing)} (it has {', '.join(has)})")
+
+
+async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
+    """Run a checked command on its printer; return the result to answer with.
+
+    Raises:
+        CommandError: the printer is not connected, or no print is running to pause, resume or cancel.
+        ValueError: a G-code command sets a target above the limits (the library checks every command it is given;
+            nothing of it is sent), or the command is a print (`Farm.start_print` starts those).
+        MarlinError: as the library raises it.
+    """
+    printer = farm_printer.printer
+    if printer is None or not farm_printer.link_up:
+        raise CommandError(f"printer {farm_printer.name!r} is not connected")
+    match command.action:
+        case "set_temperatures":
+            _check_heaters(command.targets, farm_printer)
+            targets = dict(command.targets)
+            tool = targets.pop("tool", None)
+            await printer.set_temperatures(
+                hotend=targets.get("hotend"),
+                bed=targets.get("bed"),
+                chamber=targets.get("chamber"),
+                tool=None if tool is None else int(tool),
+            )
+            return {"targets": command.targets}
+        case "gcode":
+            replies = []
+            for text in command.gcode:
+                reply = await printer.send(text)
+                replies.append({"command": text, "lines": list(reply.lines)})
+            return {"replies": replies}
+        case "emergency_stop":
+            printer.emergency_stop()
+            return {"sent": "M112"}
+        case "print":
+            # A print outlives this call: the farm starts and follows it (`Farm.start_print`), the bridge asks it.
+            raise ValueError("a print is started with Farm.start_print, not run_command")
+        case _:
+            handle = farm_printer.print_handle
+            if handle is None or handle.finished:
+                raise CommandError(f"no print to {command.action}")
+            if command.action == "pause":
+                handle.pause()
+            elif command.action == "resume":
+                handle.resume()
+            else:
+                progress = await handle.cancel(marlin_aio.COOL_DOWN)
+                return {"cancelled_at_line": progress.last_source_line}
+            return {"state": handle.progress.state.value}

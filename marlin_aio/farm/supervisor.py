@@ -1,0 +1,407 @@
+"""A print farm in one process: N printers on one event loop, each kept connected by a supervisor of its own.
+
+Each printer gets its own `marlin_aio.Printer`, polled at its own rate, and a supervisor task that reconnects it
+with backoff (1 s doubling to 30 s) when it is unplugged, halts or never answered; one printer's failure never
+reaches another's task. What the farm knows of each printer (`FarmPrinter`: link up or down, firmware, the latest
+reading, the last error) is read by whoever shows or forwards it (the MQTT bridge, a farm view), and what happens
+to it (`FarmEvent`: connected, connection lost, halted, reset, thermal runaway) goes to one callback, in order.
+
+Nothing here knows about MQTT: the bridge (`cli.farmbridge`) reads this state at its own rate, so a slow or
+absent broker never slows a serial loop.
+
+Secrets: a printer's password (`password` in the config, sent as `M511 P<password>`) never reaches an event, the
+last error or a log line: every event's message is redacted (`redact`) where it is made, in `Farm.emit`, and the
+bridge redacts whatever else it publishes (`redact_payload`); `PrinterSpec`'s repr leaves the password out.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import re
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import marlin_aio
+
+if TYPE_CHECKING:
+    from marlin_aio.simulator import SimulatorServer
+
+__all__ = [
+    "BACKOFF_MAX_S",
+    "BACKOFF_START_S",
+    "RESERVED_NAMES",
+    "SIM_RECORD_LIMIT",
+    "Farm",
+    "FarmEvent",
+    "FarmPrinter",
+    "PrinterSpec",
+    "one_line",
+    "redact",
+    "redact_payload",
+]
+
+_log = logging.getLogger("marlin_aio.farm.supervisor")
+
+BACKOFF_START_S = 1.0
+BACKOFF_MAX_S = 30.0
+
+#: The library's redaction (an M511's password blanked as `M511 ****`), re-exported for the bridge.
+redact = marlin_aio.redact
+
+#: Names a printer cannot have: `bridge` is the bridge's own topic level (`PREFIX/bridge/availability`).
+RESERVED_NAMES = frozenset({"bridge"})
+
+#: Commands an in-process simulated printer remembers (it counts all): enough to look back on, small enough that
+#: twenty of them polled at 10 Hz for days stay at the same size.
+SIM_RECORD_LIMIT = 1_000
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def one_line(text: str) -> str:
+    """`text` with every control character (a newline, an escape, ...) written as its escape, so that a file name or
+    an error quoting one stays on the one line an event is printed and logged on."""
+    return _CONTROL.sub(lambda match: repr(match.group())[1:-1], text)
+
+
+def redact_payload(value: Any) -> Any:
+    """`value` (a JSON-able payload: dicts, lists, strings, numbers) with every string in it redacted."""
+    if isinstance(value, str):
+        return redact(value)
+    if isinstance(value, dict):
+        return {key: redact_payload(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [redact_payload(item) for item in value]
+    return value
+
+
+@dataclass(frozen=True)
+class PrinterSpec:
+    """One printer of the farm, as configured: a name (used in topics), where it is, and how to poll it."""
+
+    name: str
+    port: str | None
+    """A device path or pyserial URL; None with `sim`."""
+    baud: int = marlin_aio.DEFAULT_BAUDRATE
+    poll_interval_s: float = 0.1
+    timeout_s: float = 10.0
+    max_hotend_celsius: float = marlin_aio.DEFAULT_MAX_HOTEND_CELSIUS
+    max_bed_celsius: float = marlin_aio.DEFAULT_MAX_BED_CELSIUS
+    max_chamber_celsius: float = marlin_aio.DEFAULT_MAX_CHAMBER_CELSIUS
+    password: str | None = field(default=None, repr=False)
+    """PASSWORD_FEATURE's password, sent as `M511 P<password>`; never printed, logged or published."""
+    sim: bool = False
+    """Serve a simulated printer for it in this process (on a pty) instead of opening `port`."""
+    sim_speed: float = 1.0
+
+
+@dataclass(frozen=True)
+class FarmEvent:
+    """Something that happened to one printer: `kind` is one of connected, connection_lost, connect_failed,
+    halted, thermal_runaway, reset, print_started, print_finished, print_cancelled, print_failed; `message` says
+    it for people."""
+
+    printer: str
+    kind: str
+    message: str
+    time_s: float = field(default_factory=time.time)
+
+
+@dataclass
+class FarmPrinter:
+    """What the farm knows about one printer now. Written by its supervisor only; read by anyone."""
+
+    spec: PrinterSpec
+    link_up: bool = False
+    firmware: str | None = None
+    last_error: str | None = None
+    latest: marlin_aio.TemperatureReading | None = None
+    readings: int = 0
+    """Readings taken since the farm started (all connections)."""
+    connections: int = 0
+    printer: marlin_aio.Printer | None = None
+    """The open printer while the link is up (to send it commands), else None."""
+    url: str | None = None
+    """Where it is reached: the port, or the simulator's pty."""
+    print_handle: marlin_aio.PrintHandle | None = None
+    """The print started over MQTT, if any (finished or not)."""
+    print_file: str | None = None
+    """The file name of that print."""
+    print_starting: bool = False
+    """True while a print is being started (its M110 in flight): a second one is refused, not started too."""
+    print_error: str | None = None
+    """Why the last print failed (halted, reset, link lost, ...), one line; None while it runs or if it did not."""
+    machine: str | None = None
+    """The board's MACHINE_TYPE from M115, if it says."""
+    reconnect_at_s: float | None = None
+    """While the supervisor waits to reconnect: when it tries again (`time.monotonic()`), else None."""
+    reading_listeners: list[Callable[[marlin_aio.TemperatureReading], None]] = field(default_factory=list)
+    """Called with every reading after it is kept (a farm view keeps each printer's history with one)."""
+
+    def print_status(self) -> dict[str, object] | None:
+        """The print's progress for the state topic, or None when no print was started."""
+        handle = self.print_handle
+        if handle is None:
+            return None
+        progress = handle.progress
+        error = self.print_error
+        if error is None and progress.state is marlin_aio.PrintState.FAILED and handle.job.error is not None:
+            # Failed, and the farm's follower has not run yet: the job's own error, so the state is never
+            # "failed" without why.
+            error = one_line(redact(str(handle.job.error)))
+        total = progress.source_bytes_total
+        percent = round(100 * progress.source_bytes_acked / total, 1) if total else None
+        return {
+            "file": self.print_file,
+            "state": progress.state.value,
+            "percent": percent,
+            "lines_acked": progress.lines_acked,
+            "last_file_line": progress.last_source_line,
+            "error": error,
+        }
+
+    @property
+    def name(self) -> str:
+        """The printer's name."""
+        return self.spec.name
+
+    def on_reading(self, reading: marlin_aio.TemperatureReading) -> None:
+        """Keep the newest reading: called for every reading, so it only stores it."""
+        self.latest = reading
+        self.readings += 1
+        for listener in self.reading_listeners:
+            listener(reading)
+
+
+def _print_failure(exc: BaseException) -> str:
+    """How a print ended, in a word or two, from the error that ended it."""
+    for kind, words in (
+        (marlin_aio.ThermalRunawayError, "thermal runaway"),
+        (marlin_aio.PrinterHaltedError, "halted"),
+        (marlin_aio.PrinterResetError, "reset"),
+        (marlin_aio.ConnectionLostError, "link lost"),
+        (marlin_aio.PrintStalledError, "stalled"),
+    ):
+        if isinstance(exc, kind):
+            return words
+    return "failed"
+
+
+class Farm:
+    """Runs every printer of `specs` until cancelled; `on_event` gets each `FarmEvent` as it happens.
+
+    Args:
+        specs: the printers; names must be unique.
+        on_event: called on the event loop with each event, in order.
+        backoff_start_s, backoff_max_s: how long a supervisor waits before reconnecting, doubling from the first
+            to the second after each failed attempt.
+    """
+
+    def __init__(
+        self,
+        specs: list[PrinterSpec],
+        on_event: Callable[[FarmEvent], None],
+        *,
+        backoff_start_s: float = BACKOFF_START_S,
+        backoff_max_s: float = BACKOFF_MAX_S,
+    ) -> None:
+        names = [spec.name for spec in specs]
+        if len(set(names)) != len(names):
+            raise ValueError(f"printer names must be unique: {', '.join(names)}")
+        reserved = RESERVED_NAMES.intersection(names)
+        if reserved:
+            raise ValueError(f"a printer cannot be named {sorted(reserved)[0]!r}: the name is the bridge's own")
+        self.printers = {spec.name: FarmPrinter(spec) for spec in specs}
+        self._on_event = on_event
+        self._backoff_start_s = backoff_start_s
+        self._backoff_max_s = backoff_max_s
+        self.sims: dict[str, SimulatorServer] = {}
+        """The simulated printers' servers, by printer name (tests reach in to unplug one)."""
+        self._group: asyncio.TaskGroup | None = None
+
+    async def run(self) -> None:
+        """Supervise every printer until cancelled; one task each, named after its printer. The simulated
+        printers it served are stopped when it ends."""
+        try:
+            async with asyncio.TaskGroup() as group:
+                self._group = group  # prints run here, next to their printer's supervisor
+                for farm_printer in self.printers.values():
+                    group.create_task(self._supervise(farm_printer), name=f"printer {farm_printer.name}")
+        finally:
+            self._group = None
+            for server in self.sims.values():
+                await server.aclose()
+
+    async def start_print(self, farm_printer: FarmPrinter, path: Path) -> marlin_aio.PrintHandle:
+        """Start printing `path` on `farm_printer` and follow the print in a task of the farm's own.
+
+        However the print ends (done, cancelled, halted, a reset, the link lost, a stall) becomes one `print_*`
+        event and the printer's print state: an ending that is an error is that printer's news only, never an
+        exception in whoever started it (the bridge), so the farm and the other printers go on.
+
+        Raises:
+            RuntimeError: the farm is not running, the printer is not connected, or a print is already running.
+            ValueError, OSError, MarlinError: as `Printer.start_print` (nothing of the file was sent).
+        """
+        printer = farm_printer.printer
+        if self._group is None:
+            raise RuntimeError("the farm is not running")
+        if printer is None or not farm_printer.link_up:
+            raise RuntimeError(f"printer {farm_printer.name!r} is not connected")
+        handle = farm_printer.print_handle
+        if farm_printer.print_starting or (handle is not None and not handle.finished):
+            raise RuntimeError("a print is already running: cancel it first")
+        # Marked before the first await: two print commands back to back (a double press, a redelivered message)
+        # must not both pass the check above while the first one's M110 is on its way.
+        farm_printer.print_starting = True
+        try:
+            handle = await printer.start_print(path)
+        finally:
+            farm_printer.print_starting = False
+        farm_printer.print_handle = handle
+        farm_printer.print_file = path.name
+        farm_printer.print_error = None
+        self._group.create_task(self._follow_print(farm_printer, handle), name=f"print on {farm_printer.name}")
+        self.emit(farm_printer, "print_started", f"printing {path.name}")
+        return handle
+
+    async def _follow_print(self, farm_printer: FarmPrinter, handle: marlin_aio.PrintHandle) -> None:
+        """Wait for a print to end and say how; never raise (but when cancelled)."""
+        try:
+            progress = await handle.wait()
+        except Exception as exc:  # every ending is news of this printer, never a crash of the farm
+            where = handle.progress.last_source_line
+            reason = _print_failure(exc)
+            farm_printer.print_error = one_line(redact(f"{reason}: {exc}"))
+            self.emit(farm_printer, "print_failed", f"{farm_printer.print_file}: {reason} at file line {where}: {exc}")
+            return
+        kind = "print_finished" if progress.state is marlin_aio.PrintState.DONE else "print_cancelled"
+        self.emit(
+            farm_printer,
+            kind,
+            f"{farm_printer.print_file}: {progress.state.value} at file line {progress.last_source_line}",
+        )
+
+    def emit(self, farm_printer: FarmPrinter, kind: str, message: str) -> None:
+        """Tell the listener that `kind` happened to `farm_printer` (also for events from outside: a print).
+
+        The message is redacted here, once for the event, the last error and whatever prints or publishes them: it
+        is often an error's text, which may quote an `M511 P<password>` from the library or from a user's G-code.
+        """
+        message = one_line(redact(message))
+        if kind in ("connection_lost", "halted", "thermal_runaway", "connect_failed", "print_failed"):
+            farm_printer.last_error = message
+        try:
+            self._on_event(FarmEvent(farm_printer.name, kind, message))
+        except Exception:  # a listener's bug must not stop a printer's supervisor
+            _log.exception("event listener failed on %s %s", farm_printer.name, kind)
+
+    async def _supervise(self, farm_printer: FarmPrinter) -> None:
+        delay = self._backoff_start_s
+        reported_down = False
+        while True:
+            try:
+                async with self._connected(farm_printer) as printer:
+                    delay = self._backoff_start_s
+                    reported_down = False
+                    await self._watch(farm_printer, printer)
+            except marlin_aio.MarlinError as exc:
+                if farm_printer.link_up:
+                    farm_printer.link_up = False
+                    kind = (
+                        "thermal_runaway"
+                        if isinstance(exc, marlin_aio.ThermalRunawayError)
+                        else ("halted" if isinstance(exc, marlin_aio.PrinterHaltedError) else "connection_lost")
+                    )
+                    self.emit(farm_printer, kind, str(exc))
+                elif not reported_down:
+                    # Said once per outage, not at every retry.
+                    self.emit(farm_printer, "connect_failed", str(exc))
+                reported_down = True
+            finally:
+                farm_printer.link_up = False
+                farm_printer.printer = None
+            _log.info("%s: reconnecting in %g s", farm_printer.name, delay)
+            farm_printer.reconnect_at_s = time.monotonic() + delay
+            try:
+                await asyncio.sleep(delay)
+            finally:
+                farm_printer.reconnect_at_s = None
+            delay = min(delay * 2, self._backoff_max_s)
+
+    @contextlib.asynccontextmanager
+    async def _connected(self, farm_printer: FarmPrinter) -> AsyncIterator[marlin_aio.Printer]:
+        spec = farm_printer.spec
+        async with contextlib.AsyncExitStack() as stack:
+            url = spec.port
+            if spec.sim:
+                server = self.sims.get(spec.name)
+                if server is None:
+                    from marlin_aio.simulator import SimulatorConfig, serve_pty
+
+                    # The simulated printer lives as long as the farm: a reconnect finds it as it was left. Its record
+                    # of commands is small: a farm runs for days.
+                    config = SimulatorConfig(seed=len(self.sims), record_limit=SIM_RECORD_LIMIT)
+                    server = serve_pty(config, time_scale=spec.sim_speed)
+                    await server.start()
+                    self.sims[spec.name] = server
+                url = server.url
+            assert url is not None
+            farm_printer.url = url
+            printer = marlin_aio.Printer(
+                url,
+                baudrate=spec.baud,
+                timeout_s=spec.timeout_s,
+                max_hotend_celsius=spec.max_hotend_celsius,
+                max_bed_celsius=spec.max_bed_celsius,
+                max_chamber_celsius=spec.max_chamber_celsius,
+                password=spec.password,
+            )
+            await stack.enter_async_context(printer)
+            farm_printer.printer = printer
+            yield printer
+
+    async def _watch(self, farm_printer: FarmPrinter, printer: marlin_aio.Printer) -> None:
+        """Poll a connected printer until its link fails; raise that failure."""
+        farm_printer.link_up = True
+        farm_printer.connections += 1
+        farm_printer.firmware = printer.firmware.name if printer.firmware is not None else None
+        farm_printer.machine = printer.firmware.fields.get("MACHINE_TYPE") if printer.firmware is not None else None
+        farm_printer.last_error = None
+        self.emit(
+            farm_printer,
+            "connected",
+            f"{farm_printer.url} ({farm_printer.firmware or 'firmware unknown'})",
+        )
+        if printer.reset_on_open:
+            self.emit(
+                farm_printer, "reset", "the board reset when the port was opened; targets set earlier were cleared"
+            )
+        stop = printer.on_reading(farm_printer.on_reading)
+        resets = printer.stats.resets
+        try:
+            async with printer.poll_temperatures(farm_printer.spec.poll_interval_s):
+                failure = asyncio.ensure_future(printer.wait_for_failure())
+                try:
+                    while True:
+                        # Resets while connected show in the counters; look once a second, not per reading.
+                        done, _ = await asyncio.wait([failure], timeout=1.0)
+                        now_resets = printer.stats.resets
+                        if now_resets > resets:
+                            resets = now_resets
+                            self.emit(
+                                farm_printer,
+                                "reset",
+                                "the printer reset (it printed 'start'); its targets were cleared",
+                            )
+                        if done:
+                            raise failure.result()
+                finally:
+                    failure.cancel()
+        finally:
+            stop()

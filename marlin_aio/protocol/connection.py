@@ -1,0 +1,488 @@
+"""The sans-I/O connection: commands in, bytes out, bytes in, answers out; deadlines, halts and resets.
+
+Marlin answers every command it processes with exactly one `ok`, in the order it received them. The connection
+keeps the commands written but not yet answered in a FIFO and completes the oldest one each `ok` can answer. Its
+rooms, each in its own module:
+
+- `matching`: the FIFO, which command an `ok` answers and whose reply lines are whose (and why a reply
+  handed to a caller is always its own);
+- `resends`: line numbers, the history of lines sent, `Resend:` recovery, and the cut lines a flush
+  leaves (and why a print line runs exactly once, in order);
+- `streaming`: a print job fed line by line, its round trips and probes;
+- `states`: the link's state and each line's, every allowed move in one table each;
+- `corestate`: the one state record, declared in one place;
+- `receiving`: what each line from the printer means (the dispatch of every received event);
+- `deadlines`: what happens when nothing comes (timeouts, probes, stalls, who waits for whom);
+- this module: `Connection`, the public face: commands in, bytes out, state and counters. It holds the state
+  record and composes `Receiving` and `Deadlines` over it (parts, not base classes).
+
+A command that gets no `ok` at all (Marlin's `M105 T9` prints an error and nothing more) times out; it keeps its
+place, in doubt, until the printer settles it (its late ok, or the answer to a probe behind it), so a late ok lands
+on it and not on the next caller's command. A print line unanswered for the whole timeout, with no busy keepalive,
+stalls the print with a diagnosis of who waits for whom.
+
+Time never comes from a clock here: every call takes `now` (seconds, monotonic), so tests drive it directly.
+Nothing here imports asyncio or serial; `marlin_aio.aio.printer` is the thin layer that does I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from marlin_aio.errors import (
+    MarlinError,
+    PrinterHaltedError,
+    PrinterLockedError,
+)
+from marlin_aio.protocol.commands import MAX_COMMAND_BYTES, command_code, encode_command, validate_command
+from marlin_aio.protocol.corestate import CoreState, check_window
+from marlin_aio.protocol.deadlines import Deadlines
+from marlin_aio.protocol.events import Event
+from marlin_aio.protocol.heaters import DEFAULT_LIMITS, HeaterLimits, check_gcode_targets
+from marlin_aio.protocol.linkstate import LinkState
+from marlin_aio.protocol.matching import answer_stays_distinct
+from marlin_aio.protocol.printjob import PrintJob
+from marlin_aio.protocol.receiving import Receiving
+from marlin_aio.protocol.replies import MAX_REPLY_LINES, Command, Reply
+from marlin_aio.protocol.resends import CALM_LINES, wanted
+from marlin_aio.protocol.secrets import redact
+from marlin_aio.protocol.states import LineEvent, LineState, LinkEvent
+from marlin_aio.protocol.stats import LinkStats
+from marlin_aio.protocol.trace import Trace
+
+__all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "Reply"]
+
+#: Commands Marlin's emergency parser acts on as soon as their bytes arrive; they skip the queue here too.
+EMERGENCY_COMMANDS = frozenset({"M108", "M112", "M410", "M876"})
+
+
+@dataclass(slots=True)
+class Output:
+    """Everything one step of the core produced, in one place (`Connection.receive` and `Connection.tick`).
+
+    A value to read, not to change. Not frozen, only because a frozen dataclass takes four times as long to build
+    and two are built for every poll.
+
+    The I/O layer handles it in this order: hand on `events`, write `data`, resolve `finished`, and call
+    `tick()` again at `deadline` (None: nothing to wait for).
+    """
+
+    events: tuple[Event, ...]
+    """The events of the lines the bytes completed (none for a tick)."""
+    data: bytes
+    """Bytes to write to the printer now."""
+    finished: tuple[tuple[Command, Reply | MarlinError], ...]
+    """Commands that ended, each with its reply or error."""
+    deadline: float | None
+    """When to call `tick()` next, unless bytes arrive first."""
+
+
+class Connection:
+    """Bookkeeping for one link to a Marlin printer, with no I/O.
+
+    Use by an I/O layer: `submit()` commands, then `tick(now)`; feed the bytes read to `receive(data, now)`; and
+    call `tick(now)` again at the `deadline` of the last `Output`. Each call returns one `Output` with everything
+    it produced. (The steps it bundles, `receive_data`, `data_to_send`, `check_timeouts`, `take_results` and
+    `next_deadline`, stay public for tests that drive the core step by step.)
+
+    Args:
+        numbered: give every command a line number and checksum so the printer can ask for it again.
+        max_in_flight: how many commands may be written before their `ok` (1 is ping-pong).
+        rx_buffer_bytes: the printer's serial receive buffer; unanswered bytes never exceed it.
+        trace_size: how many lines sent and received the trace keeps.
+        max_resends: how often one line may be requested again before the link is declared too noisy.
+        resend_timeout_s: while lines are being resent, how long a resent line may go unanswered before it is
+            written again (its rejection may have been taken for a stale one).
+        ok_after_resend: the firmware follows every `Resend:` with an `ok` that answers nothing (Marlin 2.1);
+            False for the 2.0.x builds that omit it.
+        advanced_ok: the printer is known to name the line in each ok (ADVANCED_OK), so numbered commands may
+            share the line from the start; otherwise this is learnt from the first `ok N<line>`.
+    """
+
+    __slots__ = ("_core", "_deadlines", "_receiving", "limits")
+
+    def __init__(
+        self,
+        *,
+        numbered: bool = True,
+        max_in_flight: int = 1,
+        rx_buffer_bytes: int = 128,
+        trace_size: int = 64,
+        max_resends: int = 10,
+        resend_timeout_s: float = 3.0,
+        ok_after_resend: bool = True,
+        advanced_ok: bool = False,
+        limits: HeaterLimits = DEFAULT_LIMITS,
+    ) -> None:
+        """A connection that has sent nothing yet.
+
+        Raises:
+            ValueError: `max_in_flight` below 1 or `rx_buffer_bytes` below 16.
+        """
+        # One state record, and the parts that act on it: what each line from the printer means, and what happens
+        # when nothing comes. (Composed, not inherited: each part is read on its own, over the same state.)
+        self._core = CoreState(
+            numbered=numbered,
+            max_in_flight=max_in_flight,
+            rx_buffer_bytes=rx_buffer_bytes,
+            trace_size=trace_size,
+            max_resends=max_resends,
+            resend_timeout_s=resend_timeout_s,
+            ok_after_resend=ok_after_resend,
+            advanced_ok=advanced_ok,
+        )
+        self._receiving = Receiving(self._core)
+        self._deadlines = Deadlines(self._core)
+        # The one gate for heater targets: every command submitted and every line of every print passes it, read
+        # as the firmware reads it (`heaters.check_gcode_targets`), whatever API or CLI command made it.
+        self.limits = limits
+
+    @property
+    def trace(self) -> Trace:
+        """The last lines sent and received, with their times (for diagnosing a stall)."""
+        return self._core.trace
+
+    def receive_data(self, data: bytes, now: float) -> list[Event]:
+        """Feed bytes read from the printer; return the events of the lines they complete (see `receive`)."""
+        return self._receiving.receive_data(data, now)
+
+    def discard_partial_input(self) -> None:
+        """Forget an unfinished line (call after flushing the port's input: its end will never arrive)."""
+        self._receiving.discard_partial_input()
+
+    def check_timeouts(self, now: float) -> None:
+        """Act on the deadlines that have passed (timeouts, probes, stalls; see `deadlines`)."""
+        self._deadlines.check_timeouts(now)
+
+    def next_deadline(self) -> float | None:
+        """When `check_timeouts` must next be called, unless bytes arrive first; None: nothing to wait for."""
+        return self._deadlines.next_deadline()
+
+    def describe_stall(self, command: Command, now: float) -> str:
+        """One line saying who waits for whom: the command, for how long, and what each side last said."""
+        return self._deadlines.describe_stall(command, now)
+
+    def probe_delay_s(self) -> float:
+        """How long a streamed line may wait before a probe asks whether its `ok` was lost."""
+        return self._deadlines.probe_delay_s()
+
+    # ----------------------------------------------------------------------------------------------- state
+
+    @property
+    def state(self) -> LinkState:
+        """READY, PRINTING, STOPPING (a stopped print's last lines are answered), LOCKED (refusing commands until
+        unlocked), STOPPED (M999 resumes) or HALTED (needs a reset): one value, moved by `states`."""
+        return self._core.state
+
+    @property
+    def halted(self) -> PrinterHaltedError | None:
+        """Why the printer halted or stopped (the error new commands fail with), or None while it runs."""
+        return self._core.halt
+
+    @property
+    def locked(self) -> bool:
+        """True while the printer refuses commands as locked (PASSWORD_FEATURE)."""
+        return self._core.state is LinkState.LOCKED
+
+    @property
+    def job(self) -> PrintJob | None:
+        """The print job being streamed, if any."""
+        return self._core.feed.job
+
+    @property
+    def numbered(self) -> bool:
+        """Commands get a line number and checksum unless submitted with `numbered=False`."""
+        return self._core.numbered
+
+    @property
+    def requires_numbers(self) -> bool:
+        """The printer refused an unnumbered command (`Missing checksum`): every command is numbered now."""
+        return self._core.requires_numbers
+
+    @property
+    def max_in_flight(self) -> int:
+        """How many commands may be written before their `ok` (1 is ping-pong)."""
+        return self._core.max_in_flight
+
+    @property
+    def rx_buffer_bytes(self) -> int:
+        """The printer's receive buffer: unanswered bytes never exceed it."""
+        return self._core.rx_buffer_bytes
+
+    @property
+    def window(self) -> tuple[int, int]:
+        """(max_in_flight, rx_buffer_bytes): how many commands and unanswered bytes may be on the wire."""
+        return self._core.max_in_flight, self._core.rx_buffer_bytes
+
+    def set_window(self, max_in_flight: int, rx_buffer_bytes: int) -> None:
+        """Change how many commands and unanswered bytes may be on the wire (a print's send-ahead, a benchmark);
+        what is already in flight stays.
+
+        Raises:
+            ValueError: `max_in_flight` below 1 or `rx_buffer_bytes` below 16.
+        """
+        check_window(max_in_flight, rx_buffer_bytes)
+        self._core.max_in_flight = max_in_flight
+        self._core.rx_buffer_bytes = rx_buffer_bytes
+
+    def stats(self) -> LinkStats:
+        """A frozen snapshot of the counters."""
+        core = self._core
+        return LinkStats(
+            submitted=core.submitted,
+            answered=core.answered,
+            failed=core.failed,
+            cancelled=core.cancelled,
+            in_flight=len(core.in_flight),
+            queued=len(core.queue),
+            timeouts=core.timeouts,
+            resend_requests=core.resends.requests,
+            resets=core.resets,
+            lost_oks=core.lost_oks,
+            stray_oks=core.stray_oks,
+            garbage_lines=core.garbage_lines,
+            probes=core.feed.probes,
+            fragments=core.resends.fragments,
+            fragments_run=core.resends.fragments_run,
+            bytes_received=core.bytes_received,
+        )
+
+    @property
+    def in_flight(self) -> int:
+        """How many commands were written and wait for their `ok`."""
+        return len(self._core.in_flight)
+
+    @property
+    def queued(self) -> int:
+        """How many accepted commands wait to be written."""
+        return len(self._core.queue)
+
+    def oldest_waiting(self) -> Command | None:
+        """The command the printer should answer next, if any."""
+        return self._core.in_flight.head
+
+    @property
+    def probe_reserve_bytes(self) -> int:
+        """Bytes of the receive buffer kept free while a job streams, so a probe or a user command always fits.
+
+        "N<line> M105*<checksum>\\n" is 11 bytes plus the digits of the line number.
+        """
+        return 11 + len(str(self._core.resends.next_line))
+
+    # ----------------------------------------------------------------------------------------------- commands
+
+    def submit(
+        self, text: str, *, timeout_s: float, now: float, numbered: bool | None = None, checked: bool = True
+    ) -> Command:
+        """Accept a command for sending; it goes out in order with the others.
+
+        `checked=False` skips validation, for commands the caller built itself and knows to be valid (the client's
+        own M105 polls, a hundred times a second).
+
+        Raises:
+            ValueError: the command is not valid (line break, non-ASCII, too long, empty), or it sets a heater
+                target above `limits` (however it is spelt).
+            PrinterHaltedError: the printer halted and answers nothing until it is reset.
+        """
+        core = self._core
+        use_numbers = (core.numbered if numbered is None else numbered) or core.requires_numbers
+        if checked:
+            # Validate now, so a bad command never reaches the queue: as given (the clearest message), then its
+            # length with a line number comfortably larger than any it can get while queued.
+            text = validate_command(text)
+            check_gcode_targets(text, self.limits)
+            if use_numbers:
+                longest_number = core.resends.next_line + len(core.queue) + len(core.in_flight) + 1000
+                if len(text) + len(str(longest_number)) + 6 > MAX_COMMAND_BYTES:
+                    raise ValueError(
+                        f"command {redact(text)[:40]!r}... is too long: with its line number and checksum it would "
+                        f"exceed Marlin's {MAX_COMMAND_BYTES}-byte limit"
+                    )
+            if timeout_s <= 0:
+                raise ValueError(f"timeout_s must be positive, got {timeout_s}")
+        code = command_code(text)
+        if core.halt is not None and code != "M999":
+            raise core.halt
+        core.submitted += 1
+        command = Command(core.new_id(), text, code, use_numbers, timeout_s, now)
+        core.queue.append(command)
+        return command
+
+    def emergency(self, text: str, *, now: float) -> bytes:
+        """Return the bytes of an emergency command (M112, M108, M410) to write at once, ahead of the queue.
+
+        It is never numbered (the emergency parser wants the bare command) and gets no entry in the FIFO: M112 halts
+        the printer, and the halt fails everything that was waiting.
+
+        Raises:
+            ValueError: the command is not one of M108, M112, M410, M876, or is malformed.
+        """
+        wire = encode_command(text)
+        if command_code(text) not in EMERGENCY_COMMANDS:
+            raise ValueError(f"{redact(text)!r} is not an emergency command (M108, M112, M410, M876)")
+        self._core.trace.sent(now, wire.decode("ascii").rstrip("\n"))
+        return wire
+
+    def emergency_stop(self, now: float) -> bytes:
+        """Return M112's bytes, to write at once ahead of anything queued; from now on the printer is halted (it
+        needs a reset), and every command still waiting fails with `PrinterHaltedError`."""
+        core = self._core
+        wire = self.emergency("M112", now=now)
+        core.halt = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
+        core.move(LinkEvent.HALTED)
+        core.fail_everything(core.halt)
+        return wire
+
+    def attach(self, job: PrintJob, *, timeout_s: float) -> None:
+        """Stream `job`'s lines from now on, interleaved with submitted commands (which go first).
+
+        Raises:
+            RuntimeError: another job is still running.
+            PrinterHaltedError: the printer halted or stopped.
+            PrinterLockedError: the printer is locked.
+        """
+        core = self._core
+        if core.halt is not None:
+            raise core.halt
+        if core.state is LinkState.LOCKED:
+            raise PrinterLockedError("the printer is locked: unlock it (M511 P<password>) before printing")
+        if job.limits is None:
+            job.limits = self.limits  # a job made without limits gets the connection's: no line passes unchecked
+        core.feed.attach(job, timeout_s)
+        core.move(LinkEvent.PRINT_STARTED)
+
+    def cancel(self, command: Command) -> bool:
+        """Withdraw a command whose caller gave up; return True if it was never written (so it never will be).
+
+        A command already written stays in the FIFO, as the printer will still answer it; only its result is dropped.
+        """
+        if command.sends == 0:
+            try:
+                self._core.queue.remove(command)
+            except ValueError:
+                return False
+            command.move(LineEvent.WITHDRAWN)
+            self._core.cancelled += 1
+            return True
+        command.orphan = True
+        return False
+
+    def fail_all(self, error: MarlinError) -> None:
+        """Fail every queued and in-flight command with `error` (the link is gone, or the client closes)."""
+        self._core.fail_everything(error)
+
+    # ----------------------------------------------------------------------------------------------- sending
+
+    @property
+    def has_data_to_send(self) -> bool:
+        """True when `data_to_send()` may return something (a queued command or a print job to feed)."""
+        core = self._core
+        return bool(core.queue) or core.feed.job is not None or core.send_eol
+
+    def data_to_send(self, now: float) -> bytes:
+        """Return the bytes to write now: resends first, then queued commands, then print job lines, as far as the
+        window allows."""
+        core = self._core
+        core.now = now
+        resends = core.resends
+        if resends.drain_over(now):
+            return b""
+        held = resends.held
+        if held is not None:
+            # The printer has been quiet and the line it asked for again was not answered: it did not run.
+            resends.held = None
+            if held.state is LineState.ON_WIRE:
+                core.in_flight.remove(held, now)
+                held.move(LineEvent.RESEND)
+                core.queue.appendleft(held if wanted(held) else resends.placeholder_for([held]))
+        chunks: list[bytes] = []
+        if core.send_eol:
+            core.send_eol = False
+            chunks.append(b"\n")
+            core.trace.sent(now, "(a bare line end)")
+        feed = core.feed
+        flight = core.in_flight
+        # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.
+        limit = core.rx_buffer_bytes - (self.probe_reserve_bytes if feed.job is not None else 0)
+        calm = resends.calm
+        while True:
+            # Commands never written go before the print's next line, but not two in a row while it streams: a
+            # flood of commands must not starve the print (nor a print the commands).
+            first = core.queue[0] if core.queue else None
+            fresh = first is not None and not (first.wire or first.probe or first.orphan)
+            if first is not None and not (fresh and core.after_command and feed.job is not None):
+                command = first
+            else:
+                job_command = feed.next_command(core.new_id, core.numbered, now)
+                if job_command is None:
+                    if not core.queue:
+                        break
+                    command = core.queue[0]
+                else:
+                    command = job_command
+            core.after_command = command.job is None and not command.wire
+            # After a probe deadline, the lines waiting to be resent and the probe behind them go out together.
+            nudge = resends.nudge_pending and (bool(command.wire) or command.probe)
+            if not nudge:
+                resends.nudge_pending = False
+            if flight and (
+                # An M110 goes alone: Marlin sets its counter when it *runs* it, so a line taken in behind it
+                # would be counted twice (and a damaged one may be dropped without a word).
+                (flight.barriers and not (command.probe and resends.unanswered_m110 is not None))
+                or command.code == "M110"
+                or (len(flight) >= core.max_in_flight and not command.probe)
+                or (calm and not (command.probe or nudge) and resends.rejectable(flight))
+                or flight.bytes + resends.wire_size(command) > (core.rx_buffer_bytes if command.probe else limit)
+                or not answer_stays_distinct(command, flight, exact_oks=core.exact_oks)
+            ):
+                break
+            if command is feed.next:
+                feed.next = None
+            else:
+                core.queue.popleft()
+            if not command.wire:
+                if resends.wire_size(command) - 1 > MAX_COMMAND_BYTES:
+                    # Only possible if the line numbers grew by over a thousand while it waited in the queue.
+                    core.finish(
+                        command, MarlinError(f"{redact(command.text)!r} grew too long for Marlin once numbered")
+                    )
+                    continue
+                # Keep enough history for everything that can be in flight, with a wide margin.
+                resends.assign_wire(command, max(256, 4 * core.max_in_flight))
+            if command.job is not None and command.sends == 0:
+                command.job.sent()
+            command.move(LineEvent.WRITTEN)
+            command.sends += 1
+            if command.sent_s is None:
+                command.sent_s = now
+            command.written_s = now
+            flight.append(command, now)
+            core.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
+            chunks.append(command.wire)
+        return b"".join(chunks)
+
+    # ----------------------------------------------------------------------------------------------- results
+
+    def take_results(self) -> list[tuple[Command, Reply | MarlinError]]:
+        """Return and forget the commands finished since the last call, with their reply or error."""
+        results, self._core.results = self._core.results, []
+        return results
+
+    # ----------------------------------------------------------------------------------------------- one output
+
+    def receive(self, data: bytes, now: float) -> Output:
+        """Feed bytes read from the printer; return what they brought and what to do now."""
+        return self._output(tuple(self._receiving.receive_data(data, now)), now)
+
+    def tick(self, now: float) -> Output:
+        """Act on deadlines that have passed and on commands waiting to go out; return what to do now."""
+        self._deadlines.check_timeouts(now)
+        return self._output((), now)
+
+    def _output(self, events: tuple[Event, ...], now: float) -> Output:
+        # Twice per poll: the parts are called directly, and the print's state is looked at only while one runs.
+        data = self.data_to_send(now) if self.has_data_to_send else b""
+        state = self._core.state
+        if state is LinkState.PRINTING or state is LinkState.STOPPING:
+            self._core.sync_print_state()
+        return Output(events, data, tuple(self.take_results()), self._deadlines.next_deadline())

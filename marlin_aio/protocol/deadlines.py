@@ -1,0 +1,340 @@
+"""What happens when nothing comes: deadlines, probes, timeouts, stalls, and who waits for whom.
+
+The oldest command in flight has three deadlines (`_deadlines`): its timeout, counted from when it became the oldest
+or from the last sign of life (a busy keepalive, a wait line); while lines are being resent, a shorter one after
+which a resent line is written again; and while a print streams, a probe after a few round trips of silence. A
+command that times out keeps its place for one more timeout (its late ok must land on it, not on the next
+caller's), and everything queued behind it fails at once; a print line that times out stalls the print.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from marlin_aio.errors import CommandTimeoutError, PrintStalledError
+from marlin_aio.protocol.corestate import CoreState
+from marlin_aio.protocol.replies import Command
+from marlin_aio.protocol.secrets import redact
+from marlin_aio.protocol.states import FINAL_LINE_STATES, LineEvent, LineState
+
+__all__ = ["Deadlines"]
+
+#: Recoveries at INFO, oddities and failures at WARNING (lines on the wire: "marlin_aio.wire" at DEBUG).
+_log = logging.getLogger("marlin_aio")
+
+
+class Deadlines:
+    """The time side of `Connection`: a part composed over the core's one state record (`CoreState`)."""
+
+    __slots__ = ("_core",)
+
+    def __init__(self, core: CoreState) -> None:
+        self._core = core
+
+    def next_deadline(self) -> float | None:
+        """When the oldest command in flight times out (or a stalled stream is probed) unless the printer shows a
+        sign of life first."""
+        drain_until = self._core.resends.drain_until
+        head = self._core.in_flight.head
+        if head is None:
+            return drain_until
+        due = min(self._deadlines(head))
+        if head.state is LineState.IN_DOUBT:
+            due = min(due, self._waiting_bound(), self._silence_bound())
+        return due if drain_until is None else min(due, drain_until)
+
+    def _silence_bound(self) -> float:
+        """While a print streams behind a line in doubt: when the printer's silence stalls it."""
+        core = self._core
+        if not core.feed.active:
+            return math.inf
+        last_in = core.trace.last_received
+        head = core.in_flight.head
+        since = max(last_in.time_s if last_in is not None else 0.0, 0.0 if head is None else head.head_since_s or 0.0)
+        return since + core.feed.timeout_s
+
+    def _deadlines(self, head: Command) -> tuple[float, float, float]:
+        """(time out, write again, probe) for the oldest command; inf where that step does not apply."""
+        core = self._core
+        start = max(head.head_since_s or 0.0, head.alive_s or 0.0)
+        resends = core.resends
+        feed = core.feed
+        if (
+            head.code == "M110"
+            and head.numbered
+            and head.state is LineState.ON_WIRE
+            and core.resends.unanswered_m110 is None  # not while a probe behind it asks
+        ):
+            # An M110 goes alone and sets what it sets however often it runs: unanswered, it is written again
+            # soon (a damaged one may be dropped without a word), not after a whole timeout.
+            resend_at = start + feed.probe_delay_s()
+        elif resends.resending(head):
+            resend_at = start + min(head.timeout_s, resends.resend_timeout_s)
+        else:
+            resend_at = math.inf
+        if head.state is LineState.IN_DOUBT:
+            # Only the printer settles it: a late ok, or the answer to an M105 behind it (not a resend: the probe
+            # finds out whether it is needed). An M105 in doubt is let go after one more timeout, as only another
+            # M105 could take its late `ok T:`, and that answer would be as true for it.
+            probe_at = start if self._may_probe_doubt() else math.inf
+            timeout_at = start + head.timeout_s if head.code == "M105" else math.inf
+            return timeout_at, math.inf, probe_at
+        # While a job streams: outside prints a lost ok is found by the timeout, then probed (above).
+        # A probe whose own line end was damaged waits in the printer for a line end: another probe behind it
+        # brings it out (as a line error), so an unanswered probe is followed by another, two at most.
+        may_probe = feed.active and core.numbered and not resends.draining and self._probes_out() < 2
+        probe_at = max(start, feed.probed_s) + feed.probe_delay_s() if may_probe else math.inf
+        return start + head.timeout_s, resend_at, probe_at
+
+    def _probes_out(self) -> int:
+        """Probes written and unanswered (a queued one may wait behind lines held back, and tells nothing)."""
+        return sum(c.probe for c in self._core.in_flight)
+
+    def _may_probe_doubt(self) -> bool:
+        """May an M105 go behind a line in doubt? Not while one is on its way (it will tell), nor while draining."""
+        core = self._core
+        if core.resends.draining or core.in_flight.barriers:
+            return False
+        # A user's M105 still queued does not count: one at a time, nothing but a probe goes behind a line in doubt.
+        return not any(c.code == "M105" for c in core.in_flight) and not any(c.probe for c in core.queue)
+
+    def _waiting_bound(self) -> float:
+        """The earliest bound of a caller waiting behind a line in doubt (its own timeout from when it began
+        waiting there)."""
+        core = self._core
+        head = core.in_flight.head
+        since = 0.0 if head is None or head.head_since_s is None else head.head_since_s
+        bounds = [
+            max(c.submitted_s, since) + c.timeout_s
+            for c in (*core.in_flight, *core.queue)
+            if not c.orphan and c.job is None and not c.probe
+        ]
+        return min(bounds, default=math.inf)
+
+    def probe_delay_s(self) -> float:
+        """How long a streamed line may wait before a probe asks whether its `ok` was lost (see `JobFeed`)."""
+        return self._core.feed.probe_delay_s()
+
+    def check_timeouts(self, now: float) -> None:
+        """Time out the oldest command if its deadline has passed; the commands behind it go on.
+
+        While a job streams, a line that waits too long first gets a probe (a numbered M105: its `ok T:` proves
+        every older line was processed, so a lost `ok` costs a moment, not the print). A line that still gets no
+        answer within the timeout, with no busy keepalive, stalls the print: the job fails with a diagnosis.
+        """
+        core = self._core
+        core.now = now
+        resends = core.resends
+        resends.drain_over(now)
+        while (head := core.in_flight.head) is not None:
+            deadline = self.next_deadline()
+            if deadline is None or now < deadline:
+                return
+            timeout_at, resend_at, probe_at = self._deadlines(head)
+            last_in = core.trace.last_received
+            talking = last_in is not None and last_in.time_s > (head.head_since_s or 0.0)
+            if now >= resend_at and head.code == "M110" and head.state is LineState.ON_WIRE:
+                if head.sends >= 2 and not head.placeholder and len(core.in_flight) == 1:
+                    # Written twice and still no ok: its oks may be the ones being lost. An M105 numbered as if
+                    # it took effect asks (it has long run by now, so the counter it set is the one checked).
+                    core.resends.unanswered_m110 = head.line_number
+                    head.head_since_s = now
+                    core.send_eol = True
+                    core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
+                    return
+                core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
+                return
+            if head.state is LineState.IN_DOUBT:
+                self._settle_doubt(head, now, timeout_at, probe_at)
+                return
+            if now >= resend_at and head.line_number is not None and talking:
+                # A resent line went unanswered while the printer talked: its rejection was probably taken for a
+                # stale one. (A silent printer is not helped by resends: it times out below.)
+                core.check(resends.resend_overdue(head, core.in_flight, core.queue, now, core.feed.quiet_s()))
+                continue
+            if now < timeout_at:
+                if now >= probe_at:
+                    self._probe(now)
+                return
+            # No stale rejection can still be on its way after this much silence.
+            resends.forget_stale()
+            core.timeouts += 1
+            _log.warning("no answer to %r within %g s", redact(head.text), head.timeout_s)
+            if (head.job is not None or head.probe) and not head.orphan:
+                self._stall_job(head, now)
+                continue
+            if head.code == "M110" and head.numbered and not head.placeholder:
+                # Written again until the resend limit says the link is too noisy; its caller is told now.
+                if not head.orphan:
+                    head.orphan = True
+                    core.finish(head, CommandTimeoutError(self.describe_stall(head, now), command=redact(head.text)))
+                core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
+                return
+            summary = self.describe_stall(head, now)
+            # Its caller is told now, but the command keeps its place, in doubt, until the printer settles it:
+            # Marlin may still answer it (a long G28), and that late ok must land on it, never on the next
+            # caller's command, which waits (see `answer_stays_distinct`) or goes out behind it.
+            was_orphan = head.orphan
+            core.send_eol = True  # in case its line end was damaged and the printer still waits for it
+            head.orphan = True
+            head.move(LineEvent.OVERDUE)
+            head.head_since_s = now
+            head.alive_s = None
+            if not was_orphan:
+                core.finish(head, CommandTimeoutError(summary, command=redact(head.text)))
+            silent = last_in is None or now - last_in.time_s >= head.timeout_s
+            if silent:
+                # The printer has said nothing for the whole timeout: what waits behind it fails now, not one
+                # timeout after another.
+                self._give_up_behind(head, summary)
+            return
+
+    def _settle_doubt(self, head: Command, now: float, timeout_at: float, probe_at: float) -> None:
+        """The oldest command is in doubt: probe behind it, let an M105 go, fail callers past their bound, stall a
+        print the printer has been silent for."""
+        core = self._core
+        if now >= timeout_at:
+            core.in_flight.popleft(now)  # an M105 in doubt (see `_deadlines`)
+            return
+        if now >= self._silence_bound():
+            self._stall_job(head, now)
+        if now >= probe_at:
+            core.feed.probed_s = now
+            core.send_eol = True
+            core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
+        if now >= self._waiting_bound():
+            since = head.head_since_s or now
+            for command in (*core.in_flight, *core.queue):
+                if command.orphan or command.job is not None or command.probe:
+                    continue
+                if now >= max(command.submitted_s, since) + command.timeout_s:
+                    error = CommandTimeoutError(
+                        f"no answer within {command.timeout_s:g} s: it waited behind {redact(head.text)!r}, which the "
+                        f"printer has not answered ({self.describe_stall(head, now)})",
+                        command=redact(command.text),
+                    )
+                    if command.sends == 0:
+                        core.queue.remove(command)
+                        command.move(LineEvent.WITHDRAWN)
+                    else:
+                        command.orphan = True  # it keeps its place: its late ok must land on it
+                    core.timeouts += 1
+                    core.finish(command, error)
+
+    def _probe(self, now: float) -> None:
+        core = self._core
+        core.feed.probed_s = now
+        core.send_eol = True
+        if core.queue and core.queue[0].wire:
+            # Lines wait to be written again, one at a time, behind this one, whose ok may be lost. With plain oks
+            # only an M105's `ok T:` can prove that, so the probe goes behind those lines (its number comes after
+            # theirs) and they all go out now. One at a time (ping-pong) the next of them is the probe.
+            if core.max_in_flight > 1:
+                at = 0
+                while at < len(core.queue) and core.queue[at].wire:
+                    at += 1
+                core.resends.forget_stale()
+                core.queue.insert(at, core.feed.new_probe(core.new_id(), now))
+            core.resends.nudge_pending = True
+            return
+        # A probe follows several round trips of silence: no rejection of a line written before the last resend
+        # can still be on its way, so whatever the printer asks for next is a fresh request, acted on at once.
+        core.resends.forget_stale()
+        core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
+
+    def _give_up_behind(self, dead: Command, summary: str) -> None:
+        """The oldest command got no answer for its whole timeout: fail everything behind it at once.
+
+        Commands never written are dropped, so a printer that wakes up later does not run a backlog nobody waits
+        for. If the printer has been silent all that time, commands already written fail too: they stay in the
+        FIFO (their late `ok`s must land on them, not on a newer command), but their callers are told now instead
+        of one timeout after another.
+        """
+        core = self._core
+        last_in = core.trace.last_received
+        silent = last_in is None or core.now - last_in.time_s >= dead.timeout_s
+        for command in core.in_flight if silent else ():
+            if not command.orphan and command.job is None and not command.probe:
+                command.orphan = True
+                core.finish(
+                    command,
+                    CommandTimeoutError(
+                        f"gave up behind {redact(dead.text)!r}: {summary}", command=redact(command.text)
+                    ),
+                )
+        kept: list[Command] = []
+        for command in core.queue:
+            if command.job is None and not command.probe:
+                error = CommandTimeoutError(
+                    f"not sent: the printer stopped answering ({summary})", command=redact(command.text)
+                )
+                core.finish(command, error)
+            else:
+                kept.append(command)
+        core.queue.clear()
+        core.queue.extend(kept)
+
+    def _stall_job(self, head: Command, now: float) -> None:
+        """The stream got no answer within the timeout: end the print with a diagnosis, drop its lines."""
+        core = self._core
+        feed = core.feed
+        job = feed.job or head.job
+        summary = self.describe_stall(head, now)
+        if head.job is not None and job:
+            where = f"line {head.source_line} of {job.name}"
+        elif job is not None and not head.probe:
+            where = f"{job.name} behind {redact(head.text)!r}, which the printer has not answered,"
+        else:
+            where = "a probe"
+        if job is not None:
+            maybe = [c.source_line for c in core.in_flight if c.job is job]
+            where += f" (line {job.last_source_line} surely ran"
+            where += f"; lines up to {max(maybe)} may have run)" if maybe else ")"
+        error = PrintStalledError(
+            f"print stalled at {where}: {summary}", command=redact(head.text), trace=core.trace.format(now)
+        )
+        if job is not None:
+            job.fail(error, now)
+        feed.detach()
+        # The stream's lines on the wire keep their places, in doubt: a printer that answers late must not hand
+        # their oks to whatever the user sends next. Unwritten ones are withdrawn.
+        head.head_since_s = now
+        for command in core.in_flight:
+            if command.job is not None or command.probe:
+                command.orphan = True
+                if command.state is LineState.ON_WIRE:
+                    command.move(LineEvent.OVERDUE)
+        kept = []
+        for command in core.queue:
+            if command.job is None and not command.probe:
+                kept.append(command)
+            elif command.state not in FINAL_LINE_STATES:
+                command.move(LineEvent.WITHDRAWN)
+        core.queue.clear()
+        core.queue.extend(kept)
+
+    def describe_stall(self, command: Command, now: float) -> str:
+        """One line saying who waits for whom: the command, for how long, and what each side last said."""
+        core = self._core
+        waited = now - (command.submitted_s if command.head_since_s is None else command.head_since_s)
+        parts = [f"no 'ok' for {redact(command.text)!r} after {waited:.1f} s"]
+        if command.line_number is not None:
+            parts[0] += f" (line {command.line_number})"
+        behind = len(core.in_flight) - 1 + len(core.queue)
+        if behind:
+            parts.append(f"{behind} more command{'s' if behind != 1 else ''} waiting behind it")
+        last_in = core.trace.last_received
+        last_out = core.trace.last_sent
+        if last_out is not None:
+            parts.append(f"last sent {last_out.text!r} {now - last_out.time_s:.1f} s ago")
+        if last_in is None:
+            parts.append("nothing ever received: the printer is silent (wrong port or baud rate?)")
+        else:
+            silent = now - last_in.time_s
+            parts.append(f"last received {last_in.text!r} {silent:.1f} s ago")
+            if silent >= command.timeout_s:
+                parts.append("the printer has been silent since")
+            else:
+                parts.append("the printer is talking but did not answer this command")
+        return "; ".join(parts)

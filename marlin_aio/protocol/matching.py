@@ -1,0 +1,172 @@
+"""Which command an `ok` answers, and whose reply lines are whose: the FIFO of commands in flight.
+
+Marlin answers every command it processes with exactly one `ok`, in the order it received them, so the commands
+written but not yet answered wait in a FIFO (`InFlight`) and an `ok` completes the oldest one it can answer.
+
+Why a reply handed to a caller is its own. An `ok` can name its command only by its shape: `ok N<line>`
+(ADVANCED_OK) names a numbered line, `ok T:...` names "an M105", a plain `ok` names nothing. So an ok answers the
+oldest command in flight whose answer it can be (`match_ok`), and every command ahead of that one was processed
+(Marlin answers in order) but lost its ok: such a command is never handed the later answer; it fails with
+`LostReplyError`, or, for a print line, counts as run. That is sound only if no two commands in flight could take
+each other's ok, so `answer_stays_distinct` lets a command out only when a lost ok cannot make its answer ambiguous:
+at most one M105 at a time, and, unless the printer names lines in its oks, a command someone waits for is never in
+flight beside another plainly answered one (print lines may share the wire with each other, as a later answer
+proves that they ran). Reply lines go to the oldest command waiting when they arrive; after a lost ok they may
+belong to a later command, so `attribute` hands them on only when the skipped commands print nothing (a bare M105),
+and otherwise to nobody.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable, Iterator
+
+from marlin_aio.protocol.events import Ok
+from marlin_aio.protocol.replies import Command
+
+__all__ = ["InFlight", "answer_stays_distinct", "attribute", "match_ok"]
+
+
+class InFlight:
+    """The commands written and waiting for their `ok`, oldest first, and the bytes they hold in the printer's
+    receive buffer. The oldest command's `head_since_s` says since when it has been the one answered next."""
+
+    __slots__ = ("_commands", "barriers", "bytes")
+
+    def __init__(self) -> None:
+        self._commands: deque[Command] = deque()
+        self.bytes = 0
+        self.barriers = 0  # M110s in flight: nothing may be written behind one (see `resends`)
+
+    def __len__(self) -> int:
+        return len(self._commands)
+
+    def __bool__(self) -> bool:
+        return bool(self._commands)
+
+    def __iter__(self) -> Iterator[Command]:
+        return iter(self._commands)
+
+    def __getitem__(self, index: int) -> Command:
+        return self._commands[index]
+
+    @property
+    def head(self) -> Command | None:
+        """The command the printer should answer next."""
+        return self._commands[0] if self._commands else None
+
+    def after(self, command: Command) -> list[Command]:
+        """The commands written after `command` (which is in flight)."""
+        commands = list(self._commands)
+        return commands[commands.index(command) + 1 :]
+
+    def append(self, command: Command, now: float) -> None:
+        """`command` was just written."""
+        if not self._commands:
+            command.head_since_s = now
+        self._commands.append(command)
+        self.bytes += len(command.wire)
+        if command.code == "M110":
+            self.barriers += 1
+
+    def popleft(self, now: float) -> Command:
+        """Take the oldest command off; the next one is answered next from `now` on."""
+        command = self._commands.popleft()
+        self.bytes -= len(command.wire)
+        if command.code == "M110":
+            self.barriers -= 1
+        if self._commands:
+            self._commands[0].head_since_s = now
+        return command
+
+    def remove(self, command: Command, now: float) -> None:
+        """Take `command` out wherever it is (the printer will never answer it)."""
+        was_head = self._commands[0] is command
+        self._commands.remove(command)
+        self.bytes -= len(command.wire)
+        if command.code == "M110":
+            self.barriers -= 1
+        if was_head and self._commands:
+            self._commands[0].head_since_s = now
+
+    def keep_only(self, keep: Iterable[Command], now: float, *, restart_head: bool) -> None:
+        """Keep only `keep` (in order): the others will not be answered, or go out again. The new oldest command
+        waits from `now` if `restart_head`, else only if it had not been the oldest before."""
+        self._commands = deque(keep)
+        self.bytes = sum(len(c.wire) for c in self._commands)
+        self.barriers = sum(c.code == "M110" for c in self._commands)
+        if self._commands and (restart_head or self._commands[0].head_since_s is None):
+            self._commands[0].head_since_s = now
+
+    def clear(self) -> None:
+        """Forget every command in flight (the printer reset, halted, or the link is gone)."""
+        self._commands.clear()
+        self.bytes = 0
+        self.barriers = 0
+
+
+def match_ok(flight: InFlight, ok: Ok, *, exact_oks: bool) -> int | None:
+    """The index in the FIFO of the command `ok` answers, or None when it answers none of them.
+
+    `exact_oks`: the printer names the line in the ok of every numbered command (ADVANCED_OK).
+    """
+    if ok.line_number is not None:
+        for index, command in enumerate(flight):
+            if command.line_number == ok.line_number:
+                return index
+        # It names a line no longer in flight: completing another command with it would hand that command
+        # someone else's answer. (An unnumbered command's ok carries no N, so only numbered heads rule it out.)
+        head = flight.head
+        return 0 if head is not None and head.line_number is None else None
+    if ok.temperatures is not None:
+        # Only M105 answers `ok T:...`.
+        return next((i for i, c in enumerate(flight) if c.code == "M105"), None)
+    if exact_oks:
+        # This printer names the line in the ok of every numbered command: a plain ok is an unnumbered one's.
+        # (Or that of a numbered line whose `N` was damaged on the way, which the printer took as unnumbered, or
+        # of the tail of a line cut by a flush: the connection tells those apart, `Receiving._on_ok`.)
+        return next(
+            (i for i, c in enumerate(flight) if c.line_number is None and (c.code != "M105" or c.refusal)), None
+        )
+    # A plain ok: the oldest command that answers with a plain ok (not M105, whose answer carries temperatures;
+    # a refused one is answered plainly whatever it was).
+    return next((i for i, c in enumerate(flight) if c.code != "M105" or c.refusal is not None), None)
+
+
+def attribute(skipped: list[Command], command: Command) -> tuple[str, ...] | None:
+    """The reply lines of `command`, or None when they cannot be told apart from a skipped command's.
+
+    Lines go to the oldest command waiting when they arrive; when its ok was lost, the lines of the commands
+    behind it landed in its slot too. They are `command`'s for certain only if every skipped command prints
+    nothing but its ok line (a bare M105).
+    """
+    if not skipped:
+        return tuple(command.lines)
+    if all(lost.text == "M105" or lost.probe for lost in skipped):
+        return tuple(line for lost in skipped for line in lost.lines) + tuple(command.lines)
+    if not any(lost.lines for lost in skipped):
+        return tuple(command.lines)
+    return None
+
+
+def answer_stays_distinct(command: Command, flight: InFlight, *, exact_oks: bool) -> bool:
+    """May `command` go out now without its answer becoming confusable with another's if an ok is lost?
+
+    An ok names its command only by line number (ADVANCED_OK) or by its shape (M105's `ok T:`). So, unless
+    the printer numbers its oks, a command whose reply someone waits for is never in flight together with
+    another whose ok looks the same: at most one M105 at a time, and a user's command that is answered by
+    a plain ok only while no other plainly answered command is in flight. Print lines may share the line
+    with each other (a print line needs only to be known to have run, and a later answer proves that).
+    """
+    if command.code == "M105":
+        # Probes may follow each other (nobody waits for their answers, and each proves the same thing).
+        return not any(c.code == "M105" and not (command.probe and c.probe) for c in flight)
+    if exact_oks and command.numbered:
+        return True
+    waits_for_reply = command.job is None and not command.probe
+    for other in flight:
+        if other.code == "M105":
+            continue
+        if waits_for_reply or (other.job is None and not other.probe and not other.orphan):
+            return False
+    return True
