@@ -22,7 +22,15 @@ from typer.core import TyperGroup
 import marlin_aio
 from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, check_target
 
-from .connect import EXIT_CODES_HELP, PASSWORD_ENV, ConnectOptions, Exit, UsageProblem, exit_code_for, printer_password
+from .common.connect import (
+    EXIT_CODES_HELP,
+    PASSWORD_ENV,
+    ConnectOptions,
+    Exit,
+    UsageProblem,
+    exit_code_for,
+    printer_password,
+)
 
 __all__ = ["app"]
 
@@ -298,7 +306,7 @@ def watch(
     """Live view of every heater, with keys to set targets; the farm view for several printers (the help text
     is `_WATCH_HELP`)."""
     password = _printer_password(password, password_file, ask_password)
-    from .watch import WatchSettings, watch_farm, watch_printer
+    from .watch.command import WatchSettings, watch_farm, watch_printer
 
     ports = ports or []
     farm_specs = []
@@ -423,7 +431,7 @@ def set_targets(
 ) -> None:
     """Set heater targets, print what the printer confirmed, wait if asked (the help text is `_SET_HELP`)."""
     password = _printer_password(password, password_file, ask_password)
-    from .setcmd import SetRequest, set_printer_targets
+    from .heaters.command import SetRequest, set_printer_targets
 
     if off and (hotend or bed or chamber):
         fail("--off turns every heater off; do not combine it with targets", Exit.USAGE)
@@ -517,7 +525,7 @@ def log(
     password = _printer_password(password, password_file, ask_password)
     import math
 
-    from .logcmd import LogSettings, log_temperatures
+    from .logs.command import LogSettings, log_temperatures
 
     if fmt not in ("csv", "jsonl"):
         fail(f"unknown --format {fmt!r}: use csv or jsonl", Exit.USAGE)
@@ -637,8 +645,8 @@ def print_file(
 ) -> None:
     """Stream a G-code file with a progress view, keys and --from-line (the help text is `_PRINT_HELP`)."""
     password = _printer_password(password, password_file, ask_password)
-    from .printcmd import PrintSettings, print_gcode
-    from .printfile import plan_print
+    from .printing.command import PrintSettings, print_gcode
+    from .printing.plan import plan_print
 
     if path.is_dir():
         fail(f"{path} is a directory: give a G-code file", Exit.USAGE)
@@ -704,7 +712,7 @@ def send(
 ) -> None:
     """Send G-code commands in order and print each reply (the help text is `_SEND_HELP`)."""
     password = _printer_password(password, password_file, ask_password)
-    from .sendcmd import check_commands, send_commands
+    from .console.send import check_commands, send_commands
 
     try:
         checked = check_commands(commands or [], limits=_limits(max_hotend, max_bed))
@@ -778,7 +786,7 @@ def terminal(
 ) -> None:
     """The interactive G-code console (the help text is `_TERMINAL_HELP`)."""
     password = _printer_password(password, password_file, ask_password)
-    from .console import ConsoleSettings, default_history_path, run_console
+    from .console.terminal import ConsoleSettings, default_history_path, run_console
 
     if not (sys.stdin.isatty() and sys.stdout.isatty()):
         fail('terminal needs an interactive terminal; from a script use: marlin-temp send "G28" "M114"', Exit.USAGE)
@@ -919,7 +927,7 @@ def farm(
     from marlin_aio.farm.bridge import BridgeSettings
     from marlin_aio.farm.config import check_unique, load_config, specs_from_options
 
-    from .farmcmd import FarmOptions, broker_settings, run_farm
+    from .farm.command import FarmOptions, broker_settings, run_farm
 
     if duration is not None and not duration > 0:
         fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
@@ -1000,7 +1008,7 @@ def bench(
 ) -> None:
     """Measure latency, order and throughput of the link to the printer (the help text is `_BENCH_HELP`)."""
     password = _printer_password(password, password_file, ask_password)
-    from .benchcmd import BenchSettings, bench_printer, show_result
+    from .bench.command import BenchSettings, bench_printer, show_result
 
     options = ConnectOptions(port=port, baud=baud, sim=sim, sim_speed=sim_speed, timeout_s=timeout, password=password)
     settings = BenchSettings(round_trips=count, lines=lines, duration_s=duration)
@@ -1034,7 +1042,7 @@ def plot(
     with the gaps between them; --show lists them, and --session draws one alone. Logs of older marlin-temp
     versions (time_utc, elapsed_s) are read too.
     """
-    from .plotcmd import plot_log
+    from .logs.plot import plot_log
 
     if output is None and not show:
         fail("give --output FILE.png, or --show to draw in the terminal", Exit.USAGE)

@@ -62,7 +62,7 @@ def test_the_core_does_no_io(module: str) -> None:
         )
 
 
-@pytest.mark.parametrize("path", sorted([*ROOT.glob("cli/*.py"), *ROOT.glob("benchmarks/*.py")]), ids=str)
+@pytest.mark.parametrize("path", sorted([*ROOT.glob("cli/**/*.py"), *ROOT.glob("benchmarks/*.py")]), ids=str)
 def test_the_cli_and_the_benchmarks_use_only_public_names(path: Path) -> None:
     public = {"marlin_aio": set(marlin_aio.__all__), "marlin_aio.simulator": set(marlin_aio.simulator.__all__)}
     for module, names in imports(path):

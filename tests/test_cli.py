@@ -18,9 +18,9 @@ from typer.testing import CliRunner
 
 import marlin_aio
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_temp.common.model import WatchModel
+from marlin_temp.common.render import chart, heater_table, plain_line, watch_view
 from marlin_temp.main import app
-from marlin_temp.model import WatchModel
-from marlin_temp.render import chart, heater_table, plain_line, watch_view
 
 runner = CliRunner()
 FAST = ["--sim", "--sim-speed", "50"]

@@ -16,7 +16,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from marlin_aio.simulator import Faults, SimulatorConfig, serve_pty
-from marlin_temp.benchcmd import (
+from marlin_temp.bench.command import (
     BenchResult,
     CorrectnessResult,
     LatencyResult,
@@ -25,7 +25,7 @@ from marlin_temp.benchcmd import (
     bench_json,
     bench_table,
 )
-from marlin_temp.connect import Exit
+from marlin_temp.common.connect import Exit
 from marlin_temp.main import app
 
 runner = CliRunner()

@@ -24,8 +24,8 @@ from typer.testing import CliRunner, Result
 
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
-from marlin_temp.connect import Exit
-from marlin_temp.console import GcodeCompleter, default_history_path, temperature_line
+from marlin_temp.common.connect import Exit
+from marlin_temp.console.terminal import GcodeCompleter, default_history_path, temperature_line
 from marlin_temp.main import app
 
 runner = CliRunner()

@@ -21,8 +21,8 @@ from test_cli_console import at_an_empty_prompt, needs_tmux, start_terminal, typ
 from test_cli_terminal import Tmux
 
 from marlin_aio.simulator import SimulatorServer
-from marlin_temp.connect import Exit
-from marlin_temp.console import GcodeCompleter, HistoryWithoutStops, is_emergency_stop
+from marlin_temp.common.connect import Exit
+from marlin_temp.console.terminal import GcodeCompleter, HistoryWithoutStops, is_emergency_stop
 
 # Every way of writing a line that Marlin (its parser or its emergency parser) reads as M112.
 STOP_SPELLINGS = ["M112", "m112", "M0112", "M 112", "M112 ; stop", "N5 M112*27", " n12 m112", "M112.0", "!", " ! "]

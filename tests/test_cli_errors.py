@@ -20,9 +20,9 @@ from typer.testing import CliRunner
 
 import marlin_aio
 from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
-from marlin_temp.connect import ConnectOptions, Exit
+from marlin_temp.common.connect import ConnectOptions, Exit
 from marlin_temp.main import app
-from marlin_temp.watch import WatchSettings, watch_printer
+from marlin_temp.watch.command import WatchSettings, watch_printer
 
 runner = CliRunner()
 

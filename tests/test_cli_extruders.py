@@ -15,10 +15,10 @@ from typer.testing import CliRunner
 
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, serve_pty
-from marlin_temp.connect import Exit
+from marlin_temp.common.connect import Exit
+from marlin_temp.common.model import WatchModel
+from marlin_temp.common.render import chart, heater_table, plain_line
 from marlin_temp.main import app
-from marlin_temp.model import WatchModel
-from marlin_temp.render import chart, heater_table, plain_line
 
 runner = CliRunner()
 TWO_HOTENDS = "T:200.0 /200.0 B:60.0 /60.0 T0:200.0 /200.0 T1:25.0 /0.0 @:64 B@:0 @0:64 @1:0"

@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from marlin_aio.farm.config import load_config, specs_from_options
-from marlin_temp.connect import Exit
+from marlin_temp.common.connect import Exit
 from marlin_temp.main import app
 
 runner = CliRunner()

@@ -30,7 +30,8 @@ from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.farm.config import specs_from_options
 from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
 from marlin_aio.simulator import SimulatorConfig, serve_tcp
-from marlin_temp.farmview import (
+from marlin_temp.common.model import WatchModel
+from marlin_temp.farm.view import (
     FarmKeys,
     FarmRow,
     HeaterCell,
@@ -43,8 +44,7 @@ from marlin_temp.farmview import (
     plain_lines,
 )
 from marlin_temp.main import app
-from marlin_temp.model import WatchModel
-from marlin_temp.watch import WatchSettings, watch_farm
+from marlin_temp.watch.command import WatchSettings, watch_farm
 
 WIDTHS = (60, 80, 120)
 needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")

@@ -26,9 +26,9 @@ from typer.testing import CliRunner
 import marlin_aio
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.simulator import Faults, SimulatorConfig, serve_pty, serve_tcp
-from marlin_temp.connect import ConnectOptions, Exit
-from marlin_temp.logcmd import LogSettings, log_temperatures, record_temperatures
-from marlin_temp.logfile import FIXED_COLUMNS, RowSampler, TemperatureLog, read_log
+from marlin_temp.common.connect import ConnectOptions, Exit
+from marlin_temp.logs.command import LogSettings, log_temperatures, record_temperatures
+from marlin_temp.logs.files import FIXED_COLUMNS, RowSampler, TemperatureLog, read_log
 from marlin_temp.main import app
 
 runner = CliRunner()

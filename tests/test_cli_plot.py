@@ -14,10 +14,10 @@ import pytest
 from typer.testing import CliRunner
 
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
-from marlin_temp.connect import Exit
-from marlin_temp.logfile import TemperatureLog, read_log
+from marlin_temp.common.connect import Exit
+from marlin_temp.logs.files import TemperatureLog, read_log
+from marlin_temp.logs.plot import describe_span, plot_data
 from marlin_temp.main import app
-from marlin_temp.plotcmd import describe_span, plot_data
 
 runner = CliRunner()
 START = 1_790_000_000.0  # the first session's first reading (epoch seconds)

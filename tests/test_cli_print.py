@@ -20,11 +20,11 @@ from typer.testing import CliRunner
 
 from marlin_aio import PrintProgress, PrintState
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
-from marlin_temp.connect import Exit
+from marlin_temp.common.connect import Exit
 from marlin_temp.main import app
-from marlin_temp.printcmd import print_status
-from marlin_temp.printfile import GcodePlan, HeatWait, plan_print, transliterate
-from marlin_temp.printview import PrintStatus, RateWindow, plain_status, print_view
+from marlin_temp.printing.command import print_status
+from marlin_temp.printing.plan import GcodePlan, HeatWait, plan_print, transliterate
+from marlin_temp.printing.view import PrintStatus, RateWindow, plain_status, print_view
 
 runner = CliRunner()
 

@@ -25,11 +25,11 @@ from typer.testing import CliRunner
 
 from marlin_aio.protocol.heaters import HeaterLimits
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
-from marlin_temp.connect import ConnectOptions, Exit
+from marlin_temp.common.connect import ConnectOptions, Exit
 from marlin_temp.main import app
-from marlin_temp.printcmd import PrintSettings, print_gcode
-from marlin_temp.printfile import plan_print
-from marlin_temp.printview import PrintStatus, print_view
+from marlin_temp.printing.command import PrintSettings, print_gcode
+from marlin_temp.printing.plan import plan_print
+from marlin_temp.printing.view import PrintStatus, print_view
 
 runner = CliRunner()
 _T = TypeVar("_T")

@@ -12,9 +12,9 @@ from typer.testing import CliRunner
 import marlin_aio
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
-from marlin_temp.connect import Exit
+from marlin_temp.common.connect import Exit
+from marlin_temp.heaters.command import PrinterHeaters, confirmation
 from marlin_temp.main import app
-from marlin_temp.setcmd import PrinterHeaters, confirmation
 
 runner = CliRunner()
 TARGETS = ("M104", "M109", "M140", "M190", "M141", "M191")

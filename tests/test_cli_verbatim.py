@@ -21,15 +21,15 @@ import marlin_aio
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
 from marlin_aio.simulator import SimulatorConfig, serve_pty
-from marlin_temp.connect import ConnectOptions, Exit
-from marlin_temp.farmview import detail_view, farm_row, farm_view, plain_lines
-from marlin_temp.logcmd import LogSettings, log_temperatures
+from marlin_temp.common.connect import ConnectOptions, Exit
+from marlin_temp.common.model import SendCommand, WatchControls, WatchModel
+from marlin_temp.common.render import controls_view, watch_view
+from marlin_temp.console.send import check_commands, send_commands
+from marlin_temp.farm.view import detail_view, farm_row, farm_view, plain_lines
+from marlin_temp.heaters.command import heaters_left_on
+from marlin_temp.logs.command import LogSettings, log_temperatures
 from marlin_temp.main import app
-from marlin_temp.model import SendCommand, WatchControls, WatchModel
-from marlin_temp.render import controls_view, watch_view
-from marlin_temp.sendcmd import check_commands, send_commands
-from marlin_temp.setcmd import heaters_left_on
-from marlin_temp.watch import _outcome
+from marlin_temp.watch.command import _outcome
 
 runner = CliRunner()
 EMOJI = ("🔁", "😄")  # what rich makes of :repeat: and :smile:

@@ -24,8 +24,8 @@ from typer.testing import CliRunner
 import marlin_aio
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
-from marlin_temp.main import app
-from marlin_temp.model import (
+from marlin_temp.common.keys import split_keys
+from marlin_temp.common.model import (
     Notice,
     Quit,
     SendCommand,
@@ -36,9 +36,9 @@ from marlin_temp.model import (
     WatchControls,
     WatchModel,
 )
-from marlin_temp.render import controls_view, heater_table, watch_view
-from marlin_temp.terminal import split_keys
-from marlin_temp.watch import _outcome, _perform
+from marlin_temp.common.render import controls_view, heater_table, watch_view
+from marlin_temp.main import app
+from marlin_temp.watch.command import _outcome, _perform
 
 WIDTHS = (40, 60, 80, 120)
 needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
@@ -299,7 +299,7 @@ async def test_bad_input_on_the_colon_line_is_one_line_in_the_view_and_never_sen
 
 
 def test_a_pasted_line_with_a_line_break_in_it_is_one_line_saying_nothing_was_sent() -> None:
-    from marlin_temp.terminal import PASTE
+    from marlin_temp.common.keys import PASTE
 
     controls = WatchControls()
     assert press(controls, [":", PASTE + "M104 S200\nM140 S60\n"]) == []
@@ -460,7 +460,7 @@ def test_without_a_terminal_on_stdin_the_live_view_has_no_keys(tmux: Tmux) -> No
 
 
 def test_a_paste_is_never_taken_for_keys() -> None:
-    from marlin_temp.terminal import PASTE
+    from marlin_temp.common.keys import PASTE
 
     controls = WatchControls()
     # Two lines pasted into the : line: nothing is sent, and the "o" and "1" in them turn nothing off or on.

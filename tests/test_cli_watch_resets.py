@@ -17,7 +17,7 @@ from typing import Any
 from typer.testing import CliRunner
 
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
-from marlin_temp.connect import Exit
+from marlin_temp.common.connect import Exit
 from marlin_temp.main import app
 
 runner = CliRunner()

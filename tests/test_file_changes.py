@@ -20,9 +20,9 @@ from typer.testing import CliRunner
 import marlin_aio
 from marlin_aio import FileChangedError, MarlinError, PrintJob, PrintState, TemperatureReading
 from marlin_aio.simulator import Faults, SimulatorConfig, serve_pty
-from marlin_temp.connect import Exit
+from marlin_temp.common.connect import Exit
 from marlin_temp.main import app
-from marlin_temp.printfile import plan_print
+from marlin_temp.printing.plan import plan_print
 
 runner = CliRunner()
 LINES = 2_000

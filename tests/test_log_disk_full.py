@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from marlin_temp.logfile import FIXED_COLUMNS, read_log
+from marlin_temp.logs.files import FIXED_COLUMNS, read_log
 
 # Limits the child's files, then runs the rest of its script: imports come first, so nothing of Python's own
 # start-up meets the limit.
@@ -36,7 +36,7 @@ LOG_SCRIPT = """
 import asyncio, json
 from pathlib import Path
 from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
-from marlin_temp.logfile import TemperatureLog
+from marlin_temp.logs.files import TemperatureLog
 
 def reading(i):
     temperatures = parse_temperatures(f"T:{{20 + i:.2f}} /200.00 B:25.00 /60.00 @:64 B@:127")
@@ -65,7 +65,7 @@ asyncio.run(main())
 
 def run_child(script: str, limit: int | None, timeout_s: float = 120) -> subprocess.CompletedProcess[str]:
     """Run `script` in a Python whose files may not grow past `limit` bytes (None: no limit)."""
-    imports = "import marlin_temp.main, marlin_temp.logfile, marlin_aio.simulator\n"
+    imports = "import marlin_temp.main, marlin_temp.logs.files, marlin_aio.simulator\n"
     return subprocess.run(
         [sys.executable, "-c", imports + PRELUDE + script, str(limit).lower()],
         capture_output=True,

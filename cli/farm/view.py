@@ -28,8 +28,8 @@ from rich.text import Text
 
 from marlin_aio.farm.supervisor import FarmPrinter
 
-from .model import WatchModel, heater_name
-from .render import watch_view
+from ..common.model import WatchModel, heater_name
+from ..common.render import watch_view
 
 __all__ = [
     "FarmKeys",

@@ -32,10 +32,9 @@ from rich.text import Text
 import marlin_aio
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
-from .connect import ConnectOptions, Exit, open_printer
-from .farmview import FarmKeys, detail_view, farm_row, farm_view, json_lines, plain_lines
-from .logfile import TemperatureLog
-from .model import (
+from ..common.connect import ConnectOptions, Exit, open_printer
+from ..common.keys import key_presses, on_stop_signals
+from ..common.model import (
     Action,
     Notice,
     Quit,
@@ -47,9 +46,10 @@ from .model import (
     WatchControls,
     WatchModel,
 )
-from .render import plain_line, watch_view
-from .setcmd import say_heaters_left_on
-from .terminal import key_presses, on_stop_signals
+from ..common.render import plain_line, watch_view
+from ..farm.view import FarmKeys, detail_view, farm_row, farm_view, json_lines, plain_lines
+from ..heaters.command import say_heaters_left_on
+from ..logs.files import TemperatureLog
 
 __all__ = ["WatchSettings", "watch_farm", "watch_printer"]
 

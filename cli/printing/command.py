@@ -22,9 +22,10 @@ from rich.text import Text
 
 import marlin_aio
 
-from .connect import ConnectOptions, Exit, exit_code_for, open_printer
-from .printfile import GcodePlan
-from .printview import (
+from ..common.connect import ConnectOptions, Exit, exit_code_for, open_printer
+from ..common.keys import key_presses, on_stop_signals
+from .plan import GcodePlan
+from .view import (
     KEYS_HELP,
     PrintStatus,
     RateWindow,
@@ -34,7 +35,6 @@ from .printview import (
     print_view,
     temperatures_text,
 )
-from .terminal import key_presses, on_stop_signals
 
 __all__ = ["PrintSettings", "print_gcode", "print_status"]
 

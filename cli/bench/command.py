@@ -39,7 +39,7 @@ from rich.table import Table
 
 import marlin_aio
 
-from .connect import ConnectOptions, open_printer
+from ..common.connect import ConnectOptions, open_printer
 
 __all__ = [
     "BenchResult",

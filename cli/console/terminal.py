@@ -47,8 +47,8 @@ from rich.console import Console
 import marlin_aio
 from marlin_aio import TemperatureReading, command_code, command_timeout_s, heater_name
 
-from .connect import ConnectOptions, Exit, open_printer
-from .sendcmd import check_command, emergency_stop_notes, reply_lines, unknown_command
+from ..common.connect import ConnectOptions, Exit, open_printer
+from .send import check_command, emergency_stop_notes, reply_lines, unknown_command
 
 __all__ = [
     "EMERGENCY_STOP_KEY",

@@ -19,8 +19,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.text import Text
 
-from .connect import UsageProblem
-from .logfile import LogContents, LogSession, read_log
+from ..common.connect import UsageProblem
+from .files import LogContents, LogSession, read_log
 
 __all__ = ["PlotData", "Segment", "describe_span", "plot_data", "plot_log", "session_table", "terminal_plot"]
 

@@ -24,7 +24,7 @@ from marlin_aio import (
     heater_name,
 )
 
-from .terminal import PASTE
+from .keys import PASTE
 
 __all__ = [
     "HEATER_NAMES",

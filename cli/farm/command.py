@@ -22,7 +22,7 @@ from rich.markup import escape
 from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
-from .connect import UsageProblem
+from ..common.connect import UsageProblem
 
 __all__ = ["PASSWORD_ENV", "FarmOptions", "broker_settings", "run_farm"]
 

@@ -30,10 +30,10 @@ from rich.console import Console
 
 import marlin_aio
 
-from .connect import ConnectOptions, Exit, open_printer
-from .logfile import LogFormat, LogWriteError, TemperatureLog
-from .setcmd import say_heaters_left_on
-from .terminal import on_stop_signals
+from ..common.connect import ConnectOptions, Exit, open_printer
+from ..common.keys import on_stop_signals
+from ..heaters.command import say_heaters_left_on
+from .files import LogFormat, LogWriteError, TemperatureLog
 
 __all__ = ["RECONNECT_DELAYS_S", "LogSettings", "log_temperatures", "record_temperatures"]
 

@@ -26,9 +26,9 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedCo
 
 import marlin_aio
 
-from .connect import ConnectOptions, Exit, UsageProblem, open_printer
-from .model import heater_name
-from .printview import heaters_on
+from ..common.connect import ConnectOptions, Exit, UsageProblem, open_printer
+from ..common.model import heater_name
+from ..printing.view import heaters_on
 
 __all__ = [
     "PrinterHeaters",

@@ -23,7 +23,7 @@ from rich.text import Text
 
 import marlin_aio
 
-from .printfile import HeatWait
+from .plan import HeatWait
 
 __all__ = [
     "KEYS_HELP",

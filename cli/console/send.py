@@ -28,7 +28,7 @@ from marlin_aio import (
     validate_command,
 )
 
-from .connect import ConnectOptions, Exit, UsageProblem, open_printer
+from ..common.connect import ConnectOptions, Exit, UsageProblem, open_printer
 
 __all__ = [
     "check_command",

@@ -1,0 +1,1 @@
+"""`marlin-temp bench`: read-only measurements of the link to the user's own printer (`command`)."""

@@ -1,0 +1,2 @@
+"""`marlin-temp set`: send heater targets, report what the printer confirmed and optionally wait
+(`command`); also says which heaters are left on when another command ends."""

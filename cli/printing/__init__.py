@@ -1,0 +1,2 @@
+"""`marlin-temp print FILE`: streaming a G-code file (`command`), the plan made from the file before
+anything is sent and the lazy reading of it afterwards (`plan`), and the pure progress view (`view`)."""
