@@ -1,45 +1,53 @@
-"""The rules of the layout (docs/architecture.md), checked on the source: the protocol core does no I/O, and the
-CLI and the benchmarks use only the library's public names."""
+"""The rules of the layout (docs/architecture.md), checked on the source: each folder of the library imports only
+the folders before it, the protocol folder does no I/O (no port, socket, clock or file), the library never imports
+the CLI's front ends, and the CLI and the benchmarks use only the library's public names."""
 
 from __future__ import annotations
 
 import ast
+import importlib
+import sys
 from pathlib import Path
 
 import pytest
 
-import marlin_aio
-import marlin_aio.simulator
-
 ROOT = Path(__file__).resolve().parent.parent
 
-#: The sans-I/O core: bytes and times in, bytes and results out. Nothing here may import asyncio or serial.
-CORE = (
-    "commands",
-    "connection",
-    "corestate",
-    "deadlines",
-    "errors",
-    "events",
-    "framing",
-    "heaters",
-    "linkstate",
-    "matching",
-    "motion",
-    "parsing",
-    "printjob",
-    "receiving",
-    "replies",
-    "resends",
-    "states",
-    "stats",
-    "streaming",
-    "temperatures",
-    "trace",
+#: What each folder of the library may import from the library, and from outside the standard library. A folder
+#: reads only from the ones before it: errors <- protocol <- aio <- (farm, simulator). `marlin_aio` alone means the
+#: package's public names (its __init__).
+LAYERS: dict[str, tuple[set[str], set[str]]] = {
+    "protocol": ({"marlin_aio.errors", "marlin_aio.protocol"}, set()),
+    "aio": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.aio"}, {"serial", "serial_asyncio_fast"}),
+    "simulator": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.simulator"}, {"serial"}),
+    "farm": (
+        {"marlin_aio", "marlin_aio.errors", "marlin_aio.farm", "marlin_aio.simulator"},
+        {"aiomqtt"},
+    ),
+}
+
+#: The sans-I/O core touches no port, socket, clock or file: these modules, and these calls, are not for it.
+NO_IO_MODULES = {"asyncio", "serial", "serial_asyncio", "serial_asyncio_fast", "socket", "os", "io", "subprocess"}
+NO_IO_CALLS = {"open", "read_text", "write_text", "read_bytes", "write_bytes", "stat", "fstat", "time", "monotonic"}
+
+#: Never imported by the library, whatever the folder: the CLI's and the farm's front ends.
+FRONT_ENDS = {"typer", "rich", "prompt_toolkit", "marlin_temp", "cli"}
+
+#: The modules whose `__all__` the CLI and the benchmarks may import from.
+PUBLIC_MODULES = (
+    "marlin_aio",
+    "marlin_aio.aio",
+    "marlin_aio.simulator",
+    "marlin_aio.farm.bridge",
+    "marlin_aio.farm.commands",
+    "marlin_aio.farm.config",
+    "marlin_aio.farm.supervisor",
 )
 
 #: Modules outside the package's public names that the CLI may still name: the simulator's command line.
 ALLOWED_MODULES = {"marlin_aio.simulator.__main__"}
+
+STDLIB = set(sys.stdlib_module_names)
 
 
 def imports(path: Path) -> list[tuple[str, list[str]]]:
@@ -53,20 +61,50 @@ def imports(path: Path) -> list[tuple[str, list[str]]]:
     return found
 
 
-@pytest.mark.parametrize("module", CORE)
-def test_the_core_does_no_io(module: str) -> None:
-    path = ROOT / "marlin_aio" / "protocol" / f"{module}.py"
-    for name, _ in imports(path if path.exists() else ROOT / "marlin_aio" / f"{module}.py"):
-        assert name.split(".")[0] not in {"asyncio", "serial", "serial_asyncio", "serial_asyncio_fast", "socket"}, (
-            f"marlin_aio/{module}.py imports {name}"
-        )
+def library_files(folder: str) -> list[Path]:
+    return sorted((ROOT / "marlin_aio" / folder).glob("*.py"))
+
+
+@pytest.mark.parametrize("folder", sorted(LAYERS))
+def test_each_folder_imports_only_the_folders_before_it(folder: str) -> None:
+    allowed, third_party = LAYERS[folder]
+    for path in library_files(folder):
+        for name, _ in imports(path):
+            top = name.split(".")[0]
+            where = f"marlin_aio/{folder}/{path.name} imports {name}"
+            if top == "marlin_aio":
+                assert (name == "marlin_aio" and "marlin_aio" in allowed) or any(
+                    name == layer or name.startswith(layer + ".") for layer in allowed - {"marlin_aio"}
+                ), where
+            else:
+                assert top in STDLIB or top in third_party, where
+
+
+def test_the_protocol_folder_does_no_io() -> None:
+    for path in library_files("protocol"):
+        for name, _ in imports(path):
+            assert name.split(".")[0] not in NO_IO_MODULES, f"marlin_aio/protocol/{path.name} imports {name}"
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Call):
+                called = node.func.id if isinstance(node.func, ast.Name) else getattr(node.func, "attr", None)
+                assert called not in NO_IO_CALLS, f"marlin_aio/protocol/{path.name}:{node.lineno} calls {called}()"
+
+
+def test_the_library_never_imports_a_front_end() -> None:
+    for path in sorted((ROOT / "marlin_aio").rglob("*.py")):
+        for name, _ in imports(path):
+            assert name.split(".")[0] not in FRONT_ENDS, f"{path.relative_to(ROOT)} imports {name}"
+
+
+def test_errors_imports_nothing_of_the_library() -> None:
+    assert not [name for name, _ in imports(ROOT / "marlin_aio" / "errors.py") if name.startswith("marlin_aio")]
 
 
 @pytest.mark.parametrize("path", sorted([*ROOT.glob("cli/**/*.py"), *ROOT.glob("benchmarks/*.py")]), ids=str)
 def test_the_cli_and_the_benchmarks_use_only_public_names(path: Path) -> None:
-    public = {"marlin_aio": set(marlin_aio.__all__), "marlin_aio.simulator": set(marlin_aio.simulator.__all__)}
+    public = {module: set(importlib.import_module(module).__all__) for module in PUBLIC_MODULES}
     for module, names in imports(path):
-        if not module.startswith("marlin_aio") or module in ALLOWED_MODULES or module.startswith("marlin_aio.farm."):
+        if not module.startswith("marlin_aio") or module in ALLOWED_MODULES:
             continue
         assert module in public, f"{path.name} imports the private module {module}"
         private = [name for name in names if name not in public[module]]

@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 
 import marlin_aio
 from marlin_aio import FileChangedError, MarlinError, PrintJob, PrintState, TemperatureReading
+from marlin_aio.aio.gcodefile import file_lines, job_from_path
 from marlin_aio.simulator import Faults, SimulatorConfig, serve_pty
 from marlin_temp.common.connect import Exit
 from marlin_temp.main import app
@@ -84,7 +85,7 @@ def reached(error: FileChangedError) -> int:
 
 
 def test_an_unchanged_file_prints_whole(tmp_path: Path) -> None:
-    job = PrintJob.from_path(write_gcode(tmp_path / "part.gcode"))
+    job = job_from_path(write_gcode(tmp_path / "part.gcode"))
     assert run(job) == [move(i) for i in range(LINES)]
     assert job.state is PrintState.DONE
 
@@ -93,7 +94,7 @@ def test_an_unchanged_file_prints_whole(tmp_path: Path) -> None:
 def test_a_file_cut_short_while_it_prints_fails_naming_the_file_and_line(tmp_path: Path, keep_lines: int) -> None:
     path = write_gcode(tmp_path / "part.gcode")
     size = path.stat().st_size
-    job = PrintJob.from_path(path)
+    job = job_from_path(path)
 
     def cut() -> None:
         path.write_text(gcode_text(keep_lines))
@@ -110,7 +111,7 @@ def test_a_file_cut_short_while_it_prints_fails_naming_the_file_and_line(tmp_pat
 
 def test_a_file_cut_in_the_middle_of_a_line_never_sends_the_half_line(tmp_path: Path) -> None:
     path = write_gcode(tmp_path / "part.gcode", lines=300)
-    job = PrintJob.from_path(path)
+    job = job_from_path(path)
     first = job.next_command()
     assert first is not None
     # The reader holds the start of the file in its buffer; the file now ends half way through command 200.
@@ -127,7 +128,7 @@ def test_a_file_cut_in_the_middle_of_a_line_never_sends_the_half_line(tmp_path: 
 def test_a_file_rewritten_with_other_lines_of_the_same_size_fails_within_a_few_lines(tmp_path: Path) -> None:
     path = write_gcode(tmp_path / "part.gcode")
     size = path.stat().st_size
-    job = PrintJob.from_path(path)
+    job = job_from_path(path)
 
     def other(index: int) -> str:
         return move(index).replace("G1 X", "G0 X")  # another file of the very same length
@@ -149,7 +150,7 @@ def test_a_file_rewritten_with_other_lines_of_the_same_size_fails_within_a_few_l
 def test_a_file_appended_to_while_it_prints_fails(tmp_path: Path) -> None:
     path = write_gcode(tmp_path / "part.gcode")
     size = path.stat().st_size
-    job = PrintJob.from_path(path)
+    job = job_from_path(path)
 
     def append() -> None:
         with path.open("a") as file:
@@ -167,7 +168,7 @@ def test_a_file_whose_size_and_time_were_put_back_still_fails_when_its_lines_do_
     # taken at the check can tell, at the end. Here the first 1,000 commands stay, the rest is one long comment.
     path = write_gcode(tmp_path / "part.gcode")
     size = path.stat().st_size
-    job = PrintJob.from_path(path)
+    job = job_from_path(path)
 
     def rewrite() -> None:
         lines = gcode_text().splitlines(keepends=True)
@@ -186,7 +187,7 @@ def test_a_file_whose_size_and_time_were_put_back_still_fails_when_its_lines_do_
 def test_a_file_replaced_by_another_through_a_rename_prints_the_one_opened_whole(tmp_path: Path) -> None:
     # Editors and slicers save to a new file and rename it over the old one: the open file is still the one checked.
     path = write_gcode(tmp_path / "part.gcode")
-    job = PrintJob.from_path(path)
+    job = job_from_path(path)
 
     def replace() -> None:
         other = write_gcode(tmp_path / "part.gcode.new", lines=10)
@@ -200,7 +201,7 @@ def test_a_file_changed_between_its_check_and_the_print_sends_nothing(tmp_path: 
     path = write_gcode(tmp_path / "part.gcode")
     checked = path.stat()
     path.write_text(gcode_text(5))
-    source = PrintJob.file_lines(path, size_bytes=checked.st_size, mtime_ns=checked.st_mtime_ns, lines_total=LINES + 1)
+    source = file_lines(path, size_bytes=checked.st_size, mtime_ns=checked.st_mtime_ns, lines_total=LINES + 1)
     job = PrintJob(source, name=path.name, lines_total=LINES)
     assert run(job) == []
     error = error_of(job)
@@ -214,7 +215,7 @@ def test_a_file_changed_between_its_check_and_the_print_sends_nothing(tmp_path: 
 def test_with_lines_in_flight_the_job_ends_once_they_are_answered(tmp_path: Path) -> None:
     # Send-ahead: what is on its way is the file as checked; the job waits for its answers, then fails.
     path = write_gcode(tmp_path / "part.gcode", lines=40)
-    job = PrintJob.from_path(path)
+    job = job_from_path(path)
     in_flight = []
     for _ in range(3):
         item = job.next_command()

@@ -11,7 +11,7 @@ Skipped lines are yielded as empty lines rather than left out, so the library's 
 file's line numbers: "cancelled after line 8123" is a line the user can find and resume from.
 
 The second reading is of the file as it was checked: the plan keeps its size, modification time and number of
-lines, and `lines()` reads through `marlin_aio.PrintJob.file_lines`, which stops with `FileChangedError` once the
+lines, and `lines()` reads through `marlin_aio.aio.file_lines`, which stops with `FileChangedError` once the
 file is found cut short, rewritten or appended to (also between the check and the print), so a file saved again
 under a running print fails it, naming the line reached, instead of ending it as done half way.
 
@@ -39,6 +39,7 @@ from pathlib import Path
 
 import marlin_aio
 from marlin_aio import GCodeLine, HeaterLimits, command_code, parse_gcode
+from marlin_aio.aio import file_lines
 
 __all__ = ["SNIFF_BYTES", "GcodePlan", "HeatWait", "plan_print", "transliterate"]
 
@@ -127,9 +128,7 @@ class GcodePlan:
             OSError: the file cannot be read.
             marlin_aio.FileChangedError: (while iterating) the file is no longer the one checked.
         """
-        source = marlin_aio.PrintJob.file_lines(
-            self.path, size_bytes=self.size_bytes, mtime_ns=self.mtime_ns, lines_total=self.file_lines
-        )
+        source = file_lines(self.path, size_bytes=self.size_bytes, mtime_ns=self.mtime_ns, lines_total=self.file_lines)
         for number, raw in enumerate(source, 1):
             command = marlin_aio.strip_comment(raw)
             if not command or not self._selected(number):

@@ -1,2 +1,11 @@
-"""The asyncio side of marlin_aio: the `Printer` an application awaits, the link that drives the sans-I/O core on
-one port, opening ports, the temperature feed, the poller and prints in progress."""
+"""The asyncio side of marlin_aio: the `Printer` an application awaits (`printer`), the link that drives the
+sans-I/O core on one port (`link`), opening ports (`_serial`), the handshake, the temperature feed, the poller,
+prints in progress (`printhandle`) and G-code files read for printing (`gcodefile`).
+
+An application needs only `marlin_aio`'s own names. Exported here, for tools that stream files their own way:
+reading a G-code file as the printer will be fed it, checked whole first and watched for changes while it prints.
+"""
+
+from marlin_aio.aio.gcodefile import file_lines, job_from_path, scan_gcode
+
+__all__ = ["file_lines", "job_from_path", "scan_gcode"]

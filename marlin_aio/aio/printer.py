@@ -25,6 +25,7 @@ from types import TracebackType
 from typing import Self
 
 from marlin_aio.aio.feed import TemperatureFeed
+from marlin_aio.aio.gcodefile import job_from_path
 from marlin_aio.aio.handshake import BAUD_RATES, handshake, send_until_processed
 from marlin_aio.aio.link import Link
 from marlin_aio.aio.poller import Poller
@@ -593,7 +594,7 @@ class Printer:
         """The job for `source`, checked whole first where it can be read twice (a path, a list of lines)."""
         limits = self._heater_limits
         if isinstance(source, str | Path):
-            return PrintJob.from_path(Path(source), check=check, limits=limits)
+            return job_from_path(Path(source), check=check, limits=limits)
         if check and isinstance(source, Sequence):
             # Before the first line is sent, as for a file: a list over the limits is refused whole, and counted in
             # the same pass. (An iterator can be read only once: each of its lines is checked as it is fed, and a
