@@ -8,6 +8,7 @@ async function the tests can call too. Every failure ends as one line on stderr 
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import os
 import sys
 from collections.abc import Coroutine, Sequence
@@ -924,6 +925,8 @@ def farm(
     ] = None,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
 ) -> None:
+    if importlib.util.find_spec("aiomqtt") is None:
+        fail("marlin-temp farm needs aiomqtt, which is not installed: pip install 'marlin-aio[farm]'")
     from marlin_aio.farm.bridge import BridgeSettings
     from marlin_aio.farm.config import check_unique, load_config, specs_from_options
 
