@@ -1,7 +1,7 @@
 """`marlin-temp farm`: many printers in one process, bridged to an MQTT broker.
 
-The printers (`--port NAME=PORT`, `--config FILE`, `--sims N`) each run on their own supervisor (`cli.farm`), and
-the bridge (`cli.farmbridge`) publishes them to the broker. What happens is printed as one line per event on
+The printers (`--port NAME=PORT`, `--config FILE`, `--sims N`) each run on their own supervisor (`marlin_aio.farm`), and
+the bridge (`marlin_aio.farm.bridge`) publishes them to the broker. What happens is printed as one line per event on
 stderr; a summary line when it stops. Secrets (the broker password) come from the environment or a file and are
 never printed.
 """

@@ -3,7 +3,7 @@
 Pure, like `render.py`: a `FarmRow` is built from what the farm knows of a printer (`FarmPrinter`: link, last
 error, when it reconnects, print) and that printer's `WatchModel` (readings, heater states); rows are rendered for
 the width given and the tests render them into `Console(record=True, width=...)`. The detail view of one printer
-is the single-printer view (`render.watch_view`) of its model, so both views read the same numbers.
+is the single-printer view (`common.render.watch_view`) of its model, so both views read the same numbers.
 
 Every cell is a `rich.text.Text`, never a str rich would read as markup: a printer named `[b]p1` or an error quoting
 `Cap:REPEAT:0` is shown as it is.

@@ -15,7 +15,7 @@ A log the file system stops (disk full, the file size limit) ends the run at onc
 disk counted in it, and exit code 1: logging is all this command does.
 
 A run that set targets says, however it ends (Ctrl-C, --duration, a lost link, an error), which heaters are still
-on and how to turn them off, in `set`'s words (`setcmd.heaters_left_on`), from the last reading it had. Lines
+on and how to turn them off, in `set`'s words (`heaters.command.heaters_left_on`), from the last reading it had. Lines
 that carry a file name, a port or an error's text are printed with markup and emoji codes off.
 """
 

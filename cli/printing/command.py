@@ -1,7 +1,7 @@
 """`marlin-temp print FILE`: stream a G-code file with a progress view, live temperatures and keys.
 
-The file is read and checked whole before connecting (`printfile.plan_print`), so a bad file costs nothing; the view
-is drawn by the pure functions of `printview`. On a terminal, p pauses (no new lines are sent; what the printer has
+The file is read and checked whole before connecting (`printing.plan.plan_print`), so a bad file costs nothing; the view
+is drawn by the pure functions of `printing.view`. On a terminal, p pauses (no new lines are sent; what the printer has
 finishes, heaters stay on), r resumes, and ! sends M112 at once, with no question: an emergency stop must not wait
 for a second key. Ctrl-C does not kill a print half way through a line: it asks (on a terminal) whether to cancel,
 and a cancel stops feeding, lets the printer answer what it has, then turns the heaters and fan off (unless

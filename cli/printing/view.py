@@ -128,7 +128,7 @@ def heating_text(wait: HeatWait, reading: marlin_aio.TemperatureReading | None) 
 
 def heaters_on(reading: marlin_aio.TemperatureReading | None) -> list[str]:
     """The heaters of `reading` that have a target, each as "hotend 198.2/200 C" (none for no reading): what every
-    command that ends with heaters on names (`heaters_on_text` here, `setcmd.heaters_left_on`)."""
+    command that ends with heaters on names (`heaters_on_text` here, `heaters.command.heaters_left_on`)."""
     if reading is None:
         return []
     heaters = reading.temperatures.heaters

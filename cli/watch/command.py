@@ -368,7 +368,7 @@ async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console:
     """Watch several printers until q, Ctrl-C or --duration: the farm view (one row per printer; a digit, or the
     arrows and Enter, open one printer's detail); piped, one line per printer per refresh. Return the exit code.
 
-    Each printer is kept connected by its own supervisor (`cli.farm`): one that goes away shows down and
+    Each printer is kept connected by its own supervisor (`marlin_aio.farm`): one that goes away shows down and
     reconnecting while the others go on, so nothing here ends on a printer's error.
     """
     loop = asyncio.get_running_loop()

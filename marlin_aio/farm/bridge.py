@@ -14,12 +14,12 @@ Topics, for a printer named `NAME` under the prefix `P` (default `marlin`):
 - `P/bridge/availability` (retained): `online`, and `offline` as the bridge's Last Will, so a killed bridge shows,
   and on every clean exit. (`bridge` is therefore not a printer name.)
 - `homeassistant/sensor/marlin_NAME/.../config` (retained): Home Assistant discovery.
-- `P/NAME/command` and `P/NAME/response`: commands (with `allow_commands`; see `cli.farmcommands`).
+- `P/NAME/command` and `P/NAME/response`: commands (with `allow_commands`; see `marlin_aio.farm.commands`).
 
 The retained topics are the bridge's: it subscribes to them, and when another client overwrites one (a forged
 `online`, a deleted discovery config) it publishes its own again (at most once a second per topic, logged).
 
-Hostile input: a command is parsed under size, depth and character limits (`cli.farmcommands`); a retained
+Hostile input: a command is parsed under size, depth and character limits (`marlin_aio.farm.commands`); a retained
 command is never run (it would run again at every reconnection); every refusal is one answer on the response
 topic and one log line, never an exception out of the bridge. A print runs as a task of the farm
 (`Farm.start_print`), so however it ends is that printer's event, not the bridge's failure. Sets that other
@@ -32,7 +32,7 @@ queue of their own (bounded too: past the bound the oldest is dropped, counted, 
 goes away the bridge reconnects with backoff and publishes availability, state and discovery again.
 
 Secrets: state and events are retained or kept by the broker for any later subscriber, so nothing published or
-logged carries a printer's password: each event, state and answer is redacted (`cli.farm.redact`) before it is
+logged carries a printer's password: each event, state and answer is redacted (`redact`) before it is
 queued, whatever the farm and the library already did, since a command's text and an error's message can quote
 `M511 P<password>` (typed as G-code, or sent by the handshake).
 """

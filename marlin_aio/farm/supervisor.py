@@ -6,7 +6,7 @@ reaches another's task. What the farm knows of each printer (`FarmPrinter`: link
 reading, the last error) is read by whoever shows or forwards it (the MQTT bridge, a farm view), and what happens
 to it (`FarmEvent`: connected, connection lost, halted, reset, thermal runaway) goes to one callback, in order.
 
-Nothing here knows about MQTT: the bridge (`cli.farmbridge`) reads this state at its own rate, so a slow or
+Nothing here knows about MQTT: the bridge (`marlin_aio.farm.bridge`) reads this state at its own rate, so a slow or
 absent broker never slows a serial loop.
 
 Secrets: a printer's password (`password` in the config, sent as `M511 P<password>`) never reaches an event, the
