@@ -17,12 +17,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections import deque
 from collections.abc import AsyncGenerator, AsyncIterator, Callable, Generator, Iterable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
-from typing import Self
+from typing import Literal, Self
 
 from marlin_aio.aio.feed import TemperatureFeed
 from marlin_aio.aio.gcodefile import job_from_path
@@ -30,14 +31,14 @@ from marlin_aio.aio.handshake import BAUD_RATES, handshake, send_until_processed
 from marlin_aio.aio.link import Link
 from marlin_aio.aio.poller import Poller
 from marlin_aio.aio.printhandle import PrintHandle
-from marlin_aio.errors import ConnectionLostError, MarlinError, TemperatureTimeoutError
+from marlin_aio.errors import ConnectionLostError, MarlinError, PrinterHaltedError, TemperatureTimeoutError
 from marlin_aio.protocol.commands import (
     DEFAULT_MAX_BED_CELSIUS,
     DEFAULT_MAX_CHAMBER_CELSIUS,
     DEFAULT_MAX_HOTEND_CELSIUS,
 )
 from marlin_aio.protocol.connection import Connection, Reply
-from marlin_aio.protocol.events import Capability, Event, FirmwareInfo, Ok
+from marlin_aio.protocol.events import Capability, Event, FirmwareInfo, Ok, Start
 from marlin_aio.protocol.heaters import (
     HeaterLimits,
     describe_heaters,
@@ -59,7 +60,25 @@ from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import ReadingSource, TemperatureReading, heater_name
 from marlin_aio.protocol.trace import Trace
 
-__all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "PrintHandle", "Printer", "connect"]
+__all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "LinkEvent", "PrintHandle", "Printer", "connect"]
+
+
+@dataclass(frozen=True, slots=True)
+class LinkEvent:
+    """Something that happened to a printer's link, for `Printer.on_link_event`.
+
+    `kind` is `connected` (the handshake is done), `reset` (the board restarted while connected: it printed
+    `start`, and its targets and settings are gone), `halted` (a kill or emergency stop: it needs a reset; `error`
+    says why) or `disconnected` (the port went away, or was closed, `close()` included; `error` says why).
+    `message` says it for people.
+    """
+
+    kind: Literal["connected", "reset", "halted", "disconnected"]
+    message: str
+    error: MarlinError | None = None
+    time_s: float = field(default_factory=time.time)
+    """Wall-clock time (epoch seconds)."""
+
 
 DEFAULT_BAUDRATE = BAUD_RATES[0]
 
@@ -152,6 +171,7 @@ class Printer:
         self._connecting = False  # the handshake is under way
         self._reset_on_open = False
         self._failure_waiters: list[asyncio.Future[MarlinError]] = []
+        self._link_listeners: list[Callable[[LinkEvent], None]] = []
 
     @property
     def max_hotend_celsius(self) -> float:
@@ -208,6 +228,35 @@ class Printer:
         for waiter in waiters:
             if not waiter.done():
                 waiter.set_result(error)
+        kind: Literal["halted", "disconnected"] = "halted" if isinstance(error, PrinterHaltedError) else "disconnected"
+        self._link_event(LinkEvent(kind, str(error), error))
+
+    def on_link_event(self, callback: Callable[[LinkEvent], None]) -> Callable[[], None]:
+        """Call `callback` with each `LinkEvent` from now on (connected, reset, halted, disconnected); return the
+        function that stops the calls.
+
+        A supervisor learns of a board reset here as it happens, instead of polling `stats.resets`. It is called on
+        the event loop, soon after the line that told (never inside the link's read handler); if it raises, the
+        error is logged (logger "marlin_aio") and the link and the other listeners go on.
+        """
+        self._link_listeners.append(callback)
+
+        def stop() -> None:
+            if callback in self._link_listeners:
+                self._link_listeners.remove(callback)
+
+        return stop
+
+    def _link_event(self, event: LinkEvent) -> None:
+        if self._link_listeners:
+            self._link.loop.call_soon(self._tell_link_listeners, event)
+
+    def _tell_link_listeners(self, event: LinkEvent) -> None:
+        for listener in list(self._link_listeners):
+            try:
+                listener(event)
+            except Exception:  # a listener's bug must not reach the link
+                _log.exception("a link event listener failed on %s", event.kind)
 
     # ------------------------------------------------------------------------------------------- lifecycle
 
@@ -250,6 +299,9 @@ class Printer:
         finally:
             self._connecting = False
         _log.info("connected to %s: %s", self.port, self.firmware.name if self.firmware else "unknown firmware")
+        self._link_event(
+            LinkEvent("connected", f"{self.port} ({self.firmware.name if self.firmware else 'firmware unknown'})")
+        )
         if self._reset_on_open:
             _log.warning("the board on %s reset when the port was opened; targets set earlier were cleared", self.port)
 
@@ -742,6 +794,10 @@ class Printer:
                 self.capabilities[name] = enabled
             case FirmwareInfo():
                 self.firmware = event
+            case Start() if not self._connecting:
+                # The boot banner during the handshake is the handshake's; after it, the board restarted.
+                self._link_event(LinkEvent("reset", "the printer reset (it printed 'start'); its targets were cleared"))
+                self._feed.on_event(event, now)
             case _:
                 self._feed.on_event(event, now)
 
