@@ -112,7 +112,9 @@ class Printer:
         max_in_flight: how many commands may be on the wire at once outside prints (1: ping-pong).
         rx_buffer_bytes: the printer's serial receive buffer; unanswered bytes never exceed it.
         boot_quiet_s: how long the line stream must be quiet before the boot banner is taken as over.
-        max_hotend_celsius, max_bed_celsius, max_chamber_celsius: the highest targets accepted.
+        max_hotend_celsius: the highest hotend target accepted (however the G-code spells it).
+        max_bed_celsius: the highest bed target accepted.
+        max_chamber_celsius: the highest chamber target accepted.
         password: unlocks a printer with Marlin's PASSWORD_FEATURE during the handshake (M511); without it, a
             locked printer fails the handshake with `PrinterLockedError`.
 
@@ -667,7 +669,8 @@ class Printer:
         """Stream G-code to the end (see `start_print`) and return the final progress.
 
         Raises:
-            The errors of `start_print` and `PrintHandle.wait`.
+            MarlinError: as `start_print` and `PrintHandle.wait` raise them (and ValueError, OSError, RuntimeError
+                from `start_print`).
         """
         handle = await self.start_print(
             source, send_ahead=send_ahead, window_bytes=window_bytes, check=check, timeout_s=timeout_s
