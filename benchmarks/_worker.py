@@ -549,7 +549,7 @@ def printcore_polling(spec: Result) -> Result:
 
 def printcore_streaming(spec: Result) -> Result:
     gcoder = importlib.import_module("printrun.gcoder")
-    from marlin_aio import encode_command
+    from marlin_aio.protocol import encode_command
 
     with open(spec["path"]) as source:
         lines = source.read().splitlines()

@@ -21,7 +21,8 @@ from rich.markup import escape
 from typer.core import TyperGroup
 
 import marlin_aio
-from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, check_target
+from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS
+from marlin_aio.protocol import check_target
 
 from .common.connect import (
     EXIT_CODES_HELP,

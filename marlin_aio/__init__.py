@@ -4,9 +4,17 @@
         reading = await printer.temperatures()
         await printer.set_temperatures(hotend=200, bed=60)
 
-The protocol core (`framing`, `parsing`, `temperatures`, `commands`, `connection`, `trace`) does no I/O and
-imports neither asyncio nor serial; `client` is the asyncio layer on top; `simulator` is a Marlin look-alike
-served on a pseudo-terminal or TCP.
+This package's names are what an application needs: the `Printer` and `connect`, prints in progress, the
+readings, results and link events it gives, the heater limits, the ports, and every error (all rooted at
+`MarlinError`). Two more faces, for other readers:
+
+- `marlin_aio.protocol`, the sans-I/O core, for people who write their own driver or front end: the `Connection`,
+  every event a line can become, framing, parsing, encoding and checking commands, print jobs and the trace. It
+  does no I/O and imports neither asyncio nor serial.
+- `marlin_aio.aio`, the asyncio layer the `Printer` lives in, exports the helpers that read, check and watch
+  G-code files for tools that stream files their own way.
+
+`marlin_aio.simulator` is a Marlin look-alike served on a pseudo-terminal or TCP.
 """
 
 from __future__ import annotations
@@ -14,7 +22,7 @@ from __future__ import annotations
 import logging
 
 from marlin_aio.aio._serial import PortInfo, list_ports
-from marlin_aio.aio.printer import BAUD_RATES, DEFAULT_BAUDRATE, Printer, PrintHandle, connect
+from marlin_aio.aio.printer import BAUD_RATES, DEFAULT_BAUDRATE, LinkEvent, Printer, PrintHandle, connect
 from marlin_aio.aio.printhandle import COOL_DOWN
 from marlin_aio.errors import (
     ChecksumRequiredError,
@@ -39,65 +47,21 @@ from marlin_aio.errors import (
     TemperatureTimeoutError,
     ThermalRunawayError,
 )
-from marlin_aio.protocol.commands import (
+from marlin_aio.protocol import (
     DEFAULT_MAX_BED_CELSIUS,
     DEFAULT_MAX_CHAMBER_CELSIUS,
     DEFAULT_MAX_HOTEND_CELSIUS,
-    MAX_COMMAND_BYTES,
-    check_target,
-    checksum,
-    command_code,
-    encode_command,
-    number_command,
-    strip_comment,
-    validate_command,
-)
-from marlin_aio.protocol.connection import Command, Connection, Reply
-from marlin_aio.protocol.events import (
-    BusyKeepalive,
-    Capability,
-    EchoMessage,
-    ErrorKind,
-    ErrorMessage,
-    Event,
-    FirmwareInfo,
-    HostAction,
-    Ok,
-    OverlongLine,
-    ResendRequest,
-    Start,
-    TemperatureReport,
-    UnrecognisedLine,
-)
-from marlin_aio.protocol.framing import LineSplitter
-from marlin_aio.protocol.gcode import GCodeLine, parse_gcode
-from marlin_aio.protocol.heaters import HeaterLimits, check_gcode_targets
-from marlin_aio.protocol.linkstate import LinkState
-from marlin_aio.protocol.motion import (
-    LONG_COMMAND_TIMEOUT_S,
-    LONG_COMMANDS,
-    MAX_DISTANCE_MM,
-    MAX_FEEDRATE_MM_MIN,
-    command_timeout_s,
-    disable_motors_command,
-    extrude_commands,
-    home_command,
-    move_commands,
-)
-from marlin_aio.protocol.parsing import EventParser, classify_line, parse_endstops, parse_position
-from marlin_aio.protocol.printjob import PrintJob, PrintProgress, PrintState
-from marlin_aio.protocol.secrets import redact
-from marlin_aio.protocol.stats import LinkStats
-from marlin_aio.protocol.temperatures import (
-    HEATER_NAMES,
+    HeaterLimits,
     HeaterReading,
-    ReadingSource,
+    LinkState,
+    LinkStats,
+    PrintProgress,
+    PrintState,
+    Reply,
     TemperatureReading,
     Temperatures,
-    heater_name,
-    parse_temperatures,
+    redact,
 )
-from marlin_aio.protocol.trace import Trace, TraceEntry
 
 __version__ = "0.1.0"
 
@@ -108,47 +72,26 @@ __all__ = [
     "DEFAULT_MAX_BED_CELSIUS",
     "DEFAULT_MAX_CHAMBER_CELSIUS",
     "DEFAULT_MAX_HOTEND_CELSIUS",
-    "HEATER_NAMES",
-    "LONG_COMMANDS",
-    "LONG_COMMAND_TIMEOUT_S",
-    "MAX_COMMAND_BYTES",
-    "MAX_DISTANCE_MM",
-    "MAX_FEEDRATE_MM_MIN",
-    "BusyKeepalive",
-    "Capability",
     "ChecksumRequiredError",
-    "Command",
     "CommandNotExecutedError",
     "CommandTimeoutError",
     "ConnectError",
-    "Connection",
     "ConnectionLostError",
-    "EchoMessage",
-    "ErrorKind",
-    "ErrorMessage",
-    "Event",
-    "EventParser",
     "FileChangedError",
-    "FirmwareInfo",
-    "GCodeLine",
     "HandshakeError",
     "HandshakeTimeoutError",
     "HeaterLimits",
     "HeaterReading",
-    "HostAction",
-    "LineSplitter",
+    "LinkEvent",
     "LinkState",
     "LinkStats",
     "LostReplyError",
     "MarlinError",
-    "Ok",
-    "OverlongLine",
     "PortBusyError",
     "PortInfo",
     "PortNotFoundError",
     "PortPermissionError",
     "PrintHandle",
-    "PrintJob",
     "PrintProgress",
     "PrintStalledError",
     "PrintState",
@@ -156,43 +99,17 @@ __all__ = [
     "PrinterHaltedError",
     "PrinterLockedError",
     "PrinterResetError",
-    "ReadingSource",
     "RemoteProtocolError",
     "Reply",
     "ResendLimitError",
-    "ResendRequest",
-    "Start",
     "TemperatureReading",
-    "TemperatureReport",
     "TemperatureTimeoutError",
     "Temperatures",
     "ThermalRunawayError",
-    "Trace",
-    "TraceEntry",
-    "UnrecognisedLine",
     "__version__",
-    "check_gcode_targets",
-    "check_target",
-    "checksum",
-    "classify_line",
-    "command_code",
-    "command_timeout_s",
     "connect",
-    "disable_motors_command",
-    "encode_command",
-    "extrude_commands",
-    "heater_name",
-    "home_command",
     "list_ports",
-    "move_commands",
-    "number_command",
-    "parse_endstops",
-    "parse_gcode",
-    "parse_position",
-    "parse_temperatures",
     "redact",
-    "strip_comment",
-    "validate_command",
 ]
 
 # A library logs and lets the application decide where it goes: without a handler of the application's, nothing

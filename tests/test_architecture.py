@@ -6,10 +6,15 @@ from __future__ import annotations
 
 import ast
 import importlib
+import inspect
 import sys
+import typing
 from pathlib import Path
 
 import pytest
+
+import marlin_aio
+import marlin_aio.protocol
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -21,7 +26,7 @@ LAYERS: dict[str, tuple[set[str], set[str]]] = {
     "aio": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.aio"}, {"serial", "serial_asyncio_fast"}),
     "simulator": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.simulator"}, {"serial"}),
     "farm": (
-        {"marlin_aio", "marlin_aio.errors", "marlin_aio.farm", "marlin_aio.simulator"},
+        {"marlin_aio", "marlin_aio.errors", "marlin_aio.farm", "marlin_aio.protocol", "marlin_aio.simulator"},
         {"aiomqtt"},
     ),
 }
@@ -36,6 +41,7 @@ FRONT_ENDS = {"typer", "rich", "prompt_toolkit", "marlin_temp", "cli"}
 #: The modules whose `__all__` the CLI and the benchmarks may import from.
 PUBLIC_MODULES = (
     "marlin_aio",
+    "marlin_aio.protocol",
     "marlin_aio.aio",
     "marlin_aio.simulator",
     "marlin_aio.farm.bridge",
@@ -109,3 +115,27 @@ def test_the_cli_and_the_benchmarks_use_only_public_names(path: Path) -> None:
         assert module in public, f"{path.name} imports the private module {module}"
         private = [name for name in names if name not in public[module]]
         assert not private, f"{path.name} imports {private} from {module}, which does not export them"
+
+
+#: The package's faces: each `__all__` is what its readers may rely on.
+FACES = ("marlin_aio", "marlin_aio.protocol", "marlin_aio.aio", "marlin_aio.simulator")
+
+
+def test_the_public_faces() -> None:
+    # An application's face stays narrow (aiomqtt: 16 names); a driver writer's needs live in marlin_aio.protocol.
+    assert len(marlin_aio.__all__) <= 45
+    for module_name in FACES:
+        module = importlib.import_module(module_name)
+        for name in module.__all__:
+            assert hasattr(module, name), f"{module_name}.__all__ names {name}, which it does not have"
+            value = getattr(module, name)
+            if inspect.isclass(value) or inspect.isfunction(value):
+                # Its own: not a base class's, and not the signature a dataclass writes when it has none.
+                doc = value.__doc__
+                assert doc and not doc.startswith(f"{value.__name__}("), f"{module_name}.{name} has no docstring"
+    # A driver handles every event a line can become, so each must be importable from the protocol's face.
+    events = typing.get_args(marlin_aio.protocol.Event)
+    assert events
+    missing = [event.__name__ for event in events if event.__name__ not in marlin_aio.protocol.__all__]
+    assert not missing, f"marlin_aio.protocol.__all__ lacks the events {missing}"
+    assert "Output" in marlin_aio.protocol.__all__

@@ -15,7 +15,8 @@ from collections.abc import Callable
 import pytest
 
 import marlin_aio
-from marlin_aio import ReadingSource, TemperatureReading
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource
 
 #: A bound on every wait below, not a synchronisation: the events do that.
 BOUND_S = 30.0

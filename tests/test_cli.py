@@ -17,7 +17,8 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_temp.common.model import WatchModel
 from marlin_temp.common.render import chart, heater_table, plain_line, watch_view
 from marlin_temp.main import app

@@ -22,7 +22,8 @@ from prompt_toolkit.document import Document
 from test_cli_terminal import Tmux
 from typer.testing import CliRunner, Result
 
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.common.connect import Exit
 from marlin_temp.console.terminal import GcodeCompleter, default_history_path, temperature_line

@@ -13,7 +13,8 @@ import re
 from rich.console import Console
 from typer.testing import CliRunner
 
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, serve_pty
 from marlin_temp.common.connect import Exit
 from marlin_temp.common.model import WatchModel

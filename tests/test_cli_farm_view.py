@@ -26,9 +26,10 @@ from test_cli_terminal import Tmux
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
 from marlin_aio.farm.config import specs_from_options
 from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, serve_tcp
 from marlin_temp.common.model import WatchModel
 from marlin_temp.farm.view import (

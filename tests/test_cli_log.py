@@ -24,7 +24,8 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_aio.simulator import Faults, SimulatorConfig, serve_pty, serve_tcp
 from marlin_temp.common.connect import ConnectOptions, Exit
 from marlin_temp.logs.command import LogSettings, log_temperatures, record_temperatures

@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_temp.common.connect import Exit
 from marlin_temp.logs.files import TemperatureLog, read_log
 from marlin_temp.logs.plot import describe_span, plot_data

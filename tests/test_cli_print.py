@@ -172,7 +172,8 @@ def heating_plan() -> GcodePlan:
 
 
 def test_while_the_file_waits_for_heat_the_view_says_heating_not_a_rate() -> None:
-    from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+    from marlin_aio import TemperatureReading
+    from marlin_aio.protocol import ReadingSource, parse_temperatures
 
     temperatures = parse_temperatures("T:187.2 /200.0 B:60.0 /60.0 @:127 B@:30 W:?")
     assert temperatures is not None

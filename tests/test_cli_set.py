@@ -10,7 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.common.connect import Exit
 from marlin_temp.heaters.command import PrinterHeaters, confirmation

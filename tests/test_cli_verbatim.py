@@ -18,8 +18,9 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
 from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, serve_pty
 from marlin_temp.common.connect import ConnectOptions, Exit
 from marlin_temp.common.model import SendCommand, WatchControls, WatchModel

@@ -22,7 +22,8 @@ from test_cli_terminal import Tmux
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.common.keys import split_keys
 from marlin_temp.common.model import (

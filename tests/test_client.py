@@ -11,6 +11,7 @@ import pytest
 from conftest import TIME_SCALE
 
 import marlin_aio
+import marlin_aio.protocol
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
 
 
@@ -274,7 +275,7 @@ async def test_on_reading_calls_back_with_every_reading_until_stopped(
         await printer.read_temperatures()  # one more reading, after the stop
     assert len(seen) == count >= 20
     assert all(r.hotend is not None for r in seen)
-    assert any(r.source is marlin_aio.ReadingSource.POLL for r in seen)  # (auto-reports come too, with M155)
+    assert any(r.source is marlin_aio.protocol.ReadingSource.POLL for r in seen)  # (auto-reports come too, with M155)
 
 
 async def test_a_closed_printer_opens_again_and_an_open_one_refuses_to(pty_sim: SimulatorServer) -> None:
@@ -289,7 +290,7 @@ async def test_a_closed_printer_opens_again_and_an_open_one_refuses_to(pty_sim: 
     async with printer:  # a fresh link on the same port
         assert state_of(printer) is marlin_aio.LinkState.READY
         reading = await printer.read_temperatures()
-        assert reading.source is marlin_aio.ReadingSource.POLL
+        assert reading.source is marlin_aio.protocol.ReadingSource.POLL
         assert printer.stats.answered >= 1
 
 

@@ -18,8 +18,9 @@ import pytest
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import FileChangedError, MarlinError, PrintJob, PrintState, TemperatureReading
+from marlin_aio import FileChangedError, MarlinError, PrintState, TemperatureReading
 from marlin_aio.aio.gcodefile import file_lines, job_from_path
+from marlin_aio.protocol import PrintJob
 from marlin_aio.simulator import Faults, SimulatorConfig, serve_pty
 from marlin_temp.common.connect import Exit
 from marlin_temp.main import app

@@ -18,7 +18,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from marlin_aio import HeaterLimits, check_gcode_targets, command_code
+from marlin_aio import HeaterLimits
+from marlin_aio.protocol import check_gcode_targets, command_code
 from marlin_aio.protocol.commands import encode_command, validate_command
 from marlin_aio.protocol.gcode import parse_gcode, value_celsius, value_float
 from marlin_aio.simulator import SimulatedPrinter, SimulatorConfig

@@ -35,7 +35,8 @@ if sys.argv[1] != "none":
 LOG_SCRIPT = """
 import asyncio, json
 from pathlib import Path
-from marlin_aio import ReadingSource, TemperatureReading, parse_temperatures
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_temp.logs.files import TemperatureLog
 
 def reading(i):

@@ -10,7 +10,7 @@ import pytest
 from conftest import TIME_SCALE
 
 import marlin_aio
-from marlin_aio import (
+from marlin_aio.protocol import (
     LONG_COMMAND_TIMEOUT_S,
     command_timeout_s,
     disable_motors_command,

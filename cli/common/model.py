@@ -14,15 +14,8 @@ import statistics
 from collections import deque
 from dataclasses import dataclass
 
-from marlin_aio import (
-    DEFAULT_MAX_BED_CELSIUS,
-    DEFAULT_MAX_HOTEND_CELSIUS,
-    HEATER_NAMES,
-    TemperatureReading,
-    check_target,
-    command_code,
-    heater_name,
-)
+from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, TemperatureReading
+from marlin_aio.protocol import HEATER_NAMES, check_target, command_code, heater_name
 
 from .keys import PASTE
 

@@ -16,12 +16,9 @@ from collections.abc import Mapping, Sequence
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio import (
-    DEFAULT_MAX_BED_CELSIUS,
-    DEFAULT_MAX_CHAMBER_CELSIUS,
-    DEFAULT_MAX_HOTEND_CELSIUS,
+from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, HeaterLimits
+from marlin_aio.protocol import (
     MAX_COMMAND_BYTES,
-    HeaterLimits,
     check_gcode_targets,
     command_code,
     command_timeout_s,

@@ -45,7 +45,8 @@ from prompt_toolkit.styles import Style
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio import TemperatureReading, command_code, command_timeout_s, heater_name
+from marlin_aio import TemperatureReading
+from marlin_aio.protocol import command_code, command_timeout_s, heater_name
 
 from ..common.connect import ConnectOptions, Exit, open_printer
 from .send import check_command, emergency_stop_notes, reply_lines, unknown_command

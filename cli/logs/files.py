@@ -43,7 +43,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from marlin_aio import HeaterReading, TemperatureReading, heater_name
+from marlin_aio import HeaterReading, TemperatureReading
+from marlin_aio.protocol import heater_name
 
 __all__ = [
     "FIXED_COLUMNS",

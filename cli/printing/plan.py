@@ -20,8 +20,9 @@ Three kinds of file are refused whole, each with one `ValueError` line, before a
 - a file that is not text (`_check_text`): a NUL byte, or a high share of undecodable or control bytes in its
   first `SNIFF_BYTES`, so a `.bgcode` or a picture is refused by name instead of dumped as mojibake (a UTF-8 or
   Latin-1 file with a few accented comments is text);
-- a command that sets a heater above its limit (`marlin_aio.check_gcode_targets`, per command sent), naming the
-  line and the option that raises the limit: the print would otherwise fail at that line, hot, half way through;
+- a command that sets a heater above its limit (`marlin_aio.protocol.check_gcode_targets`, per command sent),
+  naming the line and the option that raises the limit: the print would otherwise fail at that line, hot, half way
+  through;
 - with `--from-line`, a resume that would do harm (`_Resume`), unless `force`: absolute extrusion resumed from the
   header's E (the filament of every skipped layer pushed out at once), an extrusion mode set in the skipped part
   that the printer will not be in, a heater the skipped part heated and the header leaves cold. What a resume
@@ -38,8 +39,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import marlin_aio
-from marlin_aio import GCodeLine, HeaterLimits, command_code, parse_gcode
+import marlin_aio.protocol
+from marlin_aio import HeaterLimits
 from marlin_aio.aio import file_lines
+from marlin_aio.protocol import GCodeLine, command_code, parse_gcode
 
 __all__ = ["SNIFF_BYTES", "GcodePlan", "HeatWait", "plan_print", "transliterate"]
 
@@ -130,7 +133,7 @@ class GcodePlan:
         """
         source = file_lines(self.path, size_bytes=self.size_bytes, mtime_ns=self.mtime_ns, lines_total=self.file_lines)
         for number, raw in enumerate(source, 1):
-            command = marlin_aio.strip_comment(raw)
+            command = marlin_aio.protocol.strip_comment(raw)
             if not command or not self._selected(number):
                 yield "\n"
             elif command.isascii():
@@ -191,7 +194,7 @@ def plan_print(
     number = 0
     with path.open(encoding="utf-8", errors="replace") as source:
         for number, raw in enumerate(source, 1):
-            command = marlin_aio.strip_comment(raw)
+            command = marlin_aio.protocol.strip_comment(raw)
             if not command:
                 continue
             last_command_line = number
@@ -213,7 +216,7 @@ def plan_print(
                     changed.append((number, command, sent))
                 command = sent
             try:
-                marlin_aio.encode_command(command)
+                marlin_aio.protocol.encode_command(command)
             except ValueError as exc:
                 raise ValueError(f"{path}: line {number}: {exc}") from None
             _check_targets(path, number, command, limits)
@@ -280,10 +283,10 @@ def _check_targets(path: Path, number: int, command: str, limits: HeaterLimits) 
     """Refuse a command that sets a target above its limit, naming the line and the option to raise it.
 
     Raises:
-        ValueError: as `marlin_aio.check_gcode_targets`, with the file, the line and the option.
+        ValueError: as `marlin_aio.protocol.check_gcode_targets`, with the file, the line and the option.
     """
     try:
-        marlin_aio.check_gcode_targets(command, limits)
+        marlin_aio.protocol.check_gcode_targets(command, limits)
     except ValueError as exc:
         message = str(exc)
         option = _LIMIT_OPTIONS.get(message.split(" ", 1)[0])  # the message starts with the heater's name
@@ -417,7 +420,7 @@ class _Resume:
 def _first_move(path: Path) -> int | None:
     with path.open(encoding="utf-8", errors="replace") as source:
         for number, raw in enumerate(source, 1):
-            if command_code(marlin_aio.strip_comment(raw)) in _MOVES:
+            if command_code(marlin_aio.protocol.strip_comment(raw)) in _MOVES:
                 return number
     return None
 

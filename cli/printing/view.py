@@ -22,6 +22,7 @@ from rich.table import Table
 from rich.text import Text
 
 import marlin_aio
+import marlin_aio.protocol
 
 from .plan import HeatWait
 
@@ -117,7 +118,7 @@ def heating_text(wait: HeatWait, reading: marlin_aio.TemperatureReading | None) 
     """ "heating hotend 187/200 C" for a heater wait, from the latest reading (the target from the command)."""
     heaters = reading.temperatures.heaters if reading is not None else {}
     heater = heaters.get(wait.heater) or (heaters.get("T") if wait.heater == "T0" else None)
-    name = marlin_aio.heater_name("T" if wait.heater == "T0" and "T0" not in heaters else wait.heater)
+    name = marlin_aio.protocol.heater_name("T" if wait.heater == "T0" and "T0" not in heaters else wait.heater)
     target = wait.target_celsius if wait.target_celsius is not None else (heater.target if heater else None)
     target_text = "?" if target is None else f"{target:.0f}"
     if heater is None:
@@ -133,7 +134,7 @@ def heaters_on(reading: marlin_aio.TemperatureReading | None) -> list[str]:
         return []
     heaters = reading.temperatures.heaters
     return [
-        f"{marlin_aio.heater_name(key)} {heater.actual:.1f}/{heater.target:g} C"
+        f"{marlin_aio.protocol.heater_name(key)} {heater.actual:.1f}/{heater.target:g} C"
         for key, heater in heaters.items()
         if heater.target and key[:1] in "TBC" and not (key == "T" and "T0" in heaters)  # T is one of T0, T1...
     ]
@@ -154,7 +155,7 @@ def temperatures_text(reading: marlin_aio.TemperatureReading | None) -> str:
         if key[:1] not in ("T", "B", "C") or (key == "T" and "T0" in heaters):
             continue  # the active hotend appears again under its number
         target = "off" if not heater.target else f"{heater.target:.0f}"
-        parts.append(f"{marlin_aio.heater_name(key)} {heater.actual:.1f}/{target} °C")
+        parts.append(f"{marlin_aio.protocol.heater_name(key)} {heater.actual:.1f}/{target} °C")
     return "   ".join(parts)
 
 

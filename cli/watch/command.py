@@ -30,6 +30,7 @@ from rich.live import Live
 from rich.text import Text
 
 import marlin_aio
+import marlin_aio.protocol
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
 from ..common.connect import ConnectOptions, Exit, open_printer
@@ -114,7 +115,7 @@ def _json_status(model: WatchModel) -> str:
     for key in model.heater_keys():
         status = model.status(key)
         # By name, as the screen and the log files say them ("hotend", "bed", "hotend 0").
-        heaters[marlin_aio.heater_name(key)] = {
+        heaters[marlin_aio.protocol.heater_name(key)] = {
             "actual": status.actual,
             "target": status.target,
             "power_percent": status.power_percent,

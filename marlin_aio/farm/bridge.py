@@ -55,6 +55,7 @@ from typing import Any
 import aiomqtt
 
 import marlin_aio
+import marlin_aio.protocol
 
 from .commands import (
     MAX_COMMAND_AGE_S,
@@ -164,7 +165,7 @@ def telemetry_payload(reading: marlin_aio.TemperatureReading) -> dict[str, Any]:
         if key == "T" and "T0" in reading.temperatures.heaters:
             continue  # with several hotends, each is reported by number; `T` repeats the active one
         fraction = heater.power_fraction
-        heaters[marlin_aio.heater_name("T" if key == "T" else key)] = {
+        heaters[marlin_aio.protocol.heater_name("T" if key == "T" else key)] = {
             "actual": _finite(heater.actual),
             "target": _finite(heater.target),
             "power_percent": None if fraction is None else round(fraction * 100, 1),

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 import marlin_aio
+import marlin_aio.protocol
 
 from .supervisor import FarmPrinter
 
@@ -145,7 +146,7 @@ def _targets(values: dict[str, Any], farm_printer: FarmPrinter) -> dict[str, flo
     for heater, limit in limits.items():
         if heater in values:
             try:
-                targets[heater] = marlin_aio.check_target(heater, values[heater], limit)
+                targets[heater] = marlin_aio.protocol.check_target(heater, values[heater], limit)
             except ValueError as exc:
                 raise CommandError(_one_line(exc)) from None
     if "tool" in values:
@@ -412,11 +413,11 @@ def _gcode(body: dict[str, Any], farm_printer: FarmPrinter) -> tuple[str, ...]:
             # Not shown: it may carry a password (M511), which only the library's own messages redact.
             raise CommandError(f"a G-code command is {len(text)} characters long, at most {MAX_GCODE_CHARS}")
         try:
-            checked.append(marlin_aio.validate_command(text))
+            checked.append(marlin_aio.protocol.validate_command(text))
             # Printer.send refuses such a target too (the library's own check, reading the command as Marlin's
             # parser does), but only when its turn comes: checked here, a list with one bad target writes
             # nothing at all.
-            marlin_aio.check_gcode_targets(text, limits)
+            marlin_aio.protocol.check_gcode_targets(text, limits)
         except ValueError as exc:
             raise CommandError(_one_line(exc)) from None
     return tuple(checked)
