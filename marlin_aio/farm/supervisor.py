@@ -198,8 +198,9 @@ class Farm:
     Args:
         specs: the printers; names must be unique.
         on_event: called on the event loop with each event, in order.
-        backoff_start_s, backoff_max_s: how long a supervisor waits before reconnecting, doubling from the first
-            to the second after each failed attempt.
+        backoff_start_s: how long a supervisor waits before its first reconnection attempt; the wait doubles after
+            each failed attempt.
+        backoff_max_s: the longest wait between attempts.
     """
 
     def __init__(
@@ -383,25 +384,16 @@ class Farm:
                 farm_printer, "reset", "the board reset when the port was opened; targets set earlier were cleared"
             )
         stop = printer.on_reading(farm_printer.on_reading)
-        resets = printer.stats.resets
+
+        def on_link_event(event: marlin_aio.LinkEvent) -> None:
+            # A reset while connected is told by the printer as it happens (no polling of its counters).
+            if event.kind == "reset":
+                self.emit(farm_printer, "reset", event.message)
+
+        stop_link_events = printer.on_link_event(on_link_event)
         try:
             async with printer.poll_temperatures(farm_printer.spec.poll_interval_s):
-                failure = asyncio.ensure_future(printer.wait_for_failure())
-                try:
-                    while True:
-                        # Resets while connected show in the counters; look once a second, not per reading.
-                        done, _ = await asyncio.wait([failure], timeout=1.0)
-                        now_resets = printer.stats.resets
-                        if now_resets > resets:
-                            resets = now_resets
-                            self.emit(
-                                farm_printer,
-                                "reset",
-                                "the printer reset (it printed 'start'); its targets were cleared",
-                            )
-                        if done:
-                            raise failure.result()
-                finally:
-                    failure.cancel()
+                raise await printer.wait_for_failure()
         finally:
+            stop_link_events()
             stop()
