@@ -20,7 +20,7 @@ from typing import Any
 
 import aiomqtt
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from test_farm import (
     MOSQUITTO,
@@ -689,6 +689,7 @@ _payloads = st.one_of(
         max_size=12,
     )
 )
+@example(messages=[("/0", "command", b"", False)])  # a topic of four levels: not one the subscription matches
 def test_the_command_handler_answers_every_command_once_and_never_raises(
     tmp_path: Path, messages: list[tuple[str, str, bytes, bool]]
 ) -> None:

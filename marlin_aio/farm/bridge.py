@@ -452,9 +452,11 @@ class Bridge:
                 self._overwritten.add(topic)
                 self._wake.set()
             return
-        parts = topic.split("/")
-        name = parts[-2] if len(parts) >= 3 else ""
-        if parts[-1] == "availability":
+        # PREFIX/NAME/LEAF, NAME one topic level (as `+` matches it): anything else is no topic of the bridge's.
+        name, _, leaf = topic.removeprefix(self.settings.prefix + "/").rpartition("/")
+        if not topic.startswith(self.settings.prefix + "/") or "/" in name:
+            return
+        if leaf == "availability":
             if name in self.farm.printers or name == self.settings.name or not NAME_PATTERN.fullmatch(name):
                 return
             self._elsewhere.pop(name, None)
@@ -463,7 +465,7 @@ class Bridge:
                 if len(self._elsewhere) > MAX_OTHER_PRINTERS:
                     self._elsewhere.popitem(last=False)
             return
-        if parts[-1] != "command" or not self.settings.allow_commands:
+        if leaf != "command" or not self.settings.allow_commands:
             return
         if name not in self.farm.printers and (name in self._elsewhere or retained or not NAME_PATTERN.fullmatch(name)):
             # Another bridge's printer (its bridge answers), a retained command for a printer nobody has (it
