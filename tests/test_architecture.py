@@ -26,7 +26,14 @@ LAYERS: dict[str, tuple[set[str], set[str]]] = {
     "aio": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.aio"}, {"serial", "serial_asyncio_fast"}),
     "simulator": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.simulator"}, {"serial"}),
     "farm": (
-        {"marlin_aio", "marlin_aio.errors", "marlin_aio.farm", "marlin_aio.protocol", "marlin_aio.simulator"},
+        {
+            "marlin_aio",
+            "marlin_aio.aio",
+            "marlin_aio.errors",
+            "marlin_aio.farm",
+            "marlin_aio.protocol",
+            "marlin_aio.simulator",
+        },
         {"aiomqtt"},
     ),
 }

@@ -2,10 +2,13 @@
 sans-I/O core on one port (`link`), opening ports (`_serial`), the handshake, the temperature feed, the poller,
 prints in progress (`printhandle`) and G-code files read for printing (`gcodefile`).
 
-An application needs only `marlin_aio`'s own names. Exported here, for tools that stream files their own way:
-reading a G-code file as the printer will be fed it, checked whole first and watched for changes while it prints.
+An application needs only `marlin_aio`'s own names. Exported here: keeping a printer connected across unplugs,
+halts and silences (`keep_connected`, with its `Backoff` and the `Retry` it reports), and, for tools that stream
+files their own way, reading a G-code file as the printer will be fed it, checked whole first and watched for
+changes while it prints.
 """
 
 from marlin_aio.aio.gcodefile import file_lines, job_from_path, scan_gcode
+from marlin_aio.aio.reconnect import Backoff, Retry, keep_connected
 
-__all__ = ["file_lines", "job_from_path", "scan_gcode"]
+__all__ = ["Backoff", "Retry", "file_lines", "job_from_path", "keep_connected", "scan_gcode"]

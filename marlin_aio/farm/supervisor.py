@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import marlin_aio
+from marlin_aio.aio import Backoff, Retry, keep_connected
 
 if TYPE_CHECKING:
     from marlin_aio.simulator import SimulatorServer
@@ -303,41 +304,31 @@ class Farm:
             _log.exception("event listener failed on %s %s", farm_printer.name, kind)
 
     async def _supervise(self, farm_printer: FarmPrinter) -> None:
-        delay = self._backoff_start_s
-        reported_down = False
-        while True:
-            try:
-                async with self._connected(farm_printer) as printer:
-                    delay = self._backoff_start_s
-                    reported_down = False
-                    await self._watch(farm_printer, printer)
-            except marlin_aio.MarlinError as exc:
-                if farm_printer.link_up:
-                    farm_printer.link_up = False
-                    kind = (
-                        "thermal_runaway"
-                        if isinstance(exc, marlin_aio.ThermalRunawayError)
-                        else ("halted" if isinstance(exc, marlin_aio.PrinterHaltedError) else "connection_lost")
-                    )
-                    self.emit(farm_printer, kind, str(exc))
-                elif not reported_down:
-                    # Said once per outage, not at every retry.
-                    self.emit(farm_printer, "connect_failed", str(exc))
-                reported_down = True
-            finally:
-                farm_printer.link_up = False
-                farm_printer.printer = None
-            _log.info("%s: reconnecting in %g s", farm_printer.name, delay)
-            farm_printer.reconnect_at_s = time.monotonic() + delay
-            try:
-                await asyncio.sleep(delay)
-            finally:
-                farm_printer.reconnect_at_s = None
-            delay = min(delay * 2, self._backoff_max_s)
+        def on_retry(retry: Retry) -> None:
+            exc = retry.error
+            if retry.connected:
+                kind = (
+                    "thermal_runaway"
+                    if isinstance(exc, marlin_aio.ThermalRunawayError)
+                    else ("halted" if isinstance(exc, marlin_aio.PrinterHaltedError) else "connection_lost")
+                )
+                self.emit(farm_printer, kind, str(exc))
+            elif retry.attempt == 1:
+                self.emit(farm_printer, "connect_failed", str(exc))  # said once per outage, not at every retry
+            _log.info("%s: reconnecting in %g s", farm_printer.name, retry.delay_s)
+            farm_printer.reconnect_at_s = time.monotonic() + retry.delay_s
+
+        await keep_connected(
+            lambda: self._connected(farm_printer),
+            lambda printer: self._watch(farm_printer, printer),
+            backoff=Backoff(self._backoff_start_s, self._backoff_max_s),
+            on_retry=on_retry,
+        )
 
     @contextlib.asynccontextmanager
     async def _connected(self, farm_printer: FarmPrinter) -> AsyncIterator[marlin_aio.Printer]:
         spec = farm_printer.spec
+        farm_printer.reconnect_at_s = None  # trying now
         async with contextlib.AsyncExitStack() as stack:
             url = spec.port
             if spec.sim:
@@ -365,7 +356,11 @@ class Farm:
             )
             await stack.enter_async_context(printer)
             farm_printer.printer = printer
-            yield printer
+            try:
+                yield printer
+            finally:
+                farm_printer.link_up = False
+                farm_printer.printer = None
 
     async def _watch(self, farm_printer: FarmPrinter, printer: marlin_aio.Printer) -> None:
         """Poll a connected printer until its link fails; raise that failure."""
