@@ -301,7 +301,10 @@ def watch(
     ] = None,
     json_lines: Annotated[bool, typer.Option("--json", help="Print JSON lines instead of the live view.")] = False,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
-    reconnect: Annotated[bool, typer.Option("--reconnect", help="When the printer goes away, keep retrying.")] = False,
+    reconnect: Annotated[
+        bool,
+        typer.Option("--reconnect", help="When the printer goes away, keep retrying (after 1 s, doubling up to 30 s)."),
+    ] = False,
     max_hotend: MaxHotendOption = DEFAULT_MAX_HOTEND_CELSIUS,
     max_bed: MaxBedOption = DEFAULT_MAX_BED_CELSIUS,
 ) -> None:

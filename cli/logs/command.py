@@ -9,7 +9,8 @@ refused while nothing has been sent that changes anything; only then are `--hote
 readings are followed from before the first poll goes out, so a heat-up is recorded from its first reading
 with its target already in the row. With `--reconnect` each connection is a new session of the same file, and
 targets are not sent again: a board that reset has turned its heaters off, and re-heating a printer nobody is
-watching is not this command's call.
+watching is not this command's call. The reconnecting is the library's (`marlin_aio.aio.keep_connected`); what is
+here is which failures it may retry, and `ReconnectWaits`, which ends its waits at a stop or at --duration.
 
 A log the file system stops (disk full, the file size limit) ends the run at once with one line, the rows on
 disk counted in it, and exit code 1: logging is all this command does.
@@ -23,22 +24,21 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
 
 import marlin_aio
+from marlin_aio.aio import Backoff, Retry, keep_connected
 
 from ..common.connect import ConnectOptions, Exit, open_printer
 from ..common.keys import on_stop_signals
 from ..heaters.command import say_heaters_left_on
 from .files import LogFormat, LogWriteError, TemperatureLog
 
-__all__ = ["RECONNECT_DELAYS_S", "LogSettings", "log_temperatures", "record_temperatures"]
-
-#: Seconds between reconnect attempts: doubling from 1 s, then every 30 s; back to 1 s once a session has rows.
-RECONNECT_DELAYS_S = (1.0, 2.0, 4.0, 8.0, 16.0, 30.0)
+__all__ = ["LogSettings", "ReconnectWaits", "log_temperatures", "record_temperatures"]
 
 # What ends a session but not a --reconnect run: the link went away, the board restarted, or it does not answer
 # (yet). A halted printer (M112, thermal runaway) is not among them: it needs a person.
@@ -48,6 +48,60 @@ _RECONNECTABLE = (
     marlin_aio.HandshakeError,
     marlin_aio.PrinterResetError,
 )
+
+
+class ReconnectWaits:
+    """The waits of `keep_connected` between attempts, cut short: a stop (Ctrl-C, SIGTERM) ends one at once and
+    `deadline` (--duration, in loop time) at its time, and the run with it. Only a wait: a session sees the stop
+    and the deadline itself and ends as it would without --reconnect. (`watch --reconnect` uses it too.)
+
+        waits = ReconnectWaits(stop, deadline)
+        async with waits.cutting():  # ends quietly when a wait was cut short
+            await keep_connected(connect, session, on_retry=on_retry)
+        # connect() calls waits.connecting() first, on_retry calls waits.waiting() last
+    """
+
+    def __init__(self, stop: asyncio.Event, deadline: float | None) -> None:
+        self._stop = stop
+        self._deadline = deadline
+        self._timeout: asyncio.Timeout | None = None
+        self._waiting = False
+
+    @contextlib.asynccontextmanager
+    async def cutting(self) -> AsyncIterator[None]:
+        """Around the `keep_connected` call; a wait cut short ends it without an error."""
+        timeout = self._timeout = asyncio.timeout(None)
+        try:
+            async with timeout:
+                stopper = asyncio.create_task(self._cut_when_stopped(), name="marlin-temp stop a wait")
+                try:
+                    yield
+                finally:
+                    stopper.cancel()
+                    await asyncio.gather(stopper, return_exceptions=True)
+        except TimeoutError:
+            if not timeout.expired():
+                raise  # the printer's (a timeout that is not retried), not a wait's end
+
+    def waiting(self) -> None:
+        """`keep_connected` waits now (call it last in `on_retry`): until the deadline at most, not at all if
+        stopped."""
+        self._waiting = True
+        self._cut_at(asyncio.get_running_loop().time() if self._stop.is_set() else self._deadline)
+
+    def connecting(self) -> None:
+        """The wait is over (call it first in `connect`): nothing is cut short from here."""
+        self._waiting = False
+        self._cut_at(None)
+
+    def _cut_at(self, when: float | None) -> None:
+        if self._timeout is not None and not self._timeout.expired():
+            self._timeout.reschedule(when)
+
+    async def _cut_when_stopped(self) -> None:
+        await self._stop.wait()
+        if self._waiting:
+            self._cut_at(asyncio.get_running_loop().time())
 
 
 @dataclass(frozen=True)
@@ -114,25 +168,8 @@ class _Run:
     """What carries over from one connection to the next."""
 
     targets_pending: bool
-    attempt: int = 0  # reconnect attempts since the last session that wrote rows
     targets_sent: bool = False
     latest: marlin_aio.TemperatureReading | None = None  # the last reading of the last session: what is on
-
-
-async def _session(
-    options: ConnectOptions,
-    settings: LogSettings,
-    log: TemperatureLog,
-    stop: asyncio.Event,
-    deadline: float | None,
-    run: _Run,
-    errors: Console,
-) -> None:
-    async with open_printer(options, errors) as (printer, label):
-        try:
-            await _log_session(printer, label, settings, log, stop, deadline, run, errors)
-        finally:
-            run.latest = printer.latest
 
 
 async def _log_session(
@@ -199,24 +236,9 @@ async def _log_until_done(
     errors: Console,
 ) -> None:
     """The sessions of one run, into one file, and its summary line (see `log_temperatures`)."""
-    loop = asyncio.get_running_loop()
     async with TemperatureLog(settings.output, settings.fmt, interval_s=settings.interval_s) as log:
         try:
-            while not stop.is_set():
-                if deadline is not None and loop.time() >= deadline:
-                    break
-                rows_before = log.summary.rows
-                try:
-                    await _session(options, settings, log, stop, deadline, run, errors)
-                    break
-                except _RECONNECTABLE as exc:
-                    if not settings.reconnect:
-                        if isinstance(exc, marlin_aio.ConnectionLostError):
-                            raise marlin_aio.ConnectionLostError(
-                                f"{exc} (unplugged? use --reconnect to keep logging)"
-                            ) from exc
-                        raise
-                    await _back_off(exc, run, log, rows_before, stop, deadline, errors)
+            await _keep_logging(options, settings, log, stop, deadline, run, errors)
         except LogWriteError:
             raise  # its one line counts the rows on disk
         except BaseException:
@@ -228,23 +250,51 @@ async def _log_until_done(
     errors.print(log.summary.line(), markup=False, emoji=False)
 
 
-async def _back_off(
-    exc: marlin_aio.MarlinError,
-    run: _Run,
+async def _keep_logging(
+    options: ConnectOptions,
+    settings: LogSettings,
     log: TemperatureLog,
-    rows_before: int,
     stop: asyncio.Event,
     deadline: float | None,
+    run: _Run,
     errors: Console,
 ) -> None:
-    """Wait before the next attempt (doubling, from 1 s again after a session with rows); start a new session."""
-    if log.summary.rows > rows_before:
-        run.attempt = 0
-        log.new_session()  # the next connection's rows are a session of their own, whatever the printer did meanwhile
-    delay = RECONNECT_DELAYS_S[min(run.attempt, len(RECONNECT_DELAYS_S) - 1)]
-    run.attempt += 1
-    errors.print(f"{exc}; reconnecting in {delay:g} s (Ctrl-C stops)", style="yellow", markup=False, emoji=False)
-    if deadline is not None:
-        delay = min(delay, max(deadline - asyncio.get_running_loop().time(), 0.0))
-    with contextlib.suppress(TimeoutError):
-        await asyncio.wait_for(stop.wait(), delay)
+    """One session; with --reconnect, one for each connection (waits of 1 s doubling to 30 s between attempts,
+    from 1 s again once connected) until a stop or the deadline."""
+    waits = ReconnectWaits(stop, deadline)
+    label = ""
+    rows_before = log.summary.rows
+
+    @contextlib.asynccontextmanager
+    async def connect() -> AsyncIterator[marlin_aio.Printer]:
+        nonlocal label
+        waits.connecting()
+        async with open_printer(options, errors) as (printer, label):
+            yield printer
+
+    async def session(printer: marlin_aio.Printer) -> None:
+        try:
+            await _log_session(printer, label, settings, log, stop, deadline, run, errors)
+        finally:
+            run.latest = printer.latest
+
+    def on_retry(retry: Retry) -> None:
+        nonlocal rows_before
+        exc = retry.error
+        # keep_connected retries every MarlinError; log retries only `_RECONNECTABLE`. The others (a halted
+        # printer, a command or heat-up timeout, a lost reply, a locked printer, ...) end the run as they did.
+        if not isinstance(exc, _RECONNECTABLE):
+            raise exc
+        if not settings.reconnect:
+            if isinstance(exc, marlin_aio.ConnectionLostError):
+                raise marlin_aio.ConnectionLostError(f"{exc} (unplugged? use --reconnect to keep logging)") from exc
+            raise exc
+        if log.summary.rows > rows_before:
+            rows_before = log.summary.rows
+            log.new_session()  # the next connection's rows are a session of their own, whatever the printer did
+        message = f"{exc}; reconnecting in {retry.delay_s:g} s (Ctrl-C stops)"
+        errors.print(message, style="yellow", markup=False, emoji=False)
+        waits.waiting()
+
+    async with waits.cutting():
+        await keep_connected(connect, session, backoff=Backoff(1.0, 30.0), on_retry=on_retry)

@@ -22,6 +22,7 @@ import contextlib
 import json
 import time
 from collections import deque
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +32,7 @@ from rich.text import Text
 
 import marlin_aio
 import marlin_aio.protocol
+from marlin_aio.aio import Backoff, Retry, keep_connected
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
 from ..common.connect import ConnectOptions, Exit, open_printer
@@ -50,6 +52,7 @@ from ..common.model import (
 from ..common.render import plain_line, watch_view
 from ..farm.view import FarmKeys, detail_view, farm_row, farm_view, json_lines, plain_lines
 from ..heaters.command import say_heaters_left_on
+from ..logs.command import ReconnectWaits
 from ..logs.files import TemperatureLog
 
 __all__ = ["WatchSettings", "watch_farm", "watch_printer"]
@@ -331,6 +334,10 @@ async def watch_printer(options: ConnectOptions, settings: WatchSettings, consol
     return Exit.OK
 
 
+# What ends a session but not a --reconnect run: the link went away or cannot be made (yet).
+_RETRIED = (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError)
+
+
 async def _sessions(
     options: ConnectOptions,
     settings: WatchSettings,
@@ -342,24 +349,37 @@ async def _sessions(
     deadline: float | None,
     controls: WatchControls,
 ) -> None:
-    """Connect and watch until the end, again after each lost link with --reconnect."""
-    while True:
-        try:
-            async with open_printer(options, errors) as (printer, label):
-                await _session(printer, label, model, settings, console, log, stop, deadline, controls)
-                return
-        except (marlin_aio.ConnectionLostError, marlin_aio.ConnectError, marlin_aio.HandshakeError) as exc:
-            if not settings.reconnect or stop.is_set():
-                if isinstance(exc, marlin_aio.ConnectionLostError):
-                    raise marlin_aio.ConnectionLostError(
-                        f"{exc} (unplugged? use --reconnect to keep retrying)"
-                    ) from exc
-                raise
-            errors.print(f"{exc}; retrying in 2 s (Ctrl-C stops)", style="yellow", markup=False, emoji=False)
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), 2.0)
-            if stop.is_set():
-                return
+    """Connect and watch until the end; with --reconnect, again after each lost link (waits of 1 s doubling to
+    30 s between attempts, from 1 s again once connected), until a stop or the deadline."""
+    waits = ReconnectWaits(stop, deadline)
+    label = ""
+
+    @contextlib.asynccontextmanager
+    async def connect() -> AsyncIterator[marlin_aio.Printer]:
+        nonlocal label
+        waits.connecting()
+        async with open_printer(options, errors) as (printer, label):
+            yield printer
+
+    async def session(printer: marlin_aio.Printer) -> None:
+        await _session(printer, label, model, settings, console, log, stop, deadline, controls)
+
+    def on_retry(retry: Retry) -> None:
+        exc = retry.error
+        # keep_connected retries every MarlinError; watch retries only `_RETRIED`. The others (a halted printer, a
+        # board that reset, a timeout, ...) end the run as they did, with their exit codes.
+        if not isinstance(exc, _RETRIED):
+            raise exc
+        if not settings.reconnect or stop.is_set():
+            if isinstance(exc, marlin_aio.ConnectionLostError):
+                raise marlin_aio.ConnectionLostError(f"{exc} (unplugged? use --reconnect to keep retrying)") from exc
+            raise exc
+        message = f"{exc}; retrying in {retry.delay_s:g} s (Ctrl-C stops)"
+        errors.print(message, style="yellow", markup=False, emoji=False)
+        waits.waiting()
+
+    async with waits.cutting():
+        await keep_connected(connect, session, backoff=Backoff(1.0, 30.0), on_retry=on_retry)
 
 
 _FARM_EVENTS = 3  # the latest events shown under the farm table
