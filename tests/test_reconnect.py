@@ -4,6 +4,7 @@ unplugged and plugged back) and a port where nothing listens."""
 
 from __future__ import annotations
 
+import asyncio
 import socket
 
 import pytest
@@ -40,7 +41,7 @@ async def test_a_session_lost_to_an_unplug_runs_again_on_a_new_connection() -> N
             backoff=Backoff(0.01, 0.05),
             on_retry=retries.append,
         )
-    assert result.startswith("FIRMWARE_NAME:Marlin")
+    assert result is not None and result.startswith("FIRMWARE_NAME:Marlin")
     assert sessions == 2
     assert len(retries) == 1
     assert retries[0].connected and retries[0].attempt == 1 and retries[0].delay_s == 0.01
@@ -82,6 +83,32 @@ async def test_a_bug_in_the_session_is_not_retried() -> None:
         with pytest.raises(KeyError):
             await keep_connected(lambda: marlin_aio.Printer(sim.url), buggy, on_retry=retries.append)
     assert retries == []
+
+
+async def test_a_stop_or_the_deadline_ends_a_wait_at_once() -> None:
+    """A 30 s wait between attempts ends as soon as `stop` is set (Ctrl-C) or the deadline (--duration) comes:
+    keep_connected returns None. Bounded at 10 s here, so a wait that ran its course fails the test."""
+    stop = asyncio.Event()
+    retries: list[Retry] = []
+
+    def on_retry(retry: Retry) -> None:
+        retries.append(retry)
+        stop.set()  # as Ctrl-C would, while the 30 s wait starts
+
+    async def never(printer: marlin_aio.Printer) -> int:
+        raise AssertionError("nothing listens: no session can start")
+
+    port = closed_port()
+    async with asyncio.timeout(10):
+        stopped = await keep_connected(
+            lambda: marlin_aio.Printer(port, timeout_s=1), never, backoff=Backoff(30, 30), on_retry=on_retry, stop=stop
+        )
+        assert stopped is None and len(retries) == 1 and retries[0].delay_s == 30
+        deadline = asyncio.get_running_loop().time() + 0.2
+        ended = await keep_connected(
+            lambda: marlin_aio.Printer(port, timeout_s=1), never, backoff=Backoff(30, 30), deadline=deadline
+        )
+        assert ended is None and asyncio.get_running_loop().time() >= deadline
 
 
 def test_a_backoff_starts_over_once_connected() -> None:

@@ -10,7 +10,7 @@ readings are followed from before the first poll goes out, so a heat-up is recor
 with its target already in the row. With `--reconnect` each connection is a new session of the same file, and
 targets are not sent again: a board that reset has turned its heaters off, and re-heating a printer nobody is
 watching is not this command's call. The reconnecting is the library's (`marlin_aio.aio.keep_connected`); what is
-here is which failures it may retry, and `ReconnectWaits`, which ends its waits at a stop or at --duration.
+here is which failures it may retry.
 
 A log the file system stops (disk full, the file size limit) ends the run at once with one line, the rows on
 disk counted in it, and exit code 1: logging is all this command does.
@@ -38,7 +38,7 @@ from ..common.keys import on_stop_signals
 from ..heaters.command import say_heaters_left_on
 from .files import LogFormat, LogWriteError, TemperatureLog
 
-__all__ = ["LogSettings", "ReconnectWaits", "log_temperatures", "record_temperatures"]
+__all__ = ["LogSettings", "log_temperatures", "record_temperatures"]
 
 # What ends a session but not a --reconnect run: the link went away, the board restarted, or it does not answer
 # (yet). A halted printer (M112, thermal runaway) is not among them: it needs a person.
@@ -48,60 +48,6 @@ _RECONNECTABLE = (
     marlin_aio.HandshakeError,
     marlin_aio.PrinterResetError,
 )
-
-
-class ReconnectWaits:
-    """The waits of `keep_connected` between attempts, cut short: a stop (Ctrl-C, SIGTERM) ends one at once and
-    `deadline` (--duration, in loop time) at its time, and the run with it. Only a wait: a session sees the stop
-    and the deadline itself and ends as it would without --reconnect. (`watch --reconnect` uses it too.)
-
-        waits = ReconnectWaits(stop, deadline)
-        async with waits.cutting():  # ends quietly when a wait was cut short
-            await keep_connected(connect, session, on_retry=on_retry)
-        # connect() calls waits.connecting() first, on_retry calls waits.waiting() last
-    """
-
-    def __init__(self, stop: asyncio.Event, deadline: float | None) -> None:
-        self._stop = stop
-        self._deadline = deadline
-        self._timeout: asyncio.Timeout | None = None
-        self._waiting = False
-
-    @contextlib.asynccontextmanager
-    async def cutting(self) -> AsyncIterator[None]:
-        """Around the `keep_connected` call; a wait cut short ends it without an error."""
-        timeout = self._timeout = asyncio.timeout(None)
-        try:
-            async with timeout:
-                stopper = asyncio.create_task(self._cut_when_stopped(), name="marlin-temp stop a wait")
-                try:
-                    yield
-                finally:
-                    stopper.cancel()
-                    await asyncio.gather(stopper, return_exceptions=True)
-        except TimeoutError:
-            if not timeout.expired():
-                raise  # the printer's (a timeout that is not retried), not a wait's end
-
-    def waiting(self) -> None:
-        """`keep_connected` waits now (call it last in `on_retry`): until the deadline at most, not at all if
-        stopped."""
-        self._waiting = True
-        self._cut_at(asyncio.get_running_loop().time() if self._stop.is_set() else self._deadline)
-
-    def connecting(self) -> None:
-        """The wait is over (call it first in `connect`): nothing is cut short from here."""
-        self._waiting = False
-        self._cut_at(None)
-
-    def _cut_at(self, when: float | None) -> None:
-        if self._timeout is not None and not self._timeout.expired():
-            self._timeout.reschedule(when)
-
-    async def _cut_when_stopped(self) -> None:
-        await self._stop.wait()
-        if self._waiting:
-            self._cut_at(asyncio.get_running_loop().time())
 
 
 @dataclass(frozen=True)
@@ -261,14 +207,12 @@ async def _keep_logging(
 ) -> None:
     """One session; with --reconnect, one for each connection (waits of 1 s doubling to 30 s between attempts,
     from 1 s again once connected) until a stop or the deadline."""
-    waits = ReconnectWaits(stop, deadline)
     label = ""
     rows_before = log.summary.rows
 
     @contextlib.asynccontextmanager
     async def connect() -> AsyncIterator[marlin_aio.Printer]:
         nonlocal label
-        waits.connecting()
         async with open_printer(options, errors) as (printer, label):
             yield printer
 
@@ -294,7 +238,7 @@ async def _keep_logging(
             log.new_session()  # the next connection's rows are a session of their own, whatever the printer did
         message = f"{exc}; reconnecting in {retry.delay_s:g} s (Ctrl-C stops)"
         errors.print(message, style="yellow", markup=False, emoji=False)
-        waits.waiting()
 
-    async with waits.cutting():
-        await keep_connected(connect, session, backoff=Backoff(1.0, 30.0), on_retry=on_retry)
+    # A stop (Ctrl-C, SIGTERM) or the deadline (--duration) ends a wait between attempts at once; a session
+    # watches both itself.
+    await keep_connected(connect, session, backoff=Backoff(1.0, 30.0), on_retry=on_retry, stop=stop, deadline=deadline)

@@ -52,7 +52,6 @@ from ..common.model import (
 from ..common.render import plain_line, watch_view
 from ..farm.view import FarmKeys, detail_view, farm_row, farm_view, json_lines, plain_lines
 from ..heaters.command import say_heaters_left_on
-from ..logs.command import ReconnectWaits
 from ..logs.files import TemperatureLog
 
 __all__ = ["WatchSettings", "watch_farm", "watch_printer"]
@@ -351,13 +350,11 @@ async def _sessions(
 ) -> None:
     """Connect and watch until the end; with --reconnect, again after each lost link (waits of 1 s doubling to
     30 s between attempts, from 1 s again once connected), until a stop or the deadline."""
-    waits = ReconnectWaits(stop, deadline)
     label = ""
 
     @contextlib.asynccontextmanager
     async def connect() -> AsyncIterator[marlin_aio.Printer]:
         nonlocal label
-        waits.connecting()
         async with open_printer(options, errors) as (printer, label):
             yield printer
 
@@ -376,10 +373,10 @@ async def _sessions(
             raise exc
         message = f"{exc}; retrying in {retry.delay_s:g} s (Ctrl-C stops)"
         errors.print(message, style="yellow", markup=False, emoji=False)
-        waits.waiting()
 
-    async with waits.cutting():
-        await keep_connected(connect, session, backoff=Backoff(1.0, 30.0), on_retry=on_retry)
+    # A stop (Ctrl-C, SIGTERM) or the deadline (--duration) ends a wait between attempts at once; a session
+    # watches both itself.
+    await keep_connected(connect, session, backoff=Backoff(1.0, 30.0), on_retry=on_retry, stop=stop, deadline=deadline)
 
 
 _FARM_EVENTS = 3  # the latest events shown under the farm table

@@ -73,13 +73,17 @@ async def keep_connected(
     *,
     backoff: Backoff | None = None,
     on_retry: Callable[[Retry], None] | None = None,
-) -> T:
+    stop: asyncio.Event | None = None,
+    deadline: float | None = None,
+) -> T | None:
     """Open a printer with `connect()` (a `Printer`, or any async context manager giving one) and return what
     `session(printer)` returns; when opening it fails or the session fails with a `MarlinError`, tell `on_retry`,
     wait (`backoff`, 1 s doubling to 30 s by default) and try again. Runs until the session returns, or until
-    cancelled.
+    cancelled; or returns None when `stop` is set or the `deadline` (the event loop's time) comes between two
+    attempts, at once even in the middle of a wait. A running session is never cut: it watches `stop` and the
+    deadline itself, if it should.
 
-        await marlin_aio.aio.keep_connected(lambda: marlin_aio.Printer(port), watch_it)
+        await marlin_aio.aio.keep_connected(lambda: marlin_aio.Printer(port), watch_it, stop=ctrl_c)
 
     The printer is closed after each session, whatever ended it. `on_retry` is called on the event loop before
     each wait; if it raises, so does this.
@@ -88,8 +92,11 @@ async def keep_connected(
         Exception: anything the session raises that is not a `MarlinError` (a bug is not retried).
     """
     backoff = backoff or Backoff()
+    loop = asyncio.get_running_loop()
     attempt = 0
     while True:
+        if (stop is not None and stop.is_set()) or (deadline is not None and loop.time() >= deadline):
+            return None
         connected = False
         try:
             async with connect() as printer:
@@ -102,4 +109,10 @@ async def keep_connected(
             delay = backoff.next_delay()
             if on_retry is not None:
                 on_retry(Retry(exc, connected, attempt, delay))
-        await asyncio.sleep(delay)
+        if deadline is not None:
+            delay = min(delay, max(deadline - loop.time(), 0.0))
+        if stop is None:
+            await asyncio.sleep(delay)
+        else:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), delay)  # a stop ends the wait at once
