@@ -25,7 +25,7 @@ __all__ = [
     "STEP_CELSIUS",
     "Action",
     "HeaterStatus",
-    "LinkStats",
+    "LinkHealth",
     "Notice",
     "Preset",
     "Quit",
@@ -55,8 +55,9 @@ class HeaterStatus:
 
 
 @dataclass(frozen=True, slots=True)
-class LinkStats:
-    """The footer: how well the link is doing over the last window."""
+class LinkHealth:
+    """The footer: how well the link is doing over the last window (the figures `watch` shows; the library's own
+    counters are `marlin_aio.LinkStats`)."""
 
     polls_per_s: float
     latency_median_ms: float | None
@@ -166,10 +167,10 @@ class WatchModel:
             return None
         return (series[-1][1] - first[1]) / (now - first[0])
 
-    def link(self) -> LinkStats:
+    def link(self) -> LinkHealth:
         """Footer figures: polls in the last second, latency median and worst over the window."""
         latencies = [latency for _, latency in self._latencies]
-        return LinkStats(
+        return LinkHealth(
             polls_per_s=float(len(self._poll_times)),
             latency_median_ms=statistics.median(latencies) * 1000 if latencies else None,
             latency_worst_ms=max(latencies) * 1000 if latencies else None,

@@ -21,7 +21,7 @@ from rich.text import Text
 
 from marlin_aio import TemperatureReading
 
-from .model import HeaterStatus, LinkStats, WatchControls, WatchModel, heater_name
+from .model import HeaterStatus, LinkHealth, WatchControls, WatchModel, heater_name
 
 __all__ = [
     "chart",
@@ -267,7 +267,7 @@ def _legend(keys: list[str], width: int) -> Text:
     return _flow([*items, Text("─ target", style="dim")], width, indent="      ")
 
 
-def footer(port: str, firmware: str, link: LinkStats, width: int | None = None, quit_hint: str = "q quits") -> Text:
+def footer(port: str, firmware: str, link: LinkHealth, width: int | None = None, quit_hint: str = "q quits") -> Text:
     """The status line: port, firmware, polls per second, latency, and counts of timeouts and errors.
 
     Given a `width`, it breaks between its parts rather than inside one; `quit_hint` ends it (empty: left out,
