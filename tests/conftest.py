@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import asyncio
 import os
 import pty
 import tty
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -92,3 +93,18 @@ def broker(tmp_path: Path) -> Iterator[Broker]:
         yield running
     finally:
         running.stop()
+
+
+async def until(condition: Callable[[], bool], what: str, limit_s: float = 60.0, every_s: float = 0.02) -> None:
+    """Poll `condition` until it holds, bounded by `limit_s` (then fail naming `what`).
+
+    The one wait-for-a-condition of the suite, for what gives no event to await: a file on disk, what the
+    simulator ran, a counter. Each poll yields to the loop, so a front end running on it goes on meanwhile; it is
+    not a fixed sleep: it returns as soon as the condition holds.
+    """
+    loop = asyncio.get_running_loop()
+    end = loop.time() + limit_s
+    while not condition():
+        if loop.time() > end:
+            raise AssertionError(f"timed out after {limit_s:g} s waiting for {what}")
+        await asyncio.sleep(every_s)  # polling a condition, bounded; not a fixed wait

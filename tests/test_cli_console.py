@@ -11,12 +11,11 @@ import asyncio
 import shutil
 import subprocess
 import sys
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from conftest import TIME_SCALE
+from conftest import TIME_SCALE, until
 from prompt_toolkit.completion import CompleteEvent
 from prompt_toolkit.document import Document
 from test_cli_terminal import Tmux
@@ -44,13 +43,6 @@ def one_line(text: str) -> str:
     assert len(lines) == 1, text
     assert "Traceback" not in text
     return lines[0]
-
-
-async def wait_until(condition: Callable[[], bool], what: str, limit_s: float = 60.0) -> None:
-    end = time.monotonic() + limit_s
-    while not condition():
-        assert time.monotonic() < end, f"timed out waiting for {what}"
-        await asyncio.sleep(0.05)
 
 
 # ------------------------------------------------------------------------------------------- send
@@ -129,7 +121,7 @@ async def test_send_m112_is_the_emergency_stop_and_what_follows_exits_7(pty_sim:
     assert "emergency stop sent" in result.stdout
     assert "EMERGENCY_PARSER" not in result.stdout  # this board acts on M112 as it arrives: no warning
     assert "M112" in one_line(result.stderr)  # G28 was refused: the printer is halted
-    await wait_until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
+    await until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
     assert "G28" not in pty_sim.printer.executed
 
 
@@ -138,7 +130,7 @@ async def test_send_m112_warns_when_the_firmware_has_no_emergency_parser() -> No
         result = await invoke("send", "M112", "--port", sim.url)
         assert result.exit_code == Exit.OK, result.output
         assert "no EMERGENCY_PARSER" in result.stdout and "cut its power" in result.stdout
-        await wait_until(lambda: sim.printer.halted, "the simulated printer to halt")  # its turn came at once
+        await until(lambda: sim.printer.halted, "the simulated printer to halt")  # its turn came at once
 
 
 def test_send_help_explains_checks_and_exit_codes() -> None:
@@ -283,11 +275,11 @@ async def test_f12_halts_the_printer_at_once_even_while_a_long_command_runs(
 
     typed(tmux, "G4 S3600", "Enter")  # an hour's dwell: the prompt is back at once, the command keeps running
     await wait_for(tmux, lambda s: "running: 1" in s, "the dwell to be under way")
-    await wait_until(lambda: "G4 S3600" in pty_sim.printer.executed, "the printer to start the dwell")
+    await until(lambda: "G4 S3600" in pty_sim.printer.executed, "the printer to start the dwell")
     assert not pty_sim.printer.halted
 
     typed(tmux, "", "F12")
-    await wait_until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
+    await until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
     screen = await wait_for(tmux, lambda s: "emergency stop sent" in s and "HALTED" in s, "the stop to show")
     await wait_for(tmux, lambda s: "error: G4 S3600" in s, "the dwell to fail")  # it failed, it did not finish
     assert "G4 S3600" in screen
@@ -309,7 +301,7 @@ async def test_typing_the_stop_asks_and_y_halts_the_printer(
     await wait_for(tmux, lambda s: "send the emergency stop M112?" in s, "the question")
     assert not pty_sim.printer.halted  # asked, not sent
     typed(tmux, "y")
-    await wait_until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
+    await until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
     await wait_for(tmux, lambda s: "emergency stop sent" in s and "HALTED" in s, "the stop to show")
     typed(tmux, "", "C-d")
     await wait_for(tmux, lambda s: f"MARLIN-EXIT={int(Exit.HALTED)}" in s, "the console to quit with 7")

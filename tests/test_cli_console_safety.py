@@ -14,10 +14,11 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from conftest import until
 from prompt_toolkit.completion import CompleteEvent
 from prompt_toolkit.document import Document
 from prompt_toolkit.history import FileHistory, InMemoryHistory
-from test_cli_console import at_an_empty_prompt, needs_tmux, start_terminal, typed, wait_for, wait_until
+from test_cli_console import at_an_empty_prompt, needs_tmux, start_terminal, typed, wait_for
 from test_cli_terminal import Tmux
 
 from marlin_aio.simulator import SimulatorServer
@@ -170,7 +171,7 @@ async def test_typed_m112_asks_first_and_any_other_key_sends_nothing(
     assert "emergency stop sent" not in tmux.screen()
 
     typed(tmux, "", "F12")  # the stop's own key asks nothing
-    await wait_until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
+    await until(lambda: pty_sim.printer.halted, "the simulated printer to halt")
     screen = await wait_for(tmux, lambda s: "emergency stop sent" in s, "the stop to show")
     assert screen.count("send the emergency stop M112?") == 3  # the three typed ones, not F12
     typed(tmux, "", "C-d")
@@ -201,9 +202,9 @@ async def test_a_refused_command_is_one_error_line_and_the_next_line_is_taken(
     assert not any(command.startswith(("M104 S", "M140 S")) for command in pty_sim.printer.executed)
 
     typed(tmux, "M104 S280", "Enter")  # within --max-hotend 290 (above the default limit): sent
-    await wait_until(lambda: "M104 S280" in pty_sim.printer.executed, "the printer to take M104 S280")
+    await until(lambda: "M104 S280" in pty_sim.printer.executed, "the printer to take M104 S280")
     typed(tmux, "M104 S0", "Enter")
-    await wait_until(lambda: "M104 S0" in pty_sim.printer.executed, "the printer to take M104 S0")
+    await until(lambda: "M104 S0" in pty_sim.printer.executed, "the printer to take M104 S0")
     typed(tmux, "", "C-d")
     await wait_for(tmux, lambda s: "MARLIN-EXIT=0" in s, "the console to quit with 0")
 

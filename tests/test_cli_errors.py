@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import until
 from rich.console import Console
 from typer.testing import CliRunner
 
@@ -116,10 +117,7 @@ async def test_unplugged_while_watching_says_so_and_exits_8(tmp_path: Path) -> N
         console = Console(file=io.StringIO(), force_terminal=False)
         watching = asyncio.create_task(watch_printer(ConnectOptions(port=sim.url), settings, console, console))
         # Unplug once readings are flowing: the log file gets its first rows within a second.
-        for _ in range(600):
-            if log.exists() and log.stat().st_size > 200:
-                break
-            await asyncio.sleep(0.05)  # polling a condition (rows on disk), bounded
+        await until(lambda: log.exists() and log.stat().st_size > 200, "rows on disk", limit_s=30)
         await sim.disconnect()
         with pytest.raises(marlin_aio.ConnectionLostError, match="unplugged\\? use --reconnect"):
             await asyncio.wait_for(watching, 10)

@@ -17,10 +17,11 @@ import re
 import shutil
 import subprocess
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import replace
 
 import pytest
+from conftest import until
 from rich.console import Console
 from test_cli_terminal import Tmux
 from typer.testing import CliRunner
@@ -322,16 +323,6 @@ class Output:
             if f" {name}: " in line:
                 return line.split(f" {name}: ", 1)[1]
         return ""
-
-
-async def until(condition: Callable[[], bool], what: str, limit_s: float = 60.0) -> None:
-    """Poll `condition` (bounded); watch runs on this loop, so waiting here lets it go on."""
-    loop = asyncio.get_running_loop()
-    end = loop.time() + limit_s
-    while not condition():
-        if loop.time() > end:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.05)
 
 
 async def test_one_printer_unplugged_shows_down_while_the_others_update(capsys: pytest.CaptureFixture[str]) -> None:

@@ -14,12 +14,12 @@ import io
 import itertools
 import json
 import re
-from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import until
 from rich.console import Console
 from typer.testing import CliRunner
 
@@ -34,15 +34,6 @@ from marlin_temp.main import app
 
 runner = CliRunner()
 FAST = ["--sim", "--sim-speed", "50"]
-
-
-async def until(condition: Callable[[], bool], what: str, limit_s: float = 30.0) -> None:
-    """Poll `condition` (bounded); the file on disk gives no other signal."""
-    for _ in range(int(limit_s / 0.05)):
-        if condition():
-            return
-        await asyncio.sleep(0.05)  # polling a condition, bounded; not a fixed wait
-    raise AssertionError(f"timed out after {limit_s} s waiting for {what}")
 
 
 def rows_on_disk(path: Path) -> list[dict[str, str]]:

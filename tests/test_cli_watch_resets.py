@@ -11,9 +11,9 @@ import asyncio
 import json
 import os
 import termios
-from collections.abc import Callable
 from typing import Any
 
+from conftest import until
 from typer.testing import CliRunner
 
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
@@ -21,15 +21,6 @@ from marlin_temp.common.connect import Exit
 from marlin_temp.main import app
 
 runner = CliRunner()
-
-
-async def until(condition: Callable[[], bool], what: str, limit_s: float = 10.0) -> None:
-    """Poll `condition` (bounded): what the simulator has run is the only signal there is."""
-    for _ in range(int(limit_s / 0.005)):
-        if condition():
-            return
-        await asyncio.sleep(0.005)  # polling a condition, bounded; not a fixed wait
-    raise AssertionError(f"timed out after {limit_s} s waiting for {what}")
 
 
 def reset(sim: SimulatorServer) -> None:

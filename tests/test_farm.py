@@ -23,6 +23,7 @@ from typing import Any
 
 import aiomqtt
 import pytest
+from conftest import until
 
 import marlin_aio
 from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
@@ -277,15 +278,11 @@ async def test_events_while_the_broker_is_down_are_delivered_after_it_restarts(b
                 await sub.until(lambda: bool(sub.payloads("marlin/a/events")), "the first event")
             broker.stop()
             await sim.disconnect()  # connection_lost, then connected again: both while the broker is down
-            for _ in range(400):
-                if sum(event.kind == "connected" for event in events) >= 2:
-                    break
-                await asyncio.sleep(0.05)  # polling a condition (the farm's own events), bounded
+            await until(
+                lambda: sum(event.kind == "connected" for event in events) >= 2, "the farm's own events", limit_s=20
+            )
             assert sum(event.kind == "connected" for event in events) >= 2
-            for _ in range(200):
-                if not bridge.connected:
-                    break
-                await asyncio.sleep(0.05)  # polling a condition (the bridge saw the broker go), bounded
+            await until(lambda: not bridge.connected, "the bridge saw the broker go", limit_s=10)
             assert not bridge.connected
             broker.start()
             async with subscribed(broker.port, identifier="event-keeper", clean=False) as sub:
@@ -530,10 +527,7 @@ async def test_a_broker_that_wants_a_password_gets_it_and_a_wrong_one_is_retried
             farm, wrong, _ = farm_and_bridge(spec, port)
             wrong = Bridge(farm, BrokerSettings(port=port, username="farm", password="nope"), wrong.settings)
             async with running(farm, wrong):
-                for _ in range(100):
-                    if farm.printers["a"].readings > 20:
-                        break
-                    await asyncio.sleep(0.05)  # polling a condition (readings flow), bounded
+                await until(lambda: farm.printers["a"].readings > 20, "readings flow", limit_s=5)
                 assert farm.printers["a"].readings > 20  # the printers do not care that the broker said no
                 assert wrong.connections == 0 and wrong.published == 0
             assert "nope" not in repr(wrong.broker)  # never printed
@@ -541,10 +535,7 @@ async def test_a_broker_that_wants_a_password_gets_it_and_a_wrong_one_is_retried
             farm, _, _ = farm_and_bridge([PrinterSpec("a", sim.url, poll_interval_s=0.05)], port)
             right = Bridge(farm, BrokerSettings(port=port, username="farm", password="s3cret"), BridgeSettings())
             async with running(farm, right):
-                for _ in range(200):
-                    if right.published > 5:
-                        break
-                    await asyncio.sleep(0.05)  # polling a condition (messages published), bounded
+                await until(lambda: right.published > 5, "messages published", limit_s=10)
             assert right.connections >= 1 and right.published > 5
 
 
@@ -575,10 +566,8 @@ def issue(directory: Path, name: str, ca: tuple[Path, Path], *, ip: str | None =
 async def publishes(farm: Farm, bridge: Bridge) -> bool:
     """Whether `bridge` connects and publishes within a bounded wait (5 s)."""
     async with running(farm, bridge):
-        for _ in range(100):
-            if bridge.published > 5:
-                break
-            await asyncio.sleep(0.05)  # polling a condition (messages published), bounded
+        with contextlib.suppress(AssertionError):  # not publishing within the bound is an answer here
+            await until(lambda: bridge.published > 5, "messages published", limit_s=5)
     return bool(bridge.connections >= 1 and bridge.published > 5)
 
 
@@ -614,10 +603,11 @@ async def test_an_absent_broker_never_slows_the_printers_and_each_keeps_its_own_
         ]
         farm, bridge, _ = farm_and_bridge(specs, nobody, telemetry_buffer=10, rate_hz=50.0)
         async with running(farm, bridge):
-            for _ in range(600):
-                if farm.printers["busy"].readings > 100 and farm.printers["slow"].readings > 15:
-                    break
-                await asyncio.sleep(0.05)  # polling a condition (readings flow), bounded
+            await until(
+                lambda: farm.printers["busy"].readings > 100 and farm.printers["slow"].readings > 15,
+                "readings flow",
+                limit_s=30,
+            )
         assert farm.printers["busy"].readings > 100  # polls went on at their rate
         assert bridge.telemetry_dropped > 50  # each buffer kept its newest 10 and counted the rest
         # The busy printer's readings did not push the slow one's out: each printer has its own newest ten.

@@ -20,6 +20,7 @@ from typing import Any
 
 import aiomqtt
 import pytest
+from conftest import until
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from test_farm import (
@@ -406,10 +407,7 @@ async def test_a_retained_command_never_runs_across_broker_restarts(broker: Brok
                     connections = bridge.connections
                     broker.stop()
                     broker.start()
-                    for _ in range(400):
-                        if bridge.connections > connections:
-                            break
-                        await asyncio.sleep(0.05)  # polling a condition (the bridge is back), bounded
+                    await until(lambda: bridge.connections > connections, "the bridge is back", limit_s=20)  # noqa: B023
                     assert bridge.connections > connections
     assert len(refusals) == 3
     assert all(a["ok"] is False and "retained" in a["error"] for a in refusals)
@@ -445,15 +443,13 @@ async def test_after_a_broker_outage_every_printer_has_its_own_readings_of_the_o
                     times[name] += [t["time"] for t in sub.payloads(f"marlin/{name}/telemetry")]
                 broker.stop()
                 down_at = time.time()
-                for _ in range(400):
-                    if not bridge.connected:
-                        break
-                    await asyncio.sleep(0.05)  # polling a condition (the bridge saw the broker go), bounded
+                await until(lambda: not bridge.connected, "the bridge saw the broker go", limit_s=20)
                 readings = {name: farm.printers[name].readings for name in names}
-                for _ in range(400):  # an outage of 80 readings of each printer at least
-                    if all(farm.printers[name].readings > readings[name] + 80 for name in names):
-                        break
-                    await asyncio.sleep(0.05)  # polling a condition (readings during the outage), bounded
+                await until(
+                    lambda: all(farm.printers[name].readings > readings[name] + 80 for name in names),
+                    "readings during the outage",
+                    limit_s=20,
+                )
                 broker.start()
                 up_at = time.time()
                 async with subscribed(broker.port, identifier="watcher", clean=False) as sub:
@@ -553,10 +549,7 @@ async def test_two_prints_started_at_once_start_one(tmp_path: Path) -> None:
         farm = Farm([PrinterSpec("a", sim.url, poll_interval_s=0.05)], lambda event: None)
         task = asyncio.create_task(farm.run())
         try:
-            for _ in range(400):
-                if farm.printers["a"].link_up:
-                    break
-                await asyncio.sleep(0.05)  # polling a condition (the printer connected), bounded
+            await until(lambda: farm.printers["a"].link_up, "the printer connected", limit_s=20)
             farm_printer = farm.printers["a"]
             path = tmp_path / "long.gcode"
             results = await asyncio.gather(
@@ -640,10 +633,11 @@ async def test_in_process_simulated_printers_keep_a_small_record() -> None:
     farm = Farm([PrinterSpec("sim1", None, poll_interval_s=0.005, sim=True, sim_speed=20)], lambda event: None)
     task = asyncio.create_task(farm.run())
     try:
-        for _ in range(600):
-            if "sim1" in farm.sims and farm.sims["sim1"].printer.executed_count > SIM_RECORD_LIMIT + 100:
-                break
-            await asyncio.sleep(0.05)  # polling a condition (the polls add up), bounded
+        await until(
+            lambda: "sim1" in farm.sims and farm.sims["sim1"].printer.executed_count > SIM_RECORD_LIMIT + 100,
+            "the polls add up",
+            limit_s=30,
+        )
         printer = farm.sims["sim1"].printer
         assert printer.executed_count > SIM_RECORD_LIMIT + 100
         assert len(printer.executed) == SIM_RECORD_LIMIT == 1_000
