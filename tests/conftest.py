@@ -8,7 +8,7 @@ import pty
 import tty
 from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
@@ -28,6 +28,21 @@ _CAMPAIGN_REPORT = pytest.StashKey[list[str]]()
 def campaign_report(pytestconfig: pytest.Config) -> list[str]:
     """Lines the fault campaign reports (run counts, failing seeds); printed at the end of the test session."""
     return pytestconfig.stash.setdefault(_CAMPAIGN_REPORT, [])
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """Under pytest-xdist (the suite runs on every core), hand a worker's campaign lines to the controller, which
+    prints the summary."""
+    output = getattr(session.config, "workeroutput", None)
+    if output is not None:
+        output["campaign_report"] = session.config.stash.get(_CAMPAIGN_REPORT, [])
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node: Any, error: object) -> None:
+    """The controller's side of `pytest_sessionfinish`: collect each worker's campaign lines."""
+    lines = getattr(node, "workeroutput", {}).get("campaign_report", [])
+    node.config.stash.setdefault(_CAMPAIGN_REPORT, []).extend(lines)
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter, config: pytest.Config) -> None:
