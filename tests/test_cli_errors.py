@@ -165,7 +165,7 @@ async def test_watch_reconnect_keeps_retrying_and_resumes(tmp_path: Path) -> Non
         watching.cancel()
         with pytest.raises(asyncio.CancelledError):
             await watching
-    assert "retrying in 1 s" in errors.export_text()  # the first wait of the backoff (1 s doubling to 30 s)
+    assert "reconnecting in 1 s" in errors.export_text()  # the first wait of the backoff (1 s doubling to 30 s)
 
 
 @pytest.mark.parametrize(

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import getpass
 import os
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
@@ -14,6 +15,7 @@ from rich.console import Console
 
 import marlin_aio
 from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS
+from marlin_aio.aio import Backoff, Retry, keep_connected
 
 __all__ = [
     "EXIT_CODES_HELP",
@@ -24,6 +26,7 @@ __all__ = [
     "exit_code_for",
     "open_printer",
     "printer_password",
+    "run_sessions",
 ]
 
 #: The environment variable a locked printer's password (M511) is read from.
@@ -208,3 +211,51 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
         finally:
             await printer.close()
         return
+
+
+async def run_sessions(
+    options: ConnectOptions,
+    errors: Console,
+    session: Callable[[marlin_aio.Printer, str], Awaitable[None]],
+    *,
+    reconnect: bool,
+    retried: tuple[type[marlin_aio.MarlinError], ...],
+    goal: str,
+    stop: asyncio.Event,
+    deadline: float | None,
+    before_wait: Callable[[], None] | None = None,
+) -> None:
+    """Run `session(printer, label)` on the printer `options` name (`open_printer`); with `reconnect`, again after
+    each failure of a `retried` kind, through the library's `keep_connected` (waits of 1 s doubling to 30 s, from
+    1 s again once connected; a stop or the deadline ends a wait at once). `before_wait` runs before each wait.
+
+    Raises:
+        MarlinError: a failure not in `retried`, or any failure without `reconnect` or after a stop; a lost link
+            then says "unplugged? use --reconnect to `goal`".
+    """
+    label = ""
+
+    @contextlib.asynccontextmanager
+    async def connect() -> AsyncIterator[marlin_aio.Printer]:
+        nonlocal label
+        async with open_printer(options, errors) as (printer, label):
+            yield printer
+
+    async def run(printer: marlin_aio.Printer) -> None:
+        await session(printer, label)
+
+    def on_retry(retry: Retry) -> None:
+        exc = retry.error
+        # keep_connected retries every MarlinError; a command retries only its `retried` kinds. The others (a
+        # halted printer, a timeout, ...) end the run as they always did, with their exit codes.
+        if not isinstance(exc, retried):
+            raise exc
+        if not reconnect or stop.is_set():
+            if isinstance(exc, marlin_aio.ConnectionLostError):
+                raise marlin_aio.ConnectionLostError(f"{exc} (unplugged? use --reconnect to {goal})") from exc
+            raise exc
+        if before_wait is not None:
+            before_wait()
+        errors.print(f"{exc}; reconnecting in {retry.delay_s:g} s (Ctrl-C stops)", style="yellow", markup=False)
+
+    await keep_connected(connect, run, backoff=Backoff(1.0, 30.0), on_retry=on_retry, stop=stop, deadline=deadline)

@@ -23,17 +23,14 @@ that carry a file name, a port or an error's text are printed with markup and em
 from __future__ import annotations
 
 import asyncio
-import contextlib
-from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio.aio import Backoff, Retry, keep_connected
 
-from ..common.connect import ConnectOptions, Exit, open_printer
+from ..common.connect import ConnectOptions, Exit, run_sessions
 from ..common.keys import on_stop_signals
 from ..heaters.command import say_heaters_left_on
 from .files import LogFormat, LogWriteError, TemperatureLog
@@ -207,38 +204,28 @@ async def _keep_logging(
 ) -> None:
     """One session; with --reconnect, one for each connection (waits of 1 s doubling to 30 s between attempts,
     from 1 s again once connected) until a stop or the deadline."""
-    label = ""
     rows_before = log.summary.rows
 
-    @contextlib.asynccontextmanager
-    async def connect() -> AsyncIterator[marlin_aio.Printer]:
-        nonlocal label
-        async with open_printer(options, errors) as (printer, label):
-            yield printer
-
-    async def session(printer: marlin_aio.Printer) -> None:
+    async def session(printer: marlin_aio.Printer, label: str) -> None:
         try:
             await _log_session(printer, label, settings, log, stop, deadline, run, errors)
         finally:
             run.latest = printer.latest
 
-    def on_retry(retry: Retry) -> None:
+    def new_session() -> None:
         nonlocal rows_before
-        exc = retry.error
-        # keep_connected retries every MarlinError; log retries only `_RECONNECTABLE`. The others (a halted
-        # printer, a command or heat-up timeout, a lost reply, a locked printer, ...) end the run as they did.
-        if not isinstance(exc, _RECONNECTABLE):
-            raise exc
-        if not settings.reconnect:
-            if isinstance(exc, marlin_aio.ConnectionLostError):
-                raise marlin_aio.ConnectionLostError(f"{exc} (unplugged? use --reconnect to keep logging)") from exc
-            raise exc
         if log.summary.rows > rows_before:
             rows_before = log.summary.rows
             log.new_session()  # the next connection's rows are a session of their own, whatever the printer did
-        message = f"{exc}; reconnecting in {retry.delay_s:g} s (Ctrl-C stops)"
-        errors.print(message, style="yellow", markup=False, emoji=False)
 
-    # A stop (Ctrl-C, SIGTERM) or the deadline (--duration) ends a wait between attempts at once; a session
-    # watches both itself.
-    await keep_connected(connect, session, backoff=Backoff(1.0, 30.0), on_retry=on_retry, stop=stop, deadline=deadline)
+    await run_sessions(
+        options,
+        errors,
+        session,
+        reconnect=settings.reconnect,
+        retried=_RECONNECTABLE,
+        goal="keep logging",
+        stop=stop,
+        deadline=deadline,
+        before_wait=new_session,
+    )

@@ -22,7 +22,6 @@ import contextlib
 import json
 import time
 from collections import deque
-from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,10 +31,9 @@ from rich.text import Text
 
 import marlin_aio
 import marlin_aio.protocol
-from marlin_aio.aio import Backoff, Retry, keep_connected
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
-from ..common.connect import ConnectOptions, Exit, open_printer
+from ..common.connect import ConnectOptions, Exit, run_sessions
 from ..common.keys import key_presses, on_stop_signals
 from ..common.model import (
     Action,
@@ -350,33 +348,20 @@ async def _sessions(
 ) -> None:
     """Connect and watch until the end; with --reconnect, again after each lost link (waits of 1 s doubling to
     30 s between attempts, from 1 s again once connected), until a stop or the deadline."""
-    label = ""
 
-    @contextlib.asynccontextmanager
-    async def connect() -> AsyncIterator[marlin_aio.Printer]:
-        nonlocal label
-        async with open_printer(options, errors) as (printer, label):
-            yield printer
-
-    async def session(printer: marlin_aio.Printer) -> None:
+    async def session(printer: marlin_aio.Printer, label: str) -> None:
         await _session(printer, label, model, settings, console, log, stop, deadline, controls)
 
-    def on_retry(retry: Retry) -> None:
-        exc = retry.error
-        # keep_connected retries every MarlinError; watch retries only `_RETRIED`. The others (a halted printer, a
-        # board that reset, a timeout, ...) end the run as they did, with their exit codes.
-        if not isinstance(exc, _RETRIED):
-            raise exc
-        if not settings.reconnect or stop.is_set():
-            if isinstance(exc, marlin_aio.ConnectionLostError):
-                raise marlin_aio.ConnectionLostError(f"{exc} (unplugged? use --reconnect to keep retrying)") from exc
-            raise exc
-        message = f"{exc}; retrying in {retry.delay_s:g} s (Ctrl-C stops)"
-        errors.print(message, style="yellow", markup=False, emoji=False)
-
-    # A stop (Ctrl-C, SIGTERM) or the deadline (--duration) ends a wait between attempts at once; a session
-    # watches both itself.
-    await keep_connected(connect, session, backoff=Backoff(1.0, 30.0), on_retry=on_retry, stop=stop, deadline=deadline)
+    await run_sessions(
+        options,
+        errors,
+        session,
+        reconnect=settings.reconnect,
+        retried=_RETRIED,
+        goal="keep retrying",
+        stop=stop,
+        deadline=deadline,
+    )
 
 
 _FARM_EVENTS = 3  # the latest events shown under the farm table
