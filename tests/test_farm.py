@@ -28,7 +28,7 @@ from conftest import until
 import marlin_aio
 from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
-from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
+from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty, serve_tcp
 
 MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if os.path.exists("/usr/sbin/mosquitto") else None)
 pytestmark = pytest.mark.skipif(
@@ -157,6 +157,37 @@ def farm_and_bridge(
         BridgeSettings(backoff_start_s=0.2, backoff_max_s=0.5, **({"rate_hz": 10.0} | settings)),
     )
     return farm, bridge, events
+
+
+@dataclass
+class OnePrinter:
+    """A farm of one simulated printer `a` with its bridge, running; a subscriber to everything; one more client."""
+
+    sim: SimulatorServer
+    sub: Subscriber
+    client: aiomqtt.Client
+    farm: Farm
+    bridge: Bridge
+    events: list[FarmEvent]
+
+
+@contextlib.asynccontextmanager
+async def one_printer_farm(
+    broker: Broker, *, time_scale: float = 50.0, client: str = "commander", **settings: Any
+) -> AsyncIterator[OnePrinter]:
+    """Serve printer `a` (polled every 50 ms), run its farm and bridge (`settings` go to the bridge), and yield
+    once the printer is connected."""
+    async with (
+        serve_pty(SimulatorConfig(), time_scale=time_scale) as sim,
+        subscribed(broker.port) as sub,
+        aiomqtt.Client("127.0.0.1", broker.port, identifier=client) as other,
+    ):
+        farm, bridge, events = farm_and_bridge(
+            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, **settings
+        )
+        async with running(farm, bridge):
+            await sub.until(lambda: farm.printers["a"].link_up, "the printer connected")
+            yield OnePrinter(sim, sub, other, farm, bridge, events)
 
 
 async def test_telemetry_state_and_availability_arrive_with_only_the_heaters_each_printer_has(broker: Broker) -> None:
@@ -458,40 +489,32 @@ async def test_commands_are_off_unless_allowed(broker: Broker) -> None:
 
 
 async def test_a_target_above_the_limits_is_refused_however_the_gcode_spells_it(broker: Broker) -> None:
-    async with (
-        serve_pty(SimulatorConfig(), time_scale=50) as sim,
-        subscribed(broker.port) as sub,
-        aiomqtt.Client("127.0.0.1", broker.port, identifier="commander") as commander,
-    ):
-        farm, bridge, _ = farm_and_bridge(
-            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True
-        )
-        async with running(farm, bridge):
-            await sub.until(lambda: farm.printers["a"].link_up, "the printer connected")
-            before = not_polls(list(sim.printer.executed))
-            # The default limits: hotend 260, bed 140. Each spelling is one Marlin's parser reads as the target.
-            spellings = ["M104S280", "m104 s280", "M0104 S270", "M104 B1000", "M140S200"]
-            for id_, text in enumerate(spellings, 1):
-                answer = await command(
-                    sub, commander, "a", json.dumps({"id": id_, "action": "gcode", "command": text}), id_
-                )
-                assert answer["ok"] is False, (text, answer)
-                assert "\n" not in answer["error"] and "limit" in answer["error"], answer
-            # A list with one such command among good ones writes none of them.
+    async with one_printer_farm(broker, allow_commands=True) as one:
+        sim, sub, commander = one.sim, one.sub, one.client
+        before = not_polls(list(sim.printer.executed))
+        # The default limits: hotend 260, bed 140. Each spelling is one Marlin's parser reads as the target.
+        spellings = ["M104S280", "m104 s280", "M0104 S270", "M104 B1000", "M140S200"]
+        for id_, text in enumerate(spellings, 1):
             answer = await command(
-                sub, commander, "a", json.dumps({"id": 9, "action": "gcode", "commands": ["M105", "M104S280"]}), 9
+                sub, commander, "a", json.dumps({"id": id_, "action": "gcode", "command": text}), id_
             )
-            assert answer["ok"] is False
-            assert not_polls(list(sim.printer.executed)) == before
-            # Readings taken after the refusals still show no target set.
-            seen = len(sub.payloads("marlin/a/telemetry"))
-            await sub.until(lambda: len(sub.payloads("marlin/a/telemetry")) > seen + 2, "telemetry after them")
-            heaters = sub.payloads("marlin/a/telemetry")[-1]["heaters"]
-            assert heaters["hotend"]["target"] == 0 and heaters["bed"]["target"] == 0
-            # Within the limits, the same spelling runs.
-            answer = await command(sub, commander, "a", '{"id": 10, "action": "gcode", "command": "M104S200"}', 10)
-            assert answer["ok"] is True
-            assert not_polls(list(sim.printer.executed))[-1:] == ["M104S200"]
+            assert answer["ok"] is False, (text, answer)
+            assert "\n" not in answer["error"] and "limit" in answer["error"], answer
+        # A list with one such command among good ones writes none of them.
+        answer = await command(
+            sub, commander, "a", json.dumps({"id": 9, "action": "gcode", "commands": ["M105", "M104S280"]}), 9
+        )
+        assert answer["ok"] is False
+        assert not_polls(list(sim.printer.executed)) == before
+        # Readings taken after the refusals still show no target set.
+        seen = len(sub.payloads("marlin/a/telemetry"))
+        await sub.until(lambda: len(sub.payloads("marlin/a/telemetry")) > seen + 2, "telemetry after them")
+        heaters = sub.payloads("marlin/a/telemetry")[-1]["heaters"]
+        assert heaters["hotend"]["target"] == 0 and heaters["bed"]["target"] == 0
+        # Within the limits, the same spelling runs.
+        answer = await command(sub, commander, "a", '{"id": 10, "action": "gcode", "command": "M104S200"}', 10)
+        assert answer["ok"] is True
+        assert not_polls(list(sim.printer.executed))[-1:] == ["M104S200"]
 
 
 @contextlib.contextmanager

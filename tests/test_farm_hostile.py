@@ -30,6 +30,7 @@ from test_farm import (
     command,
     farm_and_bridge,
     not_polls,
+    one_printer_farm,
     running,
     subscribed,
 )
@@ -37,6 +38,7 @@ from typer.testing import CliRunner
 
 import marlin_aio
 from marlin_aio.farm.bridge import (
+    ANSWER_QUEUE,
     FIGHT_LIMIT,
     MAX_OTHER_PRINTERS,
     MAX_PENDING_COMMANDS,
@@ -269,30 +271,22 @@ async def test_a_print_finished_or_cancelled_over_mqtt_is_an_event_and_a_state(b
     (jobs / "short.gcode").write_text(moves(10))
     (jobs / "long.gcode").write_text(moves(400))
     (jobs / "two\nlines.gcode").write_text(moves(4))
-    async with (
-        serve_pty(SimulatorConfig(), time_scale=50) as sim,
-        subscribed(broker.port) as sub,
-        aiomqtt.Client("127.0.0.1", broker.port, identifier="home-assistant") as ha,
-    ):
-        farm, bridge, events = farm_and_bridge(
-            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True, allowed_dir=jobs
-        )
-        async with running(farm, bridge):
-            await sub.until(lambda: farm.printers["a"].link_up, "connected")
-            await command(sub, ha, "a", '{"id": 1, "action": "print", "path": "short.gcode"}', 1)
-            await sub.until(lambda: "print_finished" in events_of(sub, "a"), "print_finished")
-            await command(sub, ha, "a", '{"id": 2, "action": "print", "path": "long.gcode"}', 2)
-            await until_state(sub, "a", printing, "the long print under way")
-            answer = await command(sub, ha, "a", '{"id": 3, "action": "cancel"}', 3)
-            assert answer["ok"] is True
-            await sub.until(lambda: "print_cancelled" in events_of(sub, "a"), "print_cancelled")
-            await until_state(sub, "a", lambda s: (s["print"] or {}).get("state") == "cancelled", "cancelled state")
-            # A file name with a line break is refused (and its answer and log line are one line each).
-            answer = await command(
-                sub, ha, "a", json.dumps({"id": 4, "action": "print", "path": "two\nlines.gcode"}), 4
-            )
-            assert answer["ok"] is False and "path contains a line break" in answer["error"], answer
-            assert "\n" not in answer["error"]
+    async with one_printer_farm(
+        broker, time_scale=50, client="home-assistant", allow_commands=True, allowed_dir=jobs
+    ) as one:
+        sub, ha, events = one.sub, one.client, one.events
+        await command(sub, ha, "a", '{"id": 1, "action": "print", "path": "short.gcode"}', 1)
+        await sub.until(lambda: "print_finished" in events_of(sub, "a"), "print_finished")
+        await command(sub, ha, "a", '{"id": 2, "action": "print", "path": "long.gcode"}', 2)
+        await until_state(sub, "a", printing, "the long print under way")
+        answer = await command(sub, ha, "a", '{"id": 3, "action": "cancel"}', 3)
+        assert answer["ok"] is True
+        await sub.until(lambda: "print_cancelled" in events_of(sub, "a"), "print_cancelled")
+        await until_state(sub, "a", lambda s: (s["print"] or {}).get("state") == "cancelled", "cancelled state")
+        # A file name with a line break is refused (and its answer and log line are one line each).
+        answer = await command(sub, ha, "a", json.dumps({"id": 4, "action": "print", "path": "two\nlines.gcode"}), 4)
+        assert answer["ok"] is False and "path contains a line break" in answer["error"], answer
+        assert "\n" not in answer["error"]
     kinds = [e for e in events_of(sub, "a") if e.startswith("print_")]
     assert kinds == ["print_started", "print_finished", "print_started", "print_cancelled"]
     finished = next(e for e in sub.payloads("marlin/a/events") if e["event"] == "print_finished")
@@ -475,67 +469,49 @@ async def test_after_a_broker_outage_every_printer_has_its_own_readings_of_the_o
 
 @needs_broker
 async def test_outsiders_cannot_grow_the_bridge_without_bound(broker: Broker) -> None:
-    async with (
-        serve_pty(SimulatorConfig(), time_scale=1) as sim,
-        subscribed(broker.port) as sub,
-        aiomqtt.Client("127.0.0.1", broker.port, identifier="flooder") as flooder,
-    ):
-        farm, bridge, _ = farm_and_bridge(
-            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True
-        )
-        async with running(farm, bridge):
-            await sub.until(lambda: farm.printers["a"].link_up, "connected")
-            names = MAX_OTHER_PRINTERS + 500
-            for index in range(names):
-                await flooder.publish(f"marlin/made-up-{index}/availability", "online", qos=0)
-            await flooder.publish("marlin/last/availability", "online", qos=1)
-            await sub.until(lambda: bool(sub.texts("marlin/last/availability")), "the flood delivered")
-            await sub.until(lambda: "last" in bridge._elsewhere, "the bridge has read the flood")
-            assert len(bridge._elsewhere) == MAX_OTHER_PRINTERS  # the oldest names were forgotten
-            # A flood of slow commands: a bounded number wait for the printer, the rest are refused at once.
-            flood = MAX_PENDING_COMMANDS + 10
-            for index in range(flood):
-                await flooder.publish(
-                    "marlin/a/command", json.dumps({"id": index, "action": "gcode", "command": "G4 S30"})
-                )
-            await sub.until(lambda: len(sub.payloads("marlin/a/response")) >= 10, "the refusals")
-            busy = [a for a in sub.payloads("marlin/a/response") if "busy" in a.get("error", "")]
-            assert len(busy) == 10
-            assert bridge._pending["a"] == MAX_PENDING_COMMANDS
-            # A command to a name no printer can have (here one whose answer's topic would be longer than MQTT
-            # allows: it ended the bridge) is not answered; a name that could be a printer's is, once.
-            ignored = bridge.ignored
-            await flooder.publish("marlin/" + "x" * 65_500 + "/command", '{"id": 1, "action": "pause"}', qos=1)
-            await flooder.publish("marlin/nobody/command", '{"id": 2, "action": "pause"}', qos=1)
-            await sub.until(lambda: bool(sub.payloads("marlin/nobody/response")), "the answer to nobody")
-            assert bridge.ignored == ignored + 1
-            await publishing_for_all(sub, ["a"])
-            # The slow commands still wait, and the emergency stop is never kept out by them.
-            assert bridge._pending["a"] == MAX_PENDING_COMMANDS
-            answer = await command(sub, flooder, "a", '{"id": "stop", "action": "emergency_stop"}', "stop")
-            assert answer["ok"] is True
-            await sub.until(lambda: "halted" in events_of(sub, "a"), "the printer halted")
+    async with one_printer_farm(broker, time_scale=1, client="flooder", allow_commands=True) as one:
+        sub, flooder, bridge = one.sub, one.client, one.bridge
+        names = MAX_OTHER_PRINTERS + 500
+        for index in range(names):
+            await flooder.publish(f"marlin/made-up-{index}/availability", "online", qos=0)
+        await flooder.publish("marlin/last/availability", "online", qos=1)
+        await sub.until(lambda: bool(sub.texts("marlin/last/availability")), "the flood delivered")
+        await sub.until(lambda: "last" in bridge._elsewhere, "the bridge has read the flood")
+        assert len(bridge._elsewhere) == MAX_OTHER_PRINTERS  # the oldest names were forgotten
+        # A flood of slow commands: a bounded number wait for the printer, the rest are refused at once.
+        flood = MAX_PENDING_COMMANDS + 10
+        for index in range(flood):
+            await flooder.publish("marlin/a/command", json.dumps({"id": index, "action": "gcode", "command": "G4 S30"}))
+        await sub.until(lambda: len(sub.payloads("marlin/a/response")) >= 10, "the refusals")
+        busy = [a for a in sub.payloads("marlin/a/response") if "busy" in a.get("error", "")]
+        assert len(busy) == 10
+        assert bridge._pending["a"] == MAX_PENDING_COMMANDS
+        # A command to a name no printer can have (here one whose answer's topic would be longer than MQTT
+        # allows: it ended the bridge) is not answered; a name that could be a printer's is, once.
+        ignored = bridge.ignored
+        await flooder.publish("marlin/" + "x" * 65_500 + "/command", '{"id": 1, "action": "pause"}', qos=1)
+        await flooder.publish("marlin/nobody/command", '{"id": 2, "action": "pause"}', qos=1)
+        await sub.until(lambda: bool(sub.payloads("marlin/nobody/response")), "the answer to nobody")
+        assert bridge.ignored == ignored + 1
+        await publishing_for_all(sub, ["a"])
+        # The slow commands still wait, and the emergency stop is never kept out by them.
+        assert bridge._pending["a"] == MAX_PENDING_COMMANDS
+        answer = await command(sub, flooder, "a", '{"id": "stop", "action": "emergency_stop"}', "stop")
+        assert answer["ok"] is True
+        await sub.until(lambda: "halted" in events_of(sub, "a"), "the printer halted")
     assert [a["id"] for a in sub.payloads("marlin/nobody/response")] == [2]
 
 
 @needs_broker
 async def test_a_flood_of_answers_never_pushes_an_event_out(broker: Broker) -> None:
-    async with (
-        serve_pty(SimulatorConfig(), time_scale=20) as sim,
-        subscribed(broker.port) as sub,
-        aiomqtt.Client("127.0.0.1", broker.port, identifier="flooder") as flooder,
-    ):
-        farm, bridge, _ = farm_and_bridge(
-            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, allow_commands=True
-        )
-        async with running(farm, bridge):
-            await sub.until(lambda: farm.printers["a"].link_up, "connected")
-            for index in range(3_000):  # each a name no bridge has: each answered, 3,000 answers
-                await flooder.publish(f"marlin/x{index}/command", '{"action": "pause"}', qos=0)
-            sim.printer.thermal_runaway(sim.now())
-            sim.poke()
-            await sub.until(lambda: "thermal_runaway" in events_of(sub, "a"), "the thermal runaway event", 60)
-            await sub.until(lambda: bridge.refused + bridge.ignored == 3_000, "the flood read")
+    async with one_printer_farm(broker, time_scale=20, client="flooder", allow_commands=True) as one:
+        sim, sub, flooder, bridge = one.sim, one.sub, one.client, one.bridge
+        for index in range(3_000):  # each a name no bridge has: each answered, 3,000 answers
+            await flooder.publish(f"marlin/x{index}/command", '{"action": "pause"}', qos=0)
+        sim.printer.thermal_runaway(sim.now())
+        sim.poke()
+        await sub.until(lambda: "thermal_runaway" in events_of(sub, "a"), "the thermal runaway event", 60)
+        await sub.until(lambda: bridge.refused + bridge.ignored == 3_000, "the flood read")
     assert bridge.events_lost == 0
     assert bridge.refused + bridge.ignored == 3_000
 
@@ -716,6 +692,20 @@ def test_the_command_handler_answers_every_command_once_and_never_raises(
         assert all(count == 0 for count in bridge._pending.values())
 
     asyncio.run(handle())
+
+
+def test_answers_never_push_an_event_out_of_its_queue() -> None:
+    """Deterministic, with no broker: the bridge is away, 10 events are queued, then 5,000 answers (a flood of
+    commands). Before, one queue held both and the flood pushed every event out; now each kind has its own bound."""
+    farm = Farm([PrinterSpec("a", "socket://127.0.0.1:1")], lambda event: None)
+    bridge = Bridge(farm, BrokerSettings(), BridgeSettings(allow_commands=True, event_queue=100))
+    for index in range(10):
+        bridge.on_event(FarmEvent("a", "thermal_runaway", f"runaway {index}"))
+    for index in range(5_000):
+        bridge._answer("nobody", index, error="no printer named 'nobody'")
+    assert [json.loads(text)["message"] for _, text in bridge._events] == [f"runaway {i}" for i in range(10)]
+    assert bridge.events_lost == 0
+    assert len(bridge._answers) == ANSWER_QUEUE and bridge.answers_dropped == 5_000 - ANSWER_QUEUE
 
 
 def test_events_are_one_line_whatever_their_message() -> None:
