@@ -135,8 +135,6 @@ class FarmPrinter:
     """The file name of that print."""
     print_starting: bool = False
     """True while a print is being started (its M110 in flight): a second one is refused, not started too."""
-    print_error: str | None = None
-    """Why the last print failed (halted, reset, link lost, ...), one line; None while it runs or if it did not."""
     machine: str | None = None
     """The board's MACHINE_TYPE from M115, if it says."""
     reconnect_at_s: float | None = None
@@ -150,11 +148,9 @@ class FarmPrinter:
         if handle is None:
             return None
         progress = handle.progress
-        error = self.print_error
-        if error is None and progress.state is marlin_aio.PrintState.FAILED and handle.job.error is not None:
-            # Failed, and the farm's follower has not run yet: the job's own error, so the state is never
-            # "failed" without why.
-            error = one_line(redact(str(handle.job.error)))
+        failure = handle.job.error if progress.state is marlin_aio.PrintState.FAILED else None
+        # Read from the job itself, so the state is never "failed" without why, even before the follower ran.
+        error = None if failure is None else one_line(redact(f"{_print_failure(failure)}: {failure}"))
         total = progress.source_bytes_total
         percent = round(100 * progress.source_bytes_acked / total, 1) if total else None
         return {
@@ -267,7 +263,6 @@ class Farm:
             farm_printer.print_starting = False
         farm_printer.print_handle = handle
         farm_printer.print_file = path.name
-        farm_printer.print_error = None
         self._group.create_task(self._follow_print(farm_printer, handle), name=f"print on {farm_printer.name}")
         self.emit(farm_printer, "print_started", f"printing {path.name}")
         return handle
@@ -279,7 +274,6 @@ class Farm:
         except Exception as exc:  # every ending is news of this printer, never a crash of the farm
             where = handle.progress.last_source_line
             reason = _print_failure(exc)
-            farm_printer.print_error = one_line(redact(f"{reason}: {exc}"))
             self.emit(farm_printer, "print_failed", f"{farm_printer.print_file}: {reason} at file line {where}: {exc}")
             return
         kind = "print_finished" if progress.state is marlin_aio.PrintState.DONE else "print_cancelled"
