@@ -24,7 +24,12 @@ ROOT = Path(__file__).resolve().parent.parent
 LAYERS: dict[str, tuple[set[str], set[str]]] = {
     "protocol": ({"marlin_aio.errors", "marlin_aio.protocol"}, set()),
     "aio": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.aio"}, {"serial", "serial_asyncio_fast"}),
-    "simulator": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.simulator"}, {"serial"}),
+    # Of the asyncio client, only the in-memory transport: a memory link is one pair of transports, the simulator
+    # listening on one end (serve_memory) and the client on the other, so both sides share that one module.
+    "simulator": (
+        {"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.simulator", "marlin_aio.aio.memory"},
+        {"serial"},
+    ),
     "farm": (
         {
             "marlin_aio",
@@ -146,3 +151,33 @@ def test_the_public_faces() -> None:
     missing = [event.__name__ for event in events if event.__name__ not in marlin_aio.protocol.__all__]
     assert not missing, f"marlin_aio.protocol.__all__ lacks the events {missing}"
     assert "Output" in marlin_aio.protocol.__all__
+
+
+#: The G-code handlers and the board they are written against: the simulator's modules each of them may import.
+HANDLER_MODULES = {
+    "_board": {"_config", "_intake", "_thermal"},
+    "_gcode": {"_board", "_config", "_heating", "_intake"},
+    "_heating": {"_board", "_config", "_intake", "_thermal"},
+}
+
+
+def test_simulator_handlers_see_only_the_board() -> None:
+    # The handlers know the printer only as a `Board`: no import of `_printer` (not even for type checking, which
+    # would be a circle, since `_printer` imports their tables) and no private name of any object but their own.
+    for module, allowed in HANDLER_MODULES.items():
+        path = ROOT / "marlin_aio" / "simulator" / f"{module}.py"
+        simulator = {
+            name.removeprefix("marlin_aio.simulator.")
+            for name, _ in imports(path)
+            if name.startswith("marlin_aio.simulator")
+        }
+        assert simulator <= allowed, f"{path.name} imports {sorted(simulator - allowed)} of the simulator"
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            where = f"marlin_aio/simulator/{path.name}:{getattr(node, 'lineno', 0)}"
+            if isinstance(node, ast.ImportFrom):
+                assert node.level == 0, f"{where} imports relatively"
+            name = node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute) else ""
+            assert name != "TYPE_CHECKING", f"{where} imports for type checking only"
+            if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+                owner = ast.unparse(node.value)
+                assert owner == "self", f"{where} reaches into {owner}.{node.attr}"

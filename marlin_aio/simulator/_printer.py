@@ -5,14 +5,18 @@
 `next_wakeup()` when it must call again. Every run with the same inputs, times and seed gives the same bytes, so
 the tests drive it through minutes of simulated heating in microseconds.
 
-This module is the core: time, the command ring, execution, output and the planner's queue, one state machine
-in one class (a little over 400 lines: parting it further would put calls on the per-line path). It composes
-the parts that live in files of their own:
+This module is the core: time, the command ring, execution and output, one state machine in one class. It is
+about 460 lines, over half of them this docstring, the public face and the documented counters; the core proper
+is some 210 lines whose steps share the ring, the running task and the output, and parting it further would put
+calls on the per-line path. It composes the parts that live in files of their own:
 
 - `_config`: how the board is built (`SimulatorConfig`) and the faults it shows (`Faults`).
 - `_intake`: the wire's bit flips (`WireFlips`), the receive buffer, the emergency parser and the line checks
   (`LineReader`), which hand it `Command`s.
-- `_gcode` (and `_heating` for the temperature commands): what each command does, by code.
+- `_board`: the state the commands work on (`Board`: the clock, the heaters, the position and the planner's
+  queue, the modes and intervals commands set). The printer owns it and hands it to each command's handler.
+- `_gcode` (and `_heating` for the temperature commands): what each command does, by code, written against the
+  `Board` alone.
 - `_thermal`: the heaters, integrated lazily on a fixed grid, so temperatures do not depend on call frequency.
 
 How it follows Marlin 2.1 (`MarlinCore.cpp`, `gcode/gcode.cpp`):
@@ -35,17 +39,16 @@ from __future__ import annotations
 import random
 from collections import deque
 
+from marlin_aio.simulator._board import Board, Task
 from marlin_aio.simulator._config import BUILD_DATE, SETTINGS_LINES, US_PER_S, Faults, SimulatorConfig, to_us
-from marlin_aio.simulator._gcode import Task, handler_table, tool_change, unknown
+from marlin_aio.simulator._gcode import handler_table, tool_change, unknown
 from marlin_aio.simulator._heating import heater_states
 from marlin_aio.simulator._intake import Command, LineReader, WireFlips
 from marlin_aio.simulator._record import BoundedRecord
-from marlin_aio.simulator._thermal import BED, CHAMBER, HOTEND, STEP_US, Heater
 
 # Faults and SimulatorConfig are re-exported: they were defined here, and code imports them from here.
 __all__ = ["Faults", "SimulatedPrinter", "SimulatorConfig"]
 
-_DEFAULT_FEEDRATE_MM_S = 1500.0 / 60.0
 _LOCKED = "echo:Printer locked! (Unlock with M511 or LCD)"  # STR_PRINTER_LOCKED, as SERIAL_ECHO_MSG prints it
 _LOST_MCU = "!! Lost communication with MCU 'mcu'"
 
@@ -93,24 +96,14 @@ class SimulatedPrinter:
         self._noise_rng = random.Random(f"{seed}:noise")
         self._not_executed_rng = random.Random(f"{seed}:not-executed")
         self._out = bytearray()
-        self._t = to_us(now)
-        self._thermal_step = self._t // STEP_US
-        ambient = self.config.ambient_celsius
-        self._hotends = [Heater(HOTEND, ambient) for _ in range(self.config.extruders)]
-        self._bed = Heater(BED, ambient) if self.config.has_bed else None
-        self._chamber = Heater(CHAMBER, ambient) if self.config.has_chamber else None
-        self._heaters_by_name: dict[str, Heater] = {f"T{i}": h for i, h in enumerate(self._hotends)}
-        if self._bed is not None:
-            self._heaters_by_name["B"] = self._bed
-        if self._chamber is not None:
-            self._heaters_by_name["C"] = self._chamber
+        self._board = Board(self.config, to_us(now), emit=self._emit, kill=self._kill)
         self._wire = WireFlips(seed)
         self._booting_until: int | None = None
         self._boot_cause = "PowerUp"
         self._reader = LineReader(self.config, self._emit)
         self._handlers = handler_table(self.config)
         # M110 sets the counter when it runs (M110.cpp), not only as its line is read.
-        self._handlers["M110"] = _m110
+        self._handlers["M110"] = self._m110
         self._clear_state()
         if boot:
             self._boot("PowerUp", self.config.boot_delay_s)
@@ -212,9 +205,10 @@ class SimulatedPrinter:
         if not delay_s >= 0.0:
             raise ValueError(f"boot_delay_s must not be negative, got {boot_delay_s!r}")
         self._run_until(to_us(now))
-        self._sync_thermal()
+        self._board.sync_thermal()
         self.halted = False
         self.stalled = False
+        self._board.reset()
         self._clear_state()
         self._boot("External Reset", delay_s)
 
@@ -235,8 +229,8 @@ class SimulatedPrinter:
     @property
     def thermal_steps(self) -> int:
         """Grid steps the thermal model has integrated one by one, over all heaters (its work, for tests)."""
-        self._sync_thermal()
-        return sum(heater.integrated_steps for heater in self._heaters_by_name.values())
+        self._board.sync_thermal()
+        return self._board.heaters.integrated_steps
 
     def heater_celsius(self, name: str) -> float:
         """Current simulated temperature of heater `name`: "T0", "T1", ... "B" (bed) or "C" (chamber).
@@ -244,49 +238,25 @@ class SimulatedPrinter:
         Raises:
             ValueError: if the printer has no such heater.
         """
-        heater = self._heaters_by_name.get(name)
+        heaters = self._board.heaters.by_name
+        heater = heaters.get(name)
         if heater is None:
-            raise ValueError(f"no heater {name!r}; this printer has {', '.join(self._heaters_by_name)}")
-        self._sync_thermal()
+            raise ValueError(f"no heater {name!r}; this printer has {', '.join(heaters)}")
+        self._board.sync_thermal()
         return heater.celsius
 
     # ------------------------------------------------------------------------------------------ state and time
 
     def _clear_state(self) -> None:
-        """Power-on state of everything a reset loses (temperatures themselves carry on)."""
+        """Power-on state of the core's part of what a reset loses (the board's is `Board.reset()`)."""
         self._reader.reset()
         self._ring: deque[Command] = deque()
         self._task: Task | None = None
         self._task_due = 0
-        self._poked = False
-        # Planner blocks as (end time, X, Y, Z, E at the end); they run back to back.
-        self._planner: deque[tuple[int, float, float, float, float]] = deque()
-        self._position = [0.0, 0.0, 0.0, 0.0]  # planned X Y Z E, what M114 shows
-        self._stepper_position = (0.0, 0.0, 0.0, 0.0)  # where the last finished block left the axes
-        self._feedrate_mm_s = _DEFAULT_FEEDRATE_MM_S
-        self._relative_xyz = False
-        self._relative_e = False
-        self._active_extruder = 0
-        self._wait_for_heatup = False
-        self._keepalive_us = to_us(self.config.keepalive_interval_s)
         self._next_keepalive: int | None = None
-        self._report_us = 0
-        self._next_report: int | None = None
-        self._skip_ok = False
-        self._locked = self.config.password is not None
-        for heater in self._heaters_by_name.values():
-            heater.set_target(0.0)
-
-    def _sync_thermal(self) -> None:
-        step = self._t // STEP_US
-        steps = step - self._thermal_step
-        if steps > 0:
-            self._thermal_step = step
-            for heater in self._heaters_by_name.values():
-                heater.advance(steps)
 
     def _next_event_us(self) -> int | None:
-        due: int | None = self._next_report
+        due: int | None = self._board.next_report_us
         if self._task is not None:
             if due is None or self._task_due < due:
                 due = self._task_due
@@ -297,7 +267,7 @@ class SimulatedPrinter:
     def _boot(self, cause: str, delay_s: float) -> None:
         """Start the firmware, after `delay_s` in the bootloader (a banner saying `cause` when it starts)."""
         if delay_s > 0.0:
-            self._booting_until = self._t + to_us(delay_s)
+            self._booting_until = self._board.now_us + to_us(delay_s)
             self._boot_cause = cause
         else:
             self._booting_until = None
@@ -305,11 +275,12 @@ class SimulatedPrinter:
 
     def _run_until(self, now_us: int) -> None:
         """Process every event up to `now_us` in time order."""
+        board = self._board
         if self._booting_until is not None:
             if now_us < self._booting_until:
-                self._t = max(self._t, now_us)
+                board.now_us = max(board.now_us, now_us)
                 return
-            self._t = max(self._t, self._booting_until)
+            board.now_us = max(board.now_us, self._booting_until)
             self._booting_until = None
             self._print_banner(self._boot_cause)
         if not (self.halted or self.stalled):
@@ -318,28 +289,31 @@ class SimulatedPrinter:
                 due = self._next_event_us()
                 if self.halted or self.stalled or due is None or due > now_us:
                     break
-                self._t = max(self._t, due)
+                board.now_us = max(board.now_us, due)
                 self._fire_timers()
-        self._t = max(self._t, now_us)
+        board.now_us = max(board.now_us, now_us)
 
     def _fire_timers(self) -> None:
         """What idle() prints at this moment; the task itself resumes in `_settle()`."""
-        now = self._t
+        board = self._board
+        now = board.now_us
         if self._task is not None and self._next_keepalive is not None and self._next_keepalive <= now:
             self._emit("busy:processing" if self.config.bare_busy else "echo:busy: processing")
-            self._next_keepalive = now + self._keepalive_us if self._keepalive_us > 0 else None
-        if self._next_report is not None and self._next_report <= now:
-            self._emit(heater_states(self, self._active_extruder))
-            self._next_report = now + self._report_us
+            interval = board.keepalive_interval_us
+            self._next_keepalive = now + interval if interval > 0 else None
+        if board.next_report_us is not None and board.next_report_us <= now:
+            self._emit(heater_states(board, board.active_extruder))
+            board.next_report_us = now + board.report_interval_us
 
     def _settle(self) -> None:
         """Run everything that can happen at this instant: resume a due task, take in lines, run commands."""
+        board = self._board
         while not (self.halted or self.stalled):
             if self._task is not None:
-                if self._task_due > self._t and not self._poked:
+                if self._task_due > board.now_us and not board.poked:
                     self._intake()
                     return
-                self._poked = False
+                board.poked = False
                 try:
                     self._task_due = next(self._task)
                 except StopIteration:
@@ -369,25 +343,26 @@ class SimulatedPrinter:
         """Act on M108/M112/M410 lines as their bytes arrive, before the receive buffer (e_parser.h)."""
         for code in self._reader.emergency_codes(data):
             if code == b"108":
-                self._wait_for_heatup = False
-                self._poked = True
+                self._board.wait_for_heatup = False
+                self._board.poked = True
             elif code == b"112":
                 self._emit("echo:M112 Shutdown")
                 self._kill()
                 return
             else:
-                self._quick_stop()
+                self._board.quick_stop()
 
     # ---------------------------------------------------------------------------------------------- execution
 
     def _start_command(self, command: Command) -> None:
-        self._skip_ok = False
+        board = self._board
+        board.skip_ok = False
         ratio = self.faults.not_executed_ratio
         if ratio > 0.0 and self._not_executed_rng.random() < ratio:
             self._emit(_LOST_MCU)
             self._finish_command()
             return
-        if self._locked and command.code != "M511":
+        if board.locked and command.code != "M511":
             # gcode.cpp refuses everything but M511 before looking at the command.
             self._emit(_LOCKED)
             self._finish_command()
@@ -402,7 +377,7 @@ class SimulatedPrinter:
         handler = self._handlers.get(command.code)
         if handler is None:
             handler = tool_change if command.code[:1] == "T" else unknown
-        task = handler(self, command)
+        task = handler(board, command)
         if self.halted:
             return
         if task is None:
@@ -414,11 +389,12 @@ class SimulatedPrinter:
             self._finish_command()
             return
         self._task = task
-        self._next_keepalive = self._t + self._keepalive_us if self._keepalive_us > 0 else None
+        interval = board.keepalive_interval_us
+        self._next_keepalive = board.now_us + interval if interval > 0 else None
 
     def _finish_command(self) -> None:
         command = self._ring[0]
-        if not self._skip_ok and not self.halted:
+        if not self._board.skip_ok and not self.halted:
             self._send_ok(command)
         self._ring.popleft()
         self._next_keepalive = None
@@ -438,7 +414,7 @@ class SimulatedPrinter:
         """`ok`, with ADVANCED_OK `ok N<line> P<free blocks> B<free slots>`."""
         if not self.config.advanced_ok:
             return "ok"
-        free_blocks = self._moves_free()
+        free_blocks = self._board.moves_free()
         free_slots = self.config.command_buffer_size - len(self._ring)
         label = "" if command.line_label is None else f" {command.line_label}"
         return f"ok{label} P{free_blocks} B{free_slots}"
@@ -446,14 +422,13 @@ class SimulatedPrinter:
     def _kill(self) -> None:
         """kill(): heaters off, the halt line, then nothing more until reset."""
         self._emit("Error:Printer halted. kill() called!")
-        self._sync_thermal()
-        for heater in self._heaters_by_name.values():
-            heater.set_target(0.0)
+        self._board.sync_thermal()
+        self._board.heaters.switch_off()
         self.halted = True
         self._task = None
         self._ring.clear()
         self._reader.clear()
-        self._planner.clear()
+        self._board.planner.clear()
 
     # ---------------------------------------------------------------------------------------------- output
 
@@ -482,24 +457,8 @@ class SimulatedPrinter:
         for line in SETTINGS_LINES:
             self._emit(line)
 
-    # ------------------------------------------------------------------------------------------------ planner
+    # ------------------------------------------------------------------------------------------------ handler
 
-    def _moves_free(self) -> int:
-        planner = self._planner
-        now = self._t
-        while planner and planner[0][0] <= now:
-            _, x, y, z, e = planner.popleft()
-            self._stepper_position = (x, y, z, e)
-        return self.config.planner_buffer_size - 1 - len(planner)
-
-    def _quick_stop(self) -> None:
-        """M410: drop every planned move; the axes stay where the last finished move left them."""
-        self._moves_free()
-        self._planner.clear()
-        self._position = list(self._stepper_position)
-        self._poked = True
-
-
-def _m110(printer: SimulatedPrinter, command: Command) -> None:
-    """M110 N<n>: set the line counter as the command runs (numbered lines set it as they were read, too)."""
-    printer._reader.run_m110(command)
+    def _m110(self, board: Board, command: Command) -> None:
+        """M110 N<n>: set the line counter as the command runs (numbered lines set it as they were read, too)."""
+        self._reader.run_m110(command)

@@ -11,6 +11,9 @@ depend on how often the caller asks, and a temperature read between grid points 
 firmware's sensor. Each step uses the exact solution for constant power over the step, which keeps it stable and
 cheap; heaters that are off, or settled at their target, skip whole stretches in one closed-form jump so an idle
 printer costs nothing.
+
+`Heaters` is one board's set of them (its hotends, and its bed and chamber when it has them), brought up to a given
+time together.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["BED", "CHAMBER", "HOTEND", "STEP_US", "Heater", "HeaterSpec"]
+__all__ = ["BED", "CHAMBER", "HOTEND", "STEP_US", "Heater", "HeaterSpec", "Heaters"]
 
 #: The fixed integration step, in simulated microseconds.
 STEP_US = 100_000
@@ -141,3 +144,43 @@ class Heater:
         self.integrated_steps += done
         self.celsius = celsius
         self.power = power
+
+
+class Heaters:
+    """A board's heaters: its hotends, and its bed and chamber when it has them, advanced together."""
+
+    __slots__ = ("_step", "bed", "by_name", "chamber", "hotends")
+
+    def __init__(
+        self, extruders: int, *, has_bed: bool, has_chamber: bool, ambient_celsius: float, now_us: int
+    ) -> None:
+        """The heaters of a board built so, all at `ambient_celsius` and off, at the simulated time `now_us`."""
+        self.hotends = [Heater(HOTEND, ambient_celsius) for _ in range(extruders)]
+        self.bed = Heater(BED, ambient_celsius) if has_bed else None
+        self.chamber = Heater(CHAMBER, ambient_celsius) if has_chamber else None
+        self.by_name: dict[str, Heater] = {f"T{i}": heater for i, heater in enumerate(self.hotends)}
+        """Each heater by the name M105 gives it: "T0", "T1", ... "B" (bed) and "C" (chamber)."""
+        if self.bed is not None:
+            self.by_name["B"] = self.bed
+        if self.chamber is not None:
+            self.by_name["C"] = self.chamber
+        self._step = now_us // STEP_US
+
+    @property
+    def integrated_steps(self) -> int:
+        """Grid steps integrated one by one so far, over all the heaters (`Heater.integrated_steps`)."""
+        return sum(heater.integrated_steps for heater in self.by_name.values())
+
+    def sync(self, now_us: int) -> None:
+        """Bring every heater up to the simulated time `now_us` (to the last grid point at or before it)."""
+        step = now_us // STEP_US
+        steps = step - self._step
+        if steps > 0:
+            self._step = step
+            for heater in self.by_name.values():
+                heater.advance(steps)
+
+    def switch_off(self) -> None:
+        """Every target to 0, as kill() and a reset leave them (the temperatures themselves carry on)."""
+        for heater in self.by_name.values():
+            heater.set_target(0.0)
