@@ -253,15 +253,15 @@ def run_print(scenario: Scenario) -> CampaignResult:
             except MarlinError as error:  # halted before the print began
                 job.fail(error, now)
             flush()
-        asking = any(kind == "position" for _, _, kind in pending.values())
         if (
             started
             and job.state is PrintState.DONE
             and scenario.relative
             and not position
-            and not asking
             and position_asks < 3  # its ok may be lost on a faulty link: asked again
             and conn.halted is None
+            # Last: a walk over the pending commands, on every turn of the loop otherwise.
+            and not any(kind == "position" for _, _, kind in pending.values())
         ):
             position_asks += 1
             submit("M114", "position")
