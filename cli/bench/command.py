@@ -22,6 +22,9 @@ stream; what bounds the lines in flight is then the byte window (the printer's 1
 count. (Without ADVANCED_OK the library keeps one line in flight beside its witness: plain oks cannot be told
 apart, and it never risks handing one command another's answer.) Measuring and rendering are apart:
 `bench_printer` returns a `BenchResult`, and `bench_table` and `bench_json` are pure functions of it.
+
+Over 400 lines because the three runs share one printer connection and their settings; each run is a function of
+its own, and the rendering, pure, is at the end.
 """
 
 from __future__ import annotations

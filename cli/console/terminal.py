@@ -17,6 +17,9 @@ cannot send it by accident. A command the library refuses (`M104 S999` above --m
 whatever a background task raises becomes one line too, never an exception in prompt_toolkit's event loop (which
 would stop the prompt and swallow the next line typed). Firmware text is printed as prompt_toolkit plain text:
 no markup or emoji codes are read in it.
+
+Over 400 lines because the console is one prompt_toolkit session: the history, the completion, the key bindings
+(F12), the background polls and the printing of replies share its event loop and must agree on who prints when.
 """
 
 from __future__ import annotations

@@ -25,6 +25,9 @@ Appending: a file is appended to only when it is a log in this format with the s
 same header); a file from an older marlin-temp (`time_utc,elapsed_s,T_actual,...`), of the other format, or not a
 log at all is refused with one line before anything is written, so two vocabularies never mix in one file.
 `read_log` still reads the older format, for `plot`.
+
+Over 400 lines because the writers and the reader of the same two formats sit together: a column changed in
+one is changed in the other in the same reading, and the disk-full and kill-safety rules above apply to both.
 """
 
 from __future__ import annotations

@@ -6,6 +6,9 @@ finishes, heaters stay on), r resumes, and ! sends M112 at once, with no questio
 for a second key. Ctrl-C does not kill a print half way through a line: it asks (on a terminal) whether to cancel,
 and a cancel stops feeding, lets the printer answer what it has, then turns the heaters and fan off (unless
 --keep-heaters).
+
+Over 400 lines (just) because the print's run, its keys and its Ctrl-C question share one printer and one view;
+checking the file (`plan`) and drawing (`view`) are apart.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ protocol core and the callers' futures), `marlin_aio.aio.handshake` (the start-u
 Loop-bound objects are created in `open()`, never in `__init__`, so a `Printer` can be built outside a running
 loop. No user code runs in the read path: what the link reads only resolves futures, updates state and queues
 readings; `on_reading` callbacks run from the loop right after the read (see `marlin_aio.aio.feed`), and one that
-raises is logged, never able to stop the link. (This module is longer than the others because it is the API
+raises is logged, never able to stop the link. (Over 400 lines because it is the API
 reference: about a third of it is the docstrings of `Printer`'s public methods; the logic behind them lives in the
 collaborators.)
 """

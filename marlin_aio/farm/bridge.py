@@ -35,6 +35,11 @@ Secrets: state and events are retained or kept by the broker for any later subsc
 logged carries a printer's password: each event, state and answer is redacted (`redact`) before it is
 queued, whatever the farm and the library already did, since a command's text and an error's message can quote
 `M511 P<password>` (typed as G-code, or sent by the handshake).
+
+Over 400 lines because these are one MQTT session's rules, each guarding against the others' failures: the
+topics and their payloads, availability with the Last Will, retained-message hygiene and forged-state
+correction, the bounded queues (answers apart from events), reconnecting, and redaction. The command checks
+(`commands`), the printers (`supervisor`) and the settings (`config`) are apart.
 """
 
 from __future__ import annotations

@@ -30,6 +30,9 @@ size (`MAX_PAYLOAD_BYTES`), UTF-8, the JSON nesting (`MAX_JSON_DEPTH`, scanned b
 than `MAX_INTEGER_DIGITS`, repeated fields, control characters (C0, DEL, C1) and lone surrogates in any string, a
 G-code command longer than `MAX_GCODE_CHARS` or not printable ASCII, a path longer than `MAX_PATH_CHARS` or one the
 file system cannot resolve (a symlink loop, a name too long).
+
+Over 400 lines because every check a command passes before it reaches a printer is here, one per field kind and
+action: one place to read what a message from the network can and cannot make a printer do.
 """
 
 from __future__ import annotations

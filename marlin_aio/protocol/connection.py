@@ -23,6 +23,10 @@ stalls the print with a diagnosis of who waits for whom.
 
 Time never comes from a clock here: every call takes `now` (seconds, monotonic), so tests drive it directly.
 Nothing here imports asyncio or serial; `marlin_aio.aio.printer` is the thin layer that does I/O.
+
+Over 400 lines because it is the core's whole public face: every call a driver makes (`submit`, `receive`, `tick`,
+`attach`, `cancel`, `fail_all`, the emergency stop) and every counter, each with a docstring of what it does and
+raises. The logic behind them is in the modules listed above.
 """
 
 from __future__ import annotations

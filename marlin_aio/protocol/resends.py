@@ -15,6 +15,10 @@ a line written behind an unanswered one can be cut, so ping-pong (one line in fl
 send-ahead, after a line error nothing is written until the printer has been quiet (`draining`: every stale line and
 tail has arrived), then one line at a time for `CALM_LINES` lines while a line on the wire may still be rejected; a
 tail that ran shows as an ok that no command earned while draining, and the connection stops the print saying so.
+
+Over 400 lines because the history of lines sent, the `Resend:` request, draining and the cut lines' tails are
+one recovery: the argument above holds only for all of them together, and it is checked here in one place; split
+over modules, a change to one part could break the argument without a reader seeing it.
 """
 
 from __future__ import annotations

@@ -24,6 +24,10 @@ What each run checks, on the simulator's own record of what it executed:
 The one fault no host can see is left out of the invariants and named in the result: a line damaged twice in the
 same bit (the 8-bit XOR checksum cannot see it), and a line whose leading `N` turned into `n` while its `ok`
 was lost too (it ran unnumbered, and nothing the printer says tells).
+
+Over 400 lines because the discrete-event loop and the checks of what it recorded belong together: each check
+reads the loop's own record of that run, and a third of the module is the `Scenario` and `CampaignResult` records,
+each field said.
 """
 
 from __future__ import annotations
