@@ -21,6 +21,7 @@ from rich.text import Text
 
 from marlin_aio import TemperatureReading
 
+from .chart import Curve, flow, heater_colour, legend, time_chart
 from .model import HeaterStatus, LinkHealth, WatchControls, WatchModel, heater_name
 
 __all__ = [
@@ -34,40 +35,11 @@ __all__ = [
     "watch_view",
 ]
 
-_COLOURS = {"T": "red", "B": "blue", "C": "green"}
-# One colour per hotend, so each curve in the chart can be told apart; none of them is the bed's or chamber's.
-_HOTEND_COLOURS = ("red", "yellow", "bright_red", "orange3", "bright_yellow", "deep_pink3", "gold3", "dark_orange")
 _STATE_STYLE = {"heating": "bold red", "cooling": "cyan", "holding": "green", "off": "dim"}
-
-
-def _colour(key: str) -> str:
-    if key[0] == "T" and key[1:].isdigit():
-        return _HOTEND_COLOURS[int(key[1:]) % len(_HOTEND_COLOURS)]
-    return _COLOURS.get(key, "magenta")
 
 
 def _fmt(value: float | None, spec: str, unit: str = "") -> str:
     return "-" if value is None else f"{value:{spec}}{unit}"
-
-
-def _flow(items: list[Text], width: int | None, indent: str = "", separator: str = "  ") -> Text:
-    """`items` joined by `separator`, starting a new line (with `indent`) where the next would pass `width`.
-
-    Items break only between each other, so "latency 0.3 ms median" or "2 PETG" is never split across lines.
-    """
-    text = Text(indent)
-    used = cell_len(indent)
-    for index, item in enumerate(items):
-        length = item.cell_len
-        if index and width is not None and used + len(separator) + length > width:
-            text.append("\n" + indent)
-            used = cell_len(indent)
-        elif index:
-            text.append(separator)
-            used += len(separator)
-        text.append_text(item)
-        used += length
-    return text
 
 
 def _lines(text: Text, width: int) -> int:
@@ -199,7 +171,7 @@ def heater_table(statuses: list[HeaterStatus], width: int | None = None) -> Tabl
         row: list[Text] = []
         for column in layout.columns:
             if column == "heater":
-                row.append(Text(cells[column], style=_colour(status.key)))
+                row.append(Text(cells[column], style=heater_colour(status.name)))
             elif column == "state":
                 row.append(Text(cells[column], style=_STATE_STYLE.get(status.state, "")))
             else:
@@ -209,62 +181,15 @@ def heater_table(statuses: list[HeaterStatus], width: int | None = None) -> Tabl
 
 
 def chart(model: WatchModel, width: int = 72, height: int = 12, now: float | None = None) -> Text:
-    """A chart of the last `model.window_s` seconds: actual (•) and target (─) of each hotend, the bed and chamber."""
-    keys = _chart_keys(model)
-    plot_width = max(width - 7, 10)
+    """A chart of the last `model.window_s` seconds up to `now` (default: the latest reading): actual (•) and
+    target (─) of each hotend, the bed and chamber."""
     end = now if now is not None else (model.latest_time or 0.0)
-    start = end - model.window_s
-    top = 50.0
-    for key in keys:
-        for _, actual, target in model.series[key]:
-            top = max(top, actual, target or 0.0)
-    # A round top (50s below 100 C, 100s above) so the quarter-height labels are round numbers too.
-    step = 50.0 if top * 1.05 <= 100 else 100.0
-    top = math.ceil(top * 1.05 / step) * step
-    grid: list[list[tuple[str, str]]] = [[(" ", "")] * plot_width for _ in range(height)]
-
-    def row_of(value: float) -> int:
-        return height - 1 - min(max(round(value / top * (height - 1)), 0), height - 1)
-
-    for key in keys:
-        colour = _colour(key)
-        # The last value in each column is what the column shows; targets first so actuals draw over them.
-        targets: dict[int, float] = {}
-        actuals: dict[int, float] = {}
-        for time_s, actual, target in model.series[key]:
-            if time_s < start:
-                continue
-            column = min(int((time_s - start) / model.window_s * (plot_width - 1)), plot_width - 1)
-            actuals[column] = actual
-            if target:
-                targets[column] = target
-        for column, target in targets.items():
-            grid[row_of(target)][column] = ("─", f"dim {colour}")
-        for column, actual in actuals.items():
-            grid[row_of(actual)][column] = ("•", f"bold {colour}")
-
-    # Label the rows that hold round values (quarters of a multiple of 50), not whatever each row happens to be.
-    labels = {row_of(top * quarter / 4): top * quarter / 4 for quarter in range(5)}
-    text = Text()
-    for index, row in enumerate(grid):
-        value = labels.get(index)
-        label = f"{value:>4.0f} ┤" if value is not None else "     │"
-        text.append(label, style="dim")
-        for char, style in row:
-            text.append(char, style=style)
-        text.append("\n")
-    axis = f"-{model.window_s:.0f} s".ljust(plot_width - 3) + "now"
-    text.append("      " + axis, style="dim")
-    return Text("\n").join([text, _legend(keys, width)])
+    labels = (f"-{model.window_s:.0f} s", "now")
+    return time_chart(_curves(model), end - model.window_s, end, width=width, height=height, time_labels=labels)
 
 
-def _chart_keys(model: WatchModel) -> list[str]:
-    return [k for k in model.heater_keys() if k[0] in "TBC"]
-
-
-def _legend(keys: list[str], width: int) -> Text:
-    items = [Text(f"• {heater_name(key)}", style=_colour(key)) for key in keys]
-    return _flow([*items, Text("─ target", style="dim")], width, indent="      ")
+def _curves(model: WatchModel) -> list[Curve]:
+    return [Curve(heater_name(key), model.series[key]) for key in model.heater_keys() if key[0] in "TBC"]
 
 
 def footer(port: str, firmware: str, link: LinkHealth, width: int | None = None, quit_hint: str = "q quits") -> Text:
@@ -289,7 +214,7 @@ def footer(port: str, firmware: str, link: LinkHealth, width: int | None = None,
     ]
     if quit_hint:
         parts.append(Text(quit_hint, style="dim"))
-    return _flow(parts, width)
+    return flow(parts, width)
 
 
 def controls_view(controls: WatchControls, width: int | None = None) -> Text:
@@ -307,7 +232,7 @@ def controls_view(controls: WatchControls, width: int | None = None) -> Text:
         text.append(controls.buffer)
         text.append("_", style="blink")  # a cursor: the terminal's own is hidden while the view is live
         text.append("\n")
-    text.append_text(_flow([_help_item(item) for item in controls.help_items()], width))
+    text.append_text(flow([_help_item(item) for item in controls.help_items()], width))
     return text
 
 
@@ -341,7 +266,7 @@ def watch_view(
     under = controls_view(controls, width) if controls is not None else None
     if height is not None:
         # table, a blank line, (the chart,) its time axis and legend, a blank line, the footer
-        used = table_lines(statuses, width) + 2 + _lines(_legend(_chart_keys(model), width), width)
+        used = table_lines(statuses, width) + 2 + _lines(legend(_curves(model), width), width)
         used += 1 + _lines(bottom, width)
         if under is not None:
             used += _lines(under, width)

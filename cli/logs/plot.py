@@ -5,8 +5,8 @@ appended runs lie side by side on one clock, each session drawn as its own line,
 the chart and the span stated is the real one. `--session` draws one session alone. Files of the older format
 (no sessions, `time_utc`) are read too: their runs are found where elapsed_s starts again.
 
-The terminal chart is drawn here rather than by watch's `render.chart`: watch shows the last minute up to
-"now", a log is a stretch of the past, labelled with the clock times it covers and where each session began.
+The terminal chart is watch's (`common.chart.time_chart`); where watch shows the last minute up to "now", a log
+is a stretch of the past, labelled with the clock times it covers and where each session began.
 """
 
 from __future__ import annotations
@@ -19,13 +19,12 @@ from pathlib import Path
 from rich.console import Console
 from rich.text import Text
 
+from ..common.chart import Curve, time_chart
 from ..common.connect import UsageProblem
 from .files import LogContents, LogSession, read_log
 
 __all__ = ["PlotData", "Segment", "describe_span", "plot_data", "plot_log", "session_table", "terminal_plot"]
 
-_TERMINAL_COLOURS = {"hotend": "red", "bed": "blue", "chamber": "green"}
-_TERMINAL_HOTENDS = ("red", "yellow", "bright_red", "orange3", "bright_yellow", "deep_pink3")
 _FIGURE_COLOURS = {"hotend": "tab:red", "bed": "tab:blue", "chamber": "tab:green"}
 _FIGURE_HOTENDS = ("tab:red", "tab:orange", "tab:brown", "tab:pink", "tab:olive", "tab:purple")
 
@@ -38,6 +37,10 @@ class Segment:
     times_s: list[float]
     actual_c: list[float | None]
     target_c: list[float | None]
+
+    def points(self) -> list[tuple[float, float | None, float | None]]:
+        """(time, actual, target) of each reading, as a chart takes them."""
+        return list(zip(self.times_s, self.actual_c, self.target_c, strict=True))
 
 
 @dataclass(frozen=True)
@@ -136,10 +139,6 @@ def plot_data(contents: LogContents, path: Path, session: str | None = None) -> 
     return PlotData(chosen, heaters, segments)
 
 
-def _terminal_colour(name: str, index: int) -> str:
-    return _TERMINAL_COLOURS.get(name, _TERMINAL_HOTENDS[index % len(_TERMINAL_HOTENDS)])
-
-
 def _clock(epoch_s: float, with_date: bool) -> str:
     return (
         f"{datetime.fromtimestamp(epoch_s):%m-%d %H:%M}" if with_date else f"{datetime.fromtimestamp(epoch_s):%H:%M:%S}"
@@ -152,68 +151,24 @@ def terminal_plot(data: PlotData, width: int = 80, height: int = 16) -> Text:
     Actual temperatures are dots, targets lines; each column shows the last reading that falls in it, so a gap
     between sessions stays empty.
     """
-    plot_width = max(width - 7, 10)
+    curves = [
+        Curve(name, [point for segment in data.segments.get(name, []) for point in segment.points()])
+        for name in data.heaters
+    ]
     start, end = data.start_epoch_s, data.end_epoch_s
-    span = max(end - start, 1e-9)
-
-    def column_of(time_s: float) -> int:
-        return min(max(int((time_s - start) / span * (plot_width - 1)), 0), plot_width - 1)
-
-    top = 50.0
-    for segments in data.segments.values():
-        for segment in segments:
-            values = [v for v in segment.actual_c if v is not None] + [v for v in segment.target_c if v is not None]
-            top = max([top, *values])
-    # A round top (50s below 100 C, 100s above) so the quarter-height labels are round numbers too.
-    step = 50.0 if top * 1.05 <= 100 else 100.0
-    top = math.ceil(top * 1.05 / step) * step
-
-    def row_of(value: float) -> int:
-        return height - 1 - min(max(round(value / top * (height - 1)), 0), height - 1)
-
-    grid: list[list[tuple[str, str]]] = [[(" ", "")] * plot_width for _ in range(height)]
-    for index, name in enumerate(data.heaters):
-        colour = _terminal_colour(name, index)
-        targets: dict[int, float] = {}
-        actuals: dict[int, float] = {}
-        for segment in data.segments.get(name, []):
-            for time_s, actual, target in zip(segment.times_s, segment.actual_c, segment.target_c, strict=True):
-                column = column_of(time_s)
-                if actual is not None:
-                    actuals[column] = actual
-                if target:
-                    targets[column] = target
-        for column, target in targets.items():
-            grid[row_of(target)][column] = ("─", f"dim {colour}")
-        for column, actual in actuals.items():
-            grid[row_of(actual)][column] = ("•", f"bold {colour}")
-
-    labels = {row_of(top * quarter / 4): top * quarter / 4 for quarter in range(5)}
-    text = Text()
-    for index, row in enumerate(grid):
-        value = labels.get(index)
-        text.append(f"{value:>4.0f} ┤" if value is not None else "     │", style="dim")
-        for char, style in row:
-            text.append(char, style=style)
-        text.append("\n")
     with_date = datetime.fromtimestamp(start).date() != datetime.fromtimestamp(end).date()
-    left, right = _clock(start, with_date), _clock(end, with_date)
-    text.append("      " + left + right.rjust(max(plot_width - len(left), len(right) + 1)) + "\n", style="dim")
-    if len(data.sessions) > 1:
-        # Each session's number where it starts: the reader sees which stretch came from which run.
-        marks = [" "] * plot_width
-        for number, session in enumerate(data.sessions, 1):
-            label = str(number)
-            column = min(column_of(session.start_epoch_s), plot_width - len(label))
-            if all(mark == " " for mark in marks[max(column - 1, 0) : column + len(label)]):
-                marks[column : column + len(label)] = list(label)
-        text.append("      " + "".join(marks).rstrip() + "\n", style="dim")
-    legend = Text("      ")
-    for index, name in enumerate(data.heaters):
-        legend.append(f"• {name}  ", style=_terminal_colour(name, index))
-    legend.append("─ target", style="dim")
-    text.append_text(legend)
-    return text
+    # Each session's number where it starts, if there are several: the reader sees which stretch came from which run.
+    sessions = data.sessions if len(data.sessions) > 1 else []
+    marks = [(session.start_epoch_s, str(number)) for number, session in enumerate(sessions, 1)]
+    return time_chart(
+        curves,
+        start,
+        end,
+        width=width,
+        height=height,
+        time_labels=(_clock(start, with_date), _clock(end, with_date)),
+        marks=marks,
+    )
 
 
 def session_table(data: PlotData) -> Text:
