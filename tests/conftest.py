@@ -1,4 +1,11 @@
-"""Shared fixtures: the simulated printer served on a real pty (and TCP), and a client connected to it."""
+"""Shared fixtures: the simulated printer served in memory, on a real pty or on TCP, and a client connected to it.
+
+Client tests run on the in-memory link (`mem_sim`, `mem_printer`) unless a real port is what they test: the
+client, its core and the simulator are the same code either way, and a memory link costs no pty, socket or
+kernel round trip. What a real port adds stays on one (`pty_sim`, `printer`, `dead_pty`): pyserial's opening,
+port errors, the exclusive lock, DTR and HUPCL, a paced UART, a hang-up as pyserial reports it, and real bytes
+through the serial stack. `sim` serves a handful of end-to-end tests once on a pty and once on TCP.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 import marlin_aio
-from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty, serve_tcp
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_memory, serve_pty, serve_tcp
 
 if TYPE_CHECKING:
     from test_farm import Broker
@@ -75,6 +82,27 @@ async def fast_sim() -> AsyncIterator[SimulatorServer]:
     not the planner, sets the pace of a print."""
     async with serve_pty(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=50) as server:
         yield server
+
+
+@pytest.fixture
+async def mem_sim() -> AsyncIterator[SimulatorServer]:
+    """The simulated printer on an in-memory link (`memory://sim-N`), in the test's own event loop."""
+    async with serve_memory(SimulatorConfig(), Faults(), time_scale=TIME_SCALE) as server:
+        yield server
+
+
+@pytest.fixture
+async def fast_mem_sim() -> AsyncIterator[SimulatorServer]:
+    """`fast_sim` on an in-memory link: moves take no time, the clock runs 50 times faster."""
+    async with serve_memory(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=50) as server:
+        yield server
+
+
+@pytest.fixture
+async def mem_printer(mem_sim: SimulatorServer) -> AsyncIterator[marlin_aio.Printer]:
+    """A client connected to `mem_sim`, with a short command timeout so fault tests stay quick."""
+    async with marlin_aio.connect(mem_sim.url, timeout_s=2.0) as connected:
+        yield connected
 
 
 @pytest.fixture

@@ -1,6 +1,8 @@
 """Opening the port: the only module that imports the serial packages.
 
-Every way opening can fail becomes one `ConnectError` subclass with a sentence a user can act on.
+Every way opening can fail becomes one `ConnectError` subclass with a sentence a user can act on. A
+`memory://NAME` URL is the one kind pyserial does not open: it goes to `memory.connect`, an in-process link to a
+listener in the same event loop (a simulator served with `serve_memory()`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ try:
 except ImportError:  # Windows: no termios, and no HUPCL to clear
     termios = None  # type: ignore[assignment]
 
+from marlin_aio.aio import memory
 from marlin_aio.errors import ConnectError, PortBusyError, PortNotFoundError, PortPermissionError
 
 __all__ = ["PRINTER_BRIDGES", "PortInfo", "flush_input", "keep_dtr_on_close", "list_ports", "open_link"]
@@ -31,7 +34,8 @@ def _is_url(port: str) -> bool:
 async def open_link(
     port: str, baudrate: int, protocol_factory: Callable[[], asyncio.Protocol]
 ) -> tuple[asyncio.Transport, asyncio.Protocol]:
-    """Open a device path or pyserial URL (`socket://host:port`, `rfc2217://...`) with an asyncio protocol.
+    """Open a device path or pyserial URL (`socket://host:port`, `rfc2217://...`) with an asyncio protocol; or a
+    `memory://NAME` link to a listener in this event loop, where `baudrate` means nothing.
 
     Raises:
         PortNotFoundError: no such device, or nothing listening at the URL.
@@ -39,6 +43,8 @@ async def open_link(
         PortPermissionError: access denied.
         ConnectError: any other failure to open.
     """
+    if port.startswith(memory.SCHEME):
+        return await memory.connect(port, protocol_factory)
     loop = asyncio.get_running_loop()
     kwargs: dict[str, object] = {"baudrate": baudrate}
     if not _is_url(port):
@@ -59,10 +65,12 @@ def keep_dtr_on_close(transport: asyncio.Transport) -> bool:
     close that dropped it (HUPCL, the default). With HUPCL cleared, the next open finds DTR already up and the board
     keeps running, targets and all (what `stty -hupcl` does). The first open after plugging in still resets it: the
     line was down until then, and no setting made before open can change that on Linux.
+
+    A `socket://` or `memory://` link has no modem lines: there it does nothing and returns False.
     """
     fd = getattr(transport.get_extra_info("serial"), "fd", None)
     if not isinstance(fd, int) or termios is None:
-        return False  # a socket:// link, or a platform without termios
+        return False  # a socket:// or memory:// link, or a platform without termios
     try:
         attributes = termios.tcgetattr(fd)
         if attributes[2] & termios.HUPCL:
@@ -76,7 +84,8 @@ def keep_dtr_on_close(transport: asyncio.Transport) -> bool:
 def flush_input(transport: asyncio.Transport) -> None:
     """Throw away what the operating system has received but nobody has read yet (a serial port's input buffer).
 
-    A TCP link has no such buffer to drop; there, nothing happens.
+    A TCP link has no such buffer to drop, nor has a memory link (its bytes wait for the loop's next turn, not in
+    a buffer of the operating system); there, nothing happens.
     """
     port = transport.get_extra_info("serial")
     reset = getattr(port, "reset_input_buffer", None)

@@ -1,4 +1,5 @@
-"""Where a served simulator meets its host: a pseudo-terminal (`PtyEndpoint`) or a TCP port (`TcpEndpoint`).
+"""Where a served simulator meets its host: a pseudo-terminal (`PtyEndpoint`), a TCP port (`TcpEndpoint`) or an
+in-memory listener (`MemoryEndpoint`, a host in the same event loop opens `memory://sim-N`).
 
 `SimulatorServer` (`_serve`) owns one endpoint and talks to it through a small interface: `open()` and
 `close()`, `connected`, `hang_up()` (pull the cable), `write()` and `set_reading()`. The endpoint reports back
@@ -6,7 +7,8 @@ through the server's `EndpointOwner` methods: bytes from the host, how much it m
 opened the port (the board resets, as DTR makes it), and a link that dropped. The server itself never asks which
 kind of endpoint it has.
 
-Opening a port resets most boards (DTR), and each TCP client finds the board reset. A pty has no DTR, and the
+Opening a port resets most boards (DTR), and each TCP or memory client finds the board reset (the two share
+`_ClientEndpoint`: one client at a time over an asyncio transport). A pty has no DTR, and the
 endpoint holds the slave open (so its settings outlive each client, as a real port's do, and the master never
 sees a hang-up), so the master sees no open either. With `reset_on_open` the endpoint watches the slave's path
 with inotify (Linux), which reports every open and close of it by any process, and models DTR from those:
@@ -27,7 +29,8 @@ An open is seen before any byte the client writes after it: the watch is read be
 bytes.
 
 Only os, pty, tty, termios and ctypes (for inotify, which the standard library does not wrap) are used here,
-never the serial package (the client's business).
+never the serial package (the client's business); and `marlin_aio.aio.memory`, the one module of the client the
+simulator imports: a memory link's two ends are one pair of transports, so both sides use the same module.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ctypes
+import itertools
 import os
 import pty
 import socket
@@ -43,9 +47,13 @@ import termios
 import tty
 from typing import Protocol
 
-__all__ = ["OPEN_BOOT_S", "EndpointOwner", "PtyEndpoint", "TcpEndpoint"]
+from marlin_aio.aio.memory import MemoryListener, listen
+
+__all__ = ["OPEN_BOOT_S", "EndpointOwner", "MemoryEndpoint", "PtyEndpoint", "TcpEndpoint"]
 
 _READ_CHUNK = 65536
+# The names of memory endpoints, unique in this process: sim-1, sim-2, ...
+_MEMORY_NAMES = itertools.count(1)
 # Output the host has not read yet, beyond what the kernel holds. A board's transmit path is not an endless
 # queue either; past this, output is dropped rather than delivered stale minutes later.
 _MAX_PENDING_OUTPUT = 4096
@@ -294,15 +302,13 @@ class PtyEndpoint:
             self._loop.remove_writer(self._master_fd)
 
 
-class TcpEndpoint:
-    """A listening TCP socket; one client at a time, like a serial port, and each finds the board reset."""
+class _ClientEndpoint:
+    """What a TCP port and a memory listener share: one client at a time, like a serial port, over an asyncio
+    transport, and each client finds the board reset. A subclass says how clients reach it (`open()`, `close()`)
+    and hands each new transport to `_Connection`."""
 
-    def __init__(self, owner: EndpointOwner, *, host: str, port: int) -> None:
-        """An endpoint for `owner` that will listen on `host`:`port` (0 picks a free port)."""
+    def __init__(self, owner: EndpointOwner) -> None:
         self._owner = owner
-        self._host = host
-        self._port = port
-        self._server: asyncio.Server | None = None
         self._transport: asyncio.Transport | None = None
         self._closing = False
         self.reading = False
@@ -313,29 +319,8 @@ class TcpEndpoint:
         """Whether a client is connected."""
         return self._transport is not None
 
-    async def open(self, loop: asyncio.AbstractEventLoop) -> str:
-        """Start listening and return the URL to open, `socket://HOST:PORT`.
-
-        Raises:
-            OSError: if the socket cannot be opened.
-        """
-        self._server = await loop.create_server(lambda: _Connection(self), self._host, self._port)
-        port = self._server.sockets[0].getsockname()[1]
-        return f"socket://{self._host}:{port}"
-
-    async def close(self) -> None:
-        """Drop the client and stop listening."""
-        self._closing = True
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
-        if self._server is not None:
-            self._server.close()
-            await self._server.wait_closed()
-            self._server = None
-
     def hang_up(self) -> None:
-        """Close the client's connection; the port keeps listening for the next one."""
+        """Close the client's connection; the endpoint keeps listening for the next one."""
         if self._transport is not None:
             transport, self._transport = self._transport, None
             self.reading = False
@@ -356,6 +341,13 @@ class TcpEndpoint:
         else:
             self._transport.pause_reading()
         self.reading = want
+
+    def _close_client(self) -> None:
+        """Refuse every client from now on, and drop the one connected (the endpoint is closing)."""
+        self._closing = True
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
 
     def _accept(self, transport: asyncio.Transport) -> bool:
         if self._transport is not None or self._closing:
@@ -383,8 +375,61 @@ class TcpEndpoint:
             self._owner._clear_wires()
 
 
+class TcpEndpoint(_ClientEndpoint):
+    """A listening TCP socket; one client at a time, like a serial port, and each finds the board reset."""
+
+    def __init__(self, owner: EndpointOwner, *, host: str, port: int) -> None:
+        """An endpoint for `owner` that will listen on `host`:`port` (0 picks a free port)."""
+        super().__init__(owner)
+        self._host = host
+        self._port = port
+        self._server: asyncio.Server | None = None
+
+    async def open(self, loop: asyncio.AbstractEventLoop) -> str:
+        """Start listening and return the URL to open, `socket://HOST:PORT`.
+
+        Raises:
+            OSError: if the socket cannot be opened.
+        """
+        self._server = await loop.create_server(lambda: _Connection(self), self._host, self._port)
+        port = self._server.sockets[0].getsockname()[1]
+        return f"socket://{self._host}:{port}"
+
+    async def close(self) -> None:
+        """Drop the client and stop listening."""
+        self._close_client()
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+            self._server = None
+
+
+class MemoryEndpoint(_ClientEndpoint):
+    """A listener at `memory://sim-N` (`marlin_aio.aio.memory`), reachable from this process and event loop only;
+    one client at a time, like a serial port, and each finds the board reset, as on TCP."""
+
+    def __init__(self, owner: EndpointOwner) -> None:
+        """An endpoint for `owner`; its name is chosen when it opens, unique in this process."""
+        super().__init__(owner)
+        self._listener: MemoryListener | None = None
+
+    async def open(self, loop: asyncio.AbstractEventLoop) -> str:
+        """Start listening and return the URL to open, `memory://sim-N`."""
+        self._listener = listen(f"sim-{next(_MEMORY_NAMES)}", lambda: _Connection(self))
+        return self._listener.url
+
+    async def close(self) -> None:
+        """Drop the client and stop listening: the name is free, and opening it fails from now on."""
+        self._close_client()
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+
+
 class _Connection(asyncio.Protocol):
-    def __init__(self, endpoint: TcpEndpoint) -> None:
+    """One client's transport, handed to its endpoint."""
+
+    def __init__(self, endpoint: _ClientEndpoint) -> None:
         self._endpoint = endpoint
         self._transport: asyncio.Transport | None = None
 

@@ -1,4 +1,4 @@
-"""Serving a `SimulatedPrinter` on a pseudo-terminal or a TCP port, with asyncio.
+"""Serving a `SimulatedPrinter` on a pseudo-terminal, a TCP port or an in-memory link, with asyncio.
 
 The printer is sans-I/O; this module (with `_endpoints` for the file descriptors and sockets) is the only place
 that knows about I/O and clocks.
@@ -19,13 +19,13 @@ not 25000. (On asyncio's default epoll loop timers wake in whole milliseconds, s
 come up to a millisecond late, about what a USB-serial bridge adds with its 1 ms USB frames; `marlin-sim`
 runs on a select() loop, which keeps time to the microsecond.) About 10 ms of the host's bytes are read ahead
 of the wire; the rest wait in the pty or socket, where a host that writes too much finds its writes
-blocking, as with a real serial port.
+blocking, as with a real serial port (on a memory link they wait in its transport, paused, without a bound).
 
-The pseudo-terminal and the TCP port are endpoints (`_endpoints.PtyEndpoint`, `_endpoints.TcpEndpoint`) behind
-one small interface, so nothing here depends on which one serves; each client that opens the port finds the board
-reset, as DTR resets a real one (on a pty with `reset_on_open`, see `_endpoints`), after its bootloader's
-`SimulatorConfig.boot_delay_s`. (A little over 400 lines: the
-two wires, the timers and the pause/resume of reading belong together, and a fifth of the module is this text.)
+The pseudo-terminal, the TCP port and the in-memory listener are endpoints (`_endpoints.PtyEndpoint`,
+`TcpEndpoint`, `MemoryEndpoint`) behind one small interface, so nothing here depends on which one serves; each
+client that opens the port finds the board reset, as DTR resets a real one (on a pty with `reset_on_open`, see
+`_endpoints`), after its bootloader's `SimulatorConfig.boot_delay_s`. (A little over 400 lines: the two wires,
+the timers and the pause/resume of reading belong together, and a fifth of the module is this text.)
 """
 
 from __future__ import annotations
@@ -37,11 +37,11 @@ from types import TracebackType
 from typing import Literal
 
 from marlin_aio.simulator._config import Faults, SimulatorConfig
-from marlin_aio.simulator._endpoints import PtyEndpoint, TcpEndpoint
+from marlin_aio.simulator._endpoints import MemoryEndpoint, PtyEndpoint, TcpEndpoint
 from marlin_aio.simulator._printer import SimulatedPrinter
 from marlin_aio.simulator._wire import Wire
 
-__all__ = ["SimulatorServer", "serve_pty", "serve_tcp"]
+__all__ = ["SimulatorServer", "serve_memory", "serve_pty", "serve_tcp"]
 
 _READ_CHUNK = 65536
 # With a baud rate: output still waiting for the wire beyond this is dropped. A board's transmit path is not an
@@ -58,8 +58,9 @@ _MIN_READ_AHEAD = 32
 class SimulatorServer:
     """A simulated printer reachable at `url`; an async context manager (or call `start()` / `aclose()`).
 
-    Create it with `serve_pty()` or `serve_tcp()`. `printer` (and `printer.faults`) can be inspected and changed
-    at any time; after changing something from outside, call `poke()` so the server acts on it at once.
+    Create it with `serve_pty()`, `serve_tcp()` or `serve_memory()`. `printer` (and `printer.faults`) can be
+    inspected and changed at any time; after changing something from outside, call `poke()` so the server acts on
+    it at once.
     """
 
     def __init__(
@@ -67,7 +68,7 @@ class SimulatorServer:
         config: SimulatorConfig | None,
         faults: Faults | None,
         *,
-        kind: Literal["pty", "tcp"],
+        kind: Literal["pty", "tcp", "memory"],
         host: str = "127.0.0.1",
         port: int = 0,
         time_scale: float = 1.0,
@@ -79,18 +80,24 @@ class SimulatorServer:
 
         Raises:
             ValueError: if `time_scale` or `baud_rate` is not a positive number, or `reset_on_open` is asked of
-                a TCP server (which always resets on connect) or off Linux.
+                a TCP or memory server (which always resets on connect) or off Linux.
         """
         if not time_scale > 0:
             raise ValueError(f"time_scale must be positive, got {time_scale!r}")
         if baud_rate is not None and baud_rate <= 0:
             raise ValueError(f"baud_rate must be positive, got {baud_rate!r}")
         if reset_on_open and (kind != "pty" or not sys.platform.startswith("linux")):
-            raise ValueError("reset_on_open is for a pty on Linux; a TCP server resets on every connect anyway")
+            raise ValueError(
+                "reset_on_open is for a pty on Linux; a TCP or memory server resets on every connect anyway"
+            )
         # The one place that looks at the kind: everything after talks to the endpoint.
-        self._endpoint: PtyEndpoint | TcpEndpoint = (
-            PtyEndpoint(self, reset_on_open=reset_on_open) if kind == "pty" else TcpEndpoint(self, host=host, port=port)
-        )
+        self._endpoint: PtyEndpoint | TcpEndpoint | MemoryEndpoint
+        if kind == "pty":
+            self._endpoint = PtyEndpoint(self, reset_on_open=reset_on_open)
+        elif kind == "tcp":
+            self._endpoint = TcpEndpoint(self, host=host, port=port)
+        else:
+            self._endpoint = MemoryEndpoint(self)
         self.printer = SimulatedPrinter(config, faults, now=0.0, boot=True)
         """The firmware being served."""
         self._time_scale = time_scale
@@ -114,7 +121,7 @@ class SimulatorServer:
 
     @property
     def url(self) -> str:
-        """What a client opens: the pty slave path (`/dev/pts/3`) or `socket://127.0.0.1:<port>`.
+        """What a client opens: the pty slave path (`/dev/pts/3`), `socket://127.0.0.1:<port>` or `memory://sim-N`.
 
         Raises:
             RuntimeError: before `start()`.
@@ -130,11 +137,11 @@ class SimulatorServer:
 
     @property
     def connected(self) -> bool:
-        """Whether a host can currently exchange bytes: the pty is open, or a TCP client is connected."""
+        """Whether a host can currently exchange bytes: the pty is open, or a TCP or memory client is connected."""
         return self._endpoint.connected
 
     async def start(self) -> None:
-        """Open the pseudo-terminal or the listening socket and start serving.
+        """Open the pseudo-terminal, the listening socket or the memory listener, and start serving.
 
         Raises:
             RuntimeError: if already started.
@@ -148,12 +155,12 @@ class SimulatorServer:
             self._paused_at = self._started_at
         self._url = await self._endpoint.open(self._loop)
         # On a pty the boot banner waits in the terminal, where a client that does not flush on open finds it;
-        # on TCP nobody is listening yet, and each client gets a banner of its own when it connects.
+        # on TCP (and memory) nobody is listening yet, and each client gets a banner of its own when it connects.
         self._flush()
         self._reschedule()
 
     async def aclose(self) -> None:
-        """Stop serving and release the pty or socket. Safe to call more than once."""
+        """Stop serving and release the pty, socket or memory listener. Safe to call more than once."""
         if self._closed:
             return
         self._closed = True
@@ -193,10 +200,10 @@ class SimulatorServer:
         self._reschedule()
 
     async def disconnect(self) -> None:
-        """Pull the cable: close the pty master, or the TCP connection, so the client sees the link drop.
+        """Pull the cable: close the pty master, or the TCP or memory connection, so the client sees the link drop.
 
-        A pty is gone for good afterwards (its path no longer works). The TCP port keeps listening, and the next
-        client to connect finds the board reset, as when a USB cable is plugged back in.
+        A pty is gone for good afterwards (its path no longer works). The TCP port and the memory listener keep
+        listening, and the next client to connect finds the board reset, as when a USB cable is plugged back in.
         """
         self._endpoint.hang_up()
 
@@ -229,7 +236,7 @@ class SimulatorServer:
     # ------------------------------------------------------------------------------------------ the printer
 
     def _receive_from_host(self, data: bytes) -> None:
-        """Bytes read from the pty or socket: straight to the printer, or onto the wire."""
+        """Bytes read from the pty, socket or memory link: straight to the printer, or onto the wire."""
         wire = self._rx_wire
         if wire is None:
             self._feed(data)
@@ -426,3 +433,26 @@ def serve_tcp(
     return SimulatorServer(
         config, faults, kind="tcp", host=host, port=port, time_scale=time_scale, clock=clock, baud_rate=baud_rate
     )
+
+
+def serve_memory(
+    config: SimulatorConfig | None = None,
+    faults: Faults | None = None,
+    *,
+    time_scale: float = 1.0,
+    clock: Callable[[], float] | None = None,
+    baud_rate: int | None = None,
+) -> SimulatorServer:
+    """A simulated printer in this process, on an in-memory link; open `url`, `memory://sim-N`, from the same
+    event loop (`marlin_aio.connect(server.url)`).
+
+    No pty, socket or thread: the client's bytes reach the printer, and its replies the client, on the loop's
+    next turn (`marlin_aio.aio.memory`). For tests of a client that a real port adds nothing to, and for many
+    simulated printers in one process. As on TCP, one client at a time, and each connect resets the board and
+    gets its boot banner. `baud_rate` paces both directions as for `serve_pty()`. Another process cannot open it:
+    `marlin-sim` offers the pty and TCP only.
+
+    Raises:
+        ValueError: if `time_scale` or `baud_rate` is not positive.
+    """
+    return SimulatorServer(config, faults, kind="memory", time_scale=time_scale, clock=clock, baud_rate=baud_rate)
