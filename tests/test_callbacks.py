@@ -1,4 +1,5 @@
-"""No user code in the read path: `on_reading` callbacks and slow readers against the simulated printer on a pty.
+"""No user code in the read path: `on_reading` callbacks and slow readers against the simulated printer, in memory
+(and on a pty where the read handler beneath is pyserial's).
 
 A callback that raises, stops itself, or a reader that stops reading must never stop the link: commands still
 return, polls go on, the other callbacks and readers still get every reading, and the error is logged once. Every
@@ -52,7 +53,7 @@ def callback_warnings(caplog: pytest.LogCaptureFixture, name: str) -> list[loggi
 
 
 async def test_a_callback_that_always_raises_is_logged_once_and_stops_nothing(
-    printer: marlin_aio.Printer, caplog: pytest.LogCaptureFixture
+    mem_printer: marlin_aio.Printer, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.WARNING, logger="marlin_aio")
     calls = 0
@@ -62,15 +63,15 @@ async def test_a_callback_that_always_raises_is_logged_once_and_stops_nothing(
         calls += 1
         raise RuntimeError(f"a bug in the user's callback, call {calls}")
 
-    printer.on_reading(always_raises)  # first in line: the one after it must not suffer
+    mem_printer.on_reading(always_raises)  # first in line: the one after it must not suffer
     counter = Counter()
-    printer.on_reading(counter)
-    reader = printer.temperature_readings()
-    async with printer.poll_temperatures(0.01), asyncio.timeout(BOUND_S):
+    mem_printer.on_reading(counter)
+    reader = mem_printer.temperature_readings()
+    async with mem_printer.poll_temperatures(0.01), asyncio.timeout(BOUND_S):
         read_first = await anext(reader)  # subscribed from here on
         async with asyncio.timeout(10):
-            reply = await printer.send("M105")
-            echo = await printer.send("M118 E1 x")
+            reply = await mem_printer.send("M105")
+            echo = await mem_printer.send("M118 E1 x")
         assert reply.temperatures is not None
         assert echo.lines == ("echo:x",)
         await counter.wait_for_more(100)  # polling goes on, long after the first error
@@ -81,17 +82,17 @@ async def test_a_callback_that_always_raises_is_logged_once_and_stops_nothing(
             read.append(await anext(reader))
     await reader.aclose()
     # The raising callback was called with every reading, and the one after it got them all too.
-    assert calls == len(counter.seen) == printer.callback_errors >= 100
+    assert calls == len(counter.seen) == mem_printer.callback_errors >= 100
     start = next(i for i, reading in enumerate(counter.seen) if reading is read_first)
     assert all(a is b for a, b in zip(counter.seen[start:], read, strict=True))
-    assert printer.stats.timeouts == 0
+    assert mem_printer.stats.timeouts == 0
     (warning,) = callback_warnings(caplog, "always_raises")
     assert "call 1" in warning.getMessage()
     assert warning.exc_info is not None
 
 
 async def test_a_callback_that_raises_once_is_logged_and_called_again(
-    printer: marlin_aio.Printer, caplog: pytest.LogCaptureFixture
+    mem_printer: marlin_aio.Printer, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.WARNING, logger="marlin_aio")
     seen: list[TemperatureReading] = []
@@ -104,19 +105,19 @@ async def test_a_callback_that_raises_once_is_logged_and_called_again(
             raise ValueError("only the first time")
         seen.append(reading)
 
-    printer.on_reading(raises_once)
+    mem_printer.on_reading(raises_once)
     counter = Counter()
-    printer.on_reading(counter)
-    async with printer.poll_temperatures(0.01):
+    mem_printer.on_reading(counter)
+    async with mem_printer.poll_temperatures(0.01):
         await counter.wait_for_more(20)
-    await printer.send("M118 E1 still here")
+    await mem_printer.send("M118 E1 still here")
     assert len(seen) == len(counter.seen) - 1
     assert all(a is b for a, b in zip(seen, counter.seen[1:], strict=True))
-    assert printer.callback_errors == 1
+    assert mem_printer.callback_errors == 1
     assert len(callback_warnings(caplog, "raises_once")) == 1
 
 
-async def test_a_callback_that_stops_itself_while_called_gets_nothing_more(printer: marlin_aio.Printer) -> None:
+async def test_a_callback_that_stops_itself_while_called_gets_nothing_more(mem_printer: marlin_aio.Printer) -> None:
     calls = 0
     stop: list[Callable[[], None]] = []  # on_reading's own, once it returned
 
@@ -127,27 +128,27 @@ async def test_a_callback_that_stops_itself_while_called_gets_nothing_more(print
             stop[0]()
             stop[0]()  # twice is harmless
 
-    stop.append(printer.on_reading(stops_on_third))
+    stop.append(mem_printer.on_reading(stops_on_third))
     counter = Counter()
-    printer.on_reading(counter)
-    async with printer.poll_temperatures(0.005):
+    mem_printer.on_reading(counter)
+    async with mem_printer.poll_temperatures(0.005):
         await counter.wait_for_more(30)
-    await printer.read_temperatures()
+    await mem_printer.read_temperatures()
     assert calls == 3
-    assert printer.callback_errors == 0
+    assert mem_printer.callback_errors == 0
 
 
-async def test_a_callback_stopped_by_another_gets_nothing_more(printer: marlin_aio.Printer) -> None:
+async def test_a_callback_stopped_by_another_gets_nothing_more(mem_printer: marlin_aio.Printer) -> None:
     stopped = Counter()
-    stop_other = printer.on_reading(stopped)
+    stop_other = mem_printer.on_reading(stopped)
     counter = Counter()
-    printer.on_reading(counter)
+    mem_printer.on_reading(counter)
 
     def stops_the_other(reading: TemperatureReading) -> None:
         stop_other()
 
-    printer.on_reading(stops_the_other)
-    async with printer.poll_temperatures(0.005):
+    mem_printer.on_reading(stops_the_other)
+    async with mem_printer.poll_temperatures(0.005):
         await counter.wait_for_more(30)
     # Stopped after the first reading it got; its position before the stopper is why it got that one.
     assert len(stopped.seen) == 1
@@ -157,6 +158,7 @@ async def test_a_callback_stopped_by_another_gets_nothing_more(printer: marlin_a
 async def test_callbacks_run_outside_the_read_handler_before_the_awaiting_caller_resumes(
     printer: marlin_aio.Printer,
 ) -> None:
+    # On the pty: the read handler that must not be beneath a callback is pyserial-asyncio-fast's `_read_ready`.
     stacks: list[list[str]] = []
 
     def record_stack(reading: TemperatureReading) -> None:
@@ -174,16 +176,16 @@ async def test_callbacks_run_outside_the_read_handler_before_the_awaiting_caller
         assert "_read_ready" not in stack
 
 
-async def test_a_reader_that_stops_reading_stops_nothing(printer: marlin_aio.Printer) -> None:
-    stuck = printer.temperature_readings()
+async def test_a_reader_that_stops_reading_stops_nothing(mem_printer: marlin_aio.Printer) -> None:
+    stuck = mem_printer.temperature_readings()
     counter = Counter()
-    printer.on_reading(counter)
-    async with printer.poll_temperatures(0.001):
+    mem_printer.on_reading(counter)
+    async with mem_printer.poll_temperatures(0.001):
         await anext(stuck)  # subscribed; it never reads again
         await counter.wait_for_more(1_100)  # past the bound of its queue
         async with asyncio.timeout(10):
-            await printer.send("M105")
-            await printer.send("M118 E1 x")
-    assert printer.readings_dropped > 0
-    assert printer.stats.timeouts == 0
+            await mem_printer.send("M105")
+            await mem_printer.send("M118 E1 x")
+    assert mem_printer.readings_dropped > 0
+    assert mem_printer.stats.timeouts == 0
     await stuck.aclose()

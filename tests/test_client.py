@@ -1,4 +1,6 @@
-"""The asyncio client against the simulated printer through a real pty (and socket://): no mocks of our code."""
+"""The asyncio client against the simulated printer, no mocks of our code: on the in-memory link where a real port
+adds nothing, and through a real pty (and socket://) for the handshake end to end, opening and its errors, the
+exclusive lock, a port that stays silent or babbles, and an unplug as pyserial reports it."""
 
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from conftest import TIME_SCALE
 
 import marlin_aio
 import marlin_aio.protocol
-from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_memory
 
 
 def executed_codes(server: SimulatorServer, prefix: str) -> list[str]:
@@ -29,11 +31,11 @@ async def test_handshake_identifies_the_firmware(sim: SimulatorServer) -> None:
         assert any(text.endswith("M115*" + text.rsplit("*", 1)[1]) for text in sent if "M115" in text)
 
 
-async def test_send_returns_the_lines_that_belong_to_the_command(printer: marlin_aio.Printer) -> None:
-    reply = await printer.send("M119")
+async def test_send_returns_the_lines_that_belong_to_the_command(mem_printer: marlin_aio.Printer) -> None:
+    reply = await mem_printer.send("M119")
     assert reply.lines[0] == "Reporting endstop status"
-    assert await printer.endstops() == {"x_min": False, "y_min": False, "z_min": False}
-    position = await printer.position()
+    assert await mem_printer.endstops() == {"x_min": False, "y_min": False, "z_min": False}
+    position = await mem_printer.position()
     assert set(position) >= {"X", "Y", "Z"}
 
 
@@ -51,50 +53,50 @@ async def test_concurrent_senders_each_get_their_own_reply(sim: SimulatorServer)
 
 
 async def test_polling_at_100_hz_while_other_commands_run(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
     readings: list[marlin_aio.TemperatureReading] = []
     enough = asyncio.Event()
 
     async def collect() -> None:
-        async for reading in printer.temperature_readings():
+        async for reading in mem_printer.temperature_readings():
             readings.append(reading)
             if sum(r.source == "poll" for r in readings) >= 150:
                 enough.set()
 
     collector = asyncio.create_task(collect())
-    async with printer.poll_temperatures(interval_s=0.01):
+    async with mem_printer.poll_temperatures(interval_s=0.01):
         await asyncio.wait_for(enough.wait(), 30)
         moves = [f"G1 X{i} Y{i} F6000" for i in range(1, 20)]
-        replies = [await printer.send(move) for move in moves]
+        replies = [await mem_printer.send(move) for move in moves]
         # G4 S4 holds the queue 4 simulated seconds (0.2 s here): some 20 poll slots pass behind it. They must be
         # skipped, not queued up to burst out afterwards: at most the one poll already waiting may remain.
-        await printer.send("G4 S4")
-        assert printer.stats.queued == 0
-        assert printer.stats.in_flight <= 1
-        entries = printer.trace.entries()
+        await mem_printer.send("G4 S4")
+        assert mem_printer.stats.queued == 0
+        assert mem_printer.stats.in_flight <= 1
+        entries = mem_printer.trace.entries()
     collector.cancel()
     dwell_sent = max(i for i, e in enumerate(entries) if e.direction == "sent" and "G4 S4" in e.text)
     dwell_ok = next(i for i, e in enumerate(entries) if i > dwell_sent and e.text.startswith("ok"))
     assert not any(e.direction == "sent" for e in entries[dwell_sent + 1 : dwell_ok]), "a poll went out mid-dwell"
     assert all(reply.lines == () for reply in replies)
-    assert executed_codes(pty_sim, "G1 ") == moves
-    assert printer.stats.timeouts == 0
+    assert executed_codes(mem_sim, "G1 ") == moves
+    assert mem_printer.stats.timeouts == 0
     poll_times = [r.monotonic_s for r in readings if r.source == "poll"]
     assert poll_times == sorted(poll_times)
 
 
-async def test_auto_report_keeps_readings_coming_during_a_long_command(printer: marlin_aio.Printer) -> None:
+async def test_auto_report_keeps_readings_coming_during_a_long_command(mem_printer: marlin_aio.Printer) -> None:
     sources: list[str] = []
 
     async def collect() -> None:
-        async for reading in printer.temperature_readings():
+        async for reading in mem_printer.temperature_readings():
             sources.append(reading.source)
 
     collector = asyncio.create_task(collect())
-    async with printer.poll_temperatures(interval_s=0.01):
+    async with mem_printer.poll_temperatures(interval_s=0.01):
         before = len(sources)
-        await printer.send("G4 S4")  # 4 simulated seconds: several auto-reports arrive meanwhile
+        await mem_printer.send("G4 S4")  # 4 simulated seconds: several auto-reports arrive meanwhile
         during = sources[before:]
     collector.cancel()
     assert "auto" in during
@@ -102,7 +104,7 @@ async def test_auto_report_keeps_readings_coming_during_a_long_command(printer: 
 
 async def test_long_m190_with_keepalives_never_times_out() -> None:
     async with (
-        serve_pty(SimulatorConfig(), Faults(), time_scale=TIME_SCALE) as server,
+        serve_memory(SimulatorConfig(), Faults(), time_scale=TIME_SCALE) as server,
         marlin_aio.connect(server.url, timeout_s=0.5) as printer,
     ):
         wait_lines: list[marlin_aio.TemperatureReading] = []
@@ -122,73 +124,76 @@ async def test_long_m190_with_keepalives_never_times_out() -> None:
         assert server.printer.heater_celsius("B") >= 44.0
 
 
-async def test_a_command_that_is_never_answered_times_out_and_the_queue_goes_on(printer: marlin_aio.Printer) -> None:
+async def test_a_command_that_is_never_answered_times_out_and_the_queue_goes_on(
+    mem_printer: marlin_aio.Printer,
+) -> None:
     with pytest.raises(marlin_aio.CommandTimeoutError) as caught:
-        await printer.send("M105 T9", timeout_s=0.3)
+        await mem_printer.send("M105 T9", timeout_s=0.3)
     message = str(caught.value)
     assert "M105 T9" in message
     assert "waited" in message or "after" in message
     assert "last received" in message
     assert caught.value.command == "M105 T9"
-    reading = await printer.temperatures()
+    reading = await mem_printer.temperatures()
     assert reading.hotend is not None
 
 
-async def test_a_silent_printer_is_detected_within_the_timeout(pty_sim: SimulatorServer) -> None:
-    async with marlin_aio.connect(pty_sim.url, timeout_s=0.4) as printer:
-        pty_sim.printer.faults.silent = True
+async def test_a_silent_printer_is_detected_within_the_timeout(mem_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(mem_sim.url, timeout_s=0.4) as printer:
+        mem_sim.printer.faults.silent = True
         with pytest.raises(marlin_aio.CommandTimeoutError, match="silent") as caught:
             await printer.send("G28")
         assert isinstance(caught.value, TimeoutError)
 
 
-async def test_corrupted_lines_are_resent_and_executed_exactly_once(pty_sim: SimulatorServer) -> None:
-    async with marlin_aio.connect(pty_sim.url, timeout_s=2.0) as printer:
-        pty_sim.printer.faults.corrupt_rx_ratio = 0.3
+async def test_corrupted_lines_are_resent_and_executed_exactly_once(mem_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(mem_sim.url, timeout_s=2.0) as printer:
+        mem_sim.printer.faults.corrupt_rx_ratio = 0.3
         moves = [f"G1 X{i} Y{i % 7} F9000" for i in range(80)]
         for move in moves:
             await printer.send(move)
         assert printer.stats.resend_requests > 0
-    assert executed_codes(pty_sim, "G1 ") == moves
+    assert executed_codes(mem_sim, "G1 ") == moves
 
 
-async def test_concurrent_senders_survive_corruption(pty_sim: SimulatorServer) -> None:
-    async with marlin_aio.connect(pty_sim.url, timeout_s=2.0, max_in_flight=4) as printer:
-        pty_sim.printer.faults.corrupt_rx_ratio = 0.1
+async def test_concurrent_senders_survive_corruption(mem_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(mem_sim.url, timeout_s=2.0, max_in_flight=4) as printer:
+        mem_sim.printer.faults.corrupt_rx_ratio = 0.1
         results = await asyncio.gather(*(printer.send(f"M118 E1 n{i}") for i in range(40)))
         assert [r.lines for r in results] == [(f"echo:n{i}",) for i in range(40)]
-    assert executed_codes(pty_sim, "M118") == [f"M118 E1 n{i}" for i in range(40)]
+    assert executed_codes(mem_sim, "M118") == [f"M118 E1 n{i}" for i in range(40)]
 
 
 async def test_a_reset_fails_the_waiting_command_and_the_link_recovers(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    pending = asyncio.create_task(printer.send("G4 S30"))
-    await wait_until_sent(printer, "G4 S30")
-    pty_sim.printer.reset(pty_sim.now())
-    pty_sim.poke()
+    resets = mem_printer.stats.resets  # a memory link resets the board as it connects, as TCP does
+    pending = asyncio.create_task(mem_printer.send("G4 S30"))
+    await wait_until_sent(mem_printer, "G4 S30")
+    mem_sim.printer.reset(mem_sim.now())
+    mem_sim.poke()
     with pytest.raises(marlin_aio.PrinterResetError):
         await pending
-    reading = await printer.temperatures()
+    reading = await mem_printer.temperatures()
     assert reading.hotend is not None
-    assert printer.stats.resets == 1
+    assert mem_printer.stats.resets == resets + 1
 
 
 async def test_thermal_runaway_halts_with_the_printers_message(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    readings = printer.temperature_readings()
+    readings = mem_printer.temperature_readings()
     first = asyncio.ensure_future(readings.__anext__())
-    pending = asyncio.create_task(printer.send("G4 S30"))
-    await wait_until_sent(printer, "G4 S30")
-    pty_sim.printer.thermal_runaway(pty_sim.now(), heater="E0")
-    pty_sim.poke()
+    pending = asyncio.create_task(mem_printer.send("G4 S30"))
+    await wait_until_sent(mem_printer, "G4 S30")
+    mem_sim.printer.thermal_runaway(mem_sim.now(), heater="E0")
+    mem_sim.poke()
     with pytest.raises(marlin_aio.ThermalRunawayError, match="Thermal Runaway"):
         await pending
     with pytest.raises(marlin_aio.PrinterHaltedError):
         await first
     with pytest.raises(marlin_aio.ThermalRunawayError):
-        await printer.send("M105")
+        await mem_printer.send("M105")
     await readings.aclose()
 
 
@@ -206,27 +211,27 @@ async def test_unplugging_fails_every_waiting_command(printer: marlin_aio.Printe
 
 
 async def test_emergency_stop_is_written_at_once_and_fails_what_waits(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    pending = [asyncio.create_task(printer.send(f"G4 S{10 + i}")) for i in range(3)]
-    await wait_until_sent(printer, "G4 S10")
-    printer.emergency_stop()
+    pending = [asyncio.create_task(mem_printer.send(f"G4 S{10 + i}")) for i in range(3)]
+    await wait_until_sent(mem_printer, "G4 S10")
+    mem_printer.emergency_stop()
     for task in pending:
         with pytest.raises(marlin_aio.PrinterHaltedError):
             await task
     # The two dwells behind the first were never written: M112 went ahead of them.
-    sent = [e.text for e in printer.trace.entries() if e.direction == "sent"]
+    sent = [e.text for e in mem_printer.trace.entries() if e.direction == "sent"]
     assert sent[-1] == "M112"
     assert not any("G4 S11" in text for text in sent)
 
 
 async def test_stats_is_a_frozen_snapshot_that_accounts_for_every_command(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    before = printer.stats
-    await printer.send("M105")
-    await printer.send("M114")
-    after = printer.stats
+    before = mem_printer.stats
+    await mem_printer.send("M105")
+    await mem_printer.send("M114")
+    after = mem_printer.stats
     assert after.answered == before.answered + 2
     assert after.bytes_received > before.bytes_received
     assert after.accounted and after.in_flight == after.queued == 0
@@ -241,11 +246,11 @@ def state_of(printer: marlin_aio.Printer) -> marlin_aio.LinkState:
 
 
 async def test_the_library_logs_lines_at_debug_and_recoveries_at_info(
-    pty_sim: SimulatorServer, caplog: pytest.LogCaptureFixture
+    mem_sim: SimulatorServer, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.DEBUG, logger="marlin_aio")
-    async with marlin_aio.connect(pty_sim.url) as printer:
-        pty_sim.printer.faults.corrupt_rx_ratio = 0.3
+    async with marlin_aio.connect(mem_sim.url) as printer:
+        mem_sim.printer.faults.corrupt_rx_ratio = 0.3
         for _ in range(20):
             await printer.send("M114")
     wire = [r for r in caplog.records if r.name == "marlin_aio.wire"]
@@ -257,7 +262,7 @@ async def test_the_library_logs_lines_at_debug_and_recoveries_at_info(
 
 
 async def test_on_reading_calls_back_with_every_reading_until_stopped(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
     seen: list[marlin_aio.TemperatureReading] = []
     enough = asyncio.Event()
@@ -267,19 +272,20 @@ async def test_on_reading_calls_back_with_every_reading_until_stopped(
         if len(seen) >= 20:
             enough.set()
 
-    stop = printer.on_reading(callback)
-    async with printer.poll_temperatures(0.005), asyncio.timeout(30):  # a bound, not a sync: the event syncs
+    stop = mem_printer.on_reading(callback)
+    async with mem_printer.poll_temperatures(0.005), asyncio.timeout(30):  # a bound, not a sync: the event syncs
         await enough.wait()
         stop()
         count = len(seen)
-        await printer.read_temperatures()  # one more reading, after the stop
+        await mem_printer.read_temperatures()  # one more reading, after the stop
     assert len(seen) == count >= 20
     assert all(r.hotend is not None for r in seen)
     assert any(r.source is marlin_aio.protocol.ReadingSource.POLL for r in seen)  # (auto-reports come too, with M155)
 
 
-async def test_a_closed_printer_opens_again_and_an_open_one_refuses_to(pty_sim: SimulatorServer) -> None:
-    printer = marlin_aio.Printer(pty_sim.url)
+async def test_a_closed_printer_opens_again_and_an_open_one_refuses_to(sim: SimulatorServer) -> None:
+    # On both real transports: a pty opened again after pyserial closed it, a TCP port connected to again.
+    printer = marlin_aio.Printer(sim.url)
     async with printer:
         with pytest.raises(RuntimeError, match="already open"):
             await printer.open()
@@ -295,15 +301,15 @@ async def test_a_closed_printer_opens_again_and_an_open_one_refuses_to(pty_sim: 
 
 
 async def test_a_reader_that_falls_behind_loses_its_oldest_readings_never_the_error(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    readings = printer.temperature_readings()
-    async with printer.poll_temperatures(0.001):
+    readings = mem_printer.temperature_readings()
+    async with mem_printer.poll_temperatures(0.001):
         await anext(readings)  # subscribed; from here on this reader does not keep up
         for _ in range(1_100):  # over the 1,000-reading bound on its own; polls add more
-            await printer.read_temperatures()
-    assert printer.readings_dropped > 0
-    printer.emergency_stop()
+            await mem_printer.read_temperatures()
+    assert mem_printer.readings_dropped > 0
+    mem_printer.emergency_stop()
     kept: list[marlin_aio.TemperatureReading] = []
 
     async def drain() -> None:
@@ -315,8 +321,8 @@ async def test_a_reader_that_falls_behind_loses_its_oldest_readings_never_the_er
     assert len(kept) <= 1000  # the queue's bound; the halt still got through
 
 
-async def test_emergency_stop_on_a_closed_printer_raises_instead_of_doing_nothing(pty_sim: SimulatorServer) -> None:
-    async with marlin_aio.connect(pty_sim.url) as printer:
+async def test_emergency_stop_on_a_closed_printer_raises_instead_of_doing_nothing(mem_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(mem_sim.url) as printer:
         assert state_of(printer) is marlin_aio.LinkState.READY
         printer.emergency_stop()
         assert state_of(printer) is marlin_aio.LinkState.HALTED
@@ -326,40 +332,40 @@ async def test_emergency_stop_on_a_closed_printer_raises_instead_of_doing_nothin
 
 
 async def test_bad_commands_are_rejected_before_anything_is_written(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    before = list(printer.trace.entries())
+    before = list(mem_printer.trace.entries())
     for bad in ["G1 X1\nM112", "M117 caf\u00e9", "M117 " + "x" * 100, "   ; only a comment", "G1\rX2"]:
         with pytest.raises(ValueError, match=r"\S"):
-            await printer.send(bad)
+            await mem_printer.send(bad)
     for kwargs in [{"hotend": 900}, {"hotend": float("nan")}, {"bed": -5}, {"hotend": "abc"}, {"bed": 141}]:
         with pytest.raises(ValueError, match="target"):
-            await printer.set_temperatures(**kwargs)  # type: ignore[arg-type]
+            await mem_printer.set_temperatures(**kwargs)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="fan"):
-        await printer.set_fan(1.5)
-    assert printer.trace.entries() == before
+        await mem_printer.set_fan(1.5)
+    assert mem_printer.trace.entries() == before
 
 
-async def test_targets_are_set_and_reached(printer: marlin_aio.Printer, pty_sim: SimulatorServer) -> None:
-    await printer.set_temperatures(hotend=60, bed=35)
-    reading = await printer.wait_for_temperatures(tolerance_c=1.5, timeout_s=60)
+async def test_targets_are_set_and_reached(mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer) -> None:
+    await mem_printer.set_temperatures(hotend=60, bed=35)
+    reading = await mem_printer.wait_for_temperatures(tolerance_c=1.5, timeout_s=60)
     assert reading.hotend is not None and abs(reading.hotend.actual - 60) <= 1.5
     assert reading.bed is not None and abs(reading.bed.actual - 35) <= 1.5
-    assert "M104 S60" in pty_sim.printer.executed
-    assert "M140 S35" in pty_sim.printer.executed
+    assert "M104 S60" in mem_sim.printer.executed
+    assert "M140 S35" in mem_sim.printer.executed
 
 
-async def test_waiting_for_an_unreachable_temperature_times_out(printer: marlin_aio.Printer) -> None:
-    await printer.set_temperatures(hotend=250)
+async def test_waiting_for_an_unreachable_temperature_times_out(mem_printer: marlin_aio.Printer) -> None:
+    await mem_printer.set_temperatures(hotend=250)
     with pytest.raises(marlin_aio.TemperatureTimeoutError, match="250"):
-        await printer.wait_for_temperatures(hotend=250, timeout_s=0.3)
-    await printer.set_temperatures(hotend=0)
+        await mem_printer.wait_for_temperatures(hotend=250, timeout_s=0.3)
+    await mem_printer.set_temperatures(hotend=0)
 
 
-async def test_fan_commands(printer: marlin_aio.Printer, pty_sim: SimulatorServer) -> None:
-    await printer.set_fan(0.5)
-    await printer.set_fan(0.0)
-    assert pty_sim.printer.executed[-2:] == ["M106 S128", "M107"]
+async def test_fan_commands(mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer) -> None:
+    await mem_printer.set_fan(0.5)
+    await mem_printer.set_fan(0.0)
+    assert mem_sim.printer.executed[-2:] == ["M106 S128", "M107"]
 
 
 # ---------------------------------------------------------------------------------------------------- opening
@@ -440,14 +446,14 @@ def test_a_port_that_went_away_is_said_in_words_whichever_way_pyserial_noticed(e
 
 
 async def test_send_refuses_a_target_above_the_clients_limit_before_writing(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    before = pty_sim.printer.executed_count
+    before = mem_sim.printer.executed_count
     for command in ("M104 S300", "N7 m140 s200", "M190 R141"):
         with pytest.raises(ValueError, match="above the limit"):
-            await printer.send(command)
-    await printer.send("M104 S200")  # within the limit: sent as before
-    assert pty_sim.printer.executed_count == before + 1
+            await mem_printer.send(command)
+    await mem_printer.send("M104 S200")  # within the limit: sent as before
+    assert mem_sim.printer.executed_count == before + 1
 
 
 @pytest.mark.parametrize("advanced_ok", [False, True], ids=["plain-ok", "advanced-ok"])
@@ -456,7 +462,7 @@ async def test_a_g28_answered_long_after_its_timeout_never_answers_the_next_call
     # returned G28's lines (8 of 8 runs, polling and ADVANCED_OK included). The G28 now waits in doubt for its
     # own late ok (or a probe's answer), and the next caller gets its own reply.
     config = SimulatorConfig(keepalive_interval_s=0, homing_s=3.0, advanced_ok=advanced_ok)
-    async with serve_pty(config, time_scale=TIME_SCALE) as server, marlin_aio.connect(server.url) as printer:
+    async with serve_memory(config, time_scale=TIME_SCALE) as server, marlin_aio.connect(server.url) as printer:
         homing_real_s = config.homing_s / TIME_SCALE
         with pytest.raises(marlin_aio.CommandTimeoutError):
             await printer.send("G28", timeout_s=homing_real_s / 3)

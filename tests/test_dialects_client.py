@@ -1,4 +1,4 @@
-"""The client against firmware dialects real boards speak, each switched on in the simulator and served on a pty."""
+"""The client against firmware dialects real boards speak, each switched on in the simulator and served in memory."""
 
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ import pytest
 from conftest import TIME_SCALE
 
 import marlin_aio
-from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_memory
 
 
 @asynccontextmanager
 async def served(config: SimulatorConfig, faults: Faults | None = None) -> AsyncIterator[SimulatorServer]:
-    async with serve_pty(config, faults or Faults(), time_scale=TIME_SCALE) as server:
+    async with serve_memory(config, faults or Faults(), time_scale=TIME_SCALE) as server:
         yield server
 
 

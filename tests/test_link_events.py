@@ -1,5 +1,5 @@
 """`Printer.on_link_event`: connected, reset, halted and disconnected, each told once as it happens, through the
-simulator on a real pty (and TCP, which can be unplugged); a listener that raises costs nobody else anything."""
+simulator on the in-memory link (which can be unplugged); a listener that raises costs nobody else anything."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 import marlin_aio
 from marlin_aio.aio.printer import LinkEvent
-from marlin_aio.simulator import SimulatorConfig, serve_pty, serve_tcp
+from marlin_aio.simulator import SimulatorConfig, serve_memory
 
 
 class Listener:
@@ -37,7 +37,7 @@ class Listener:
 
 async def test_connected_then_a_reset_while_connected_then_halted() -> None:
     listener = Listener()
-    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+    async with serve_memory(SimulatorConfig(), time_scale=20) as sim:
         printer = marlin_aio.Printer(sim.url)
         printer.on_link_event(listener)
         async with printer:
@@ -64,7 +64,7 @@ async def test_an_unplugged_printer_is_disconnected_and_a_raising_listener_harms
     def broken(event: LinkEvent) -> None:
         raise RuntimeError("a listener's bug")
 
-    async with serve_tcp(SimulatorConfig(), time_scale=20) as sim:
+    async with serve_memory(SimulatorConfig(), time_scale=20) as sim:
         printer = marlin_aio.Printer(sim.url)
         printer.on_link_event(broken)
         printer.on_link_event(listener)
@@ -79,7 +79,7 @@ async def test_an_unplugged_printer_is_disconnected_and_a_raising_listener_harms
 
 async def test_a_stopped_listener_hears_nothing_more() -> None:
     listener, witness = Listener(), Listener()
-    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+    async with serve_memory(SimulatorConfig(), time_scale=20) as sim:
         printer = marlin_aio.Printer(sim.url)
         stop = printer.on_link_event(listener)
         printer.on_link_event(witness)

@@ -1,5 +1,5 @@
 """The motion helpers: the G-code they build and what they refuse (no I/O), then `Printer.home`, `move`, `extrude`
-and `disable_motors` against the simulated printer on a real pty, the position read back with M114."""
+and `disable_motors` against the simulated printer in memory, the position read back with M114."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from marlin_aio.protocol import (
     home_command,
     move_commands,
 )
-from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
+from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_memory
 
 # ------------------------------------------------------------------------------------------- the G-code (no I/O)
 
@@ -97,80 +97,84 @@ def executed_since(server: SimulatorServer, start: int) -> list[str]:
     return list(server.printer.executed)[start:]
 
 
-async def test_home_then_moves_land_where_m114_says(printer: marlin_aio.Printer, pty_sim: SimulatorServer) -> None:
-    await printer.move(x=30, y=40, z=5, feedrate_mm_min=6000)
-    reply = await printer.home("x", "y")
+async def test_home_then_moves_land_where_m114_says(mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer) -> None:
+    await mem_printer.move(x=30, y=40, z=5, feedrate_mm_min=6000)
+    reply = await mem_printer.home("x", "y")
     assert reply.command == "G28 X Y"
-    assert await printer.position() == pytest.approx({"X": 0.0, "Y": 0.0, "Z": 5.0, "E": 0.0})
+    assert await mem_printer.position() == pytest.approx({"X": 0.0, "Y": 0.0, "Z": 5.0, "E": 0.0})
 
-    await printer.move(x=12.5, y=20, feedrate_mm_min=3000)
-    assert await printer.position() == pytest.approx({"X": 12.5, "Y": 20.0, "Z": 5.0, "E": 0.0})
-    await printer.move(x=-2.5, z=1, relative=True)
-    assert await printer.position() == pytest.approx({"X": 10.0, "Y": 20.0, "Z": 6.0, "E": 0.0})
+    await mem_printer.move(x=12.5, y=20, feedrate_mm_min=3000)
+    assert await mem_printer.position() == pytest.approx({"X": 12.5, "Y": 20.0, "Z": 5.0, "E": 0.0})
+    await mem_printer.move(x=-2.5, z=1, relative=True)
+    assert await mem_printer.position() == pytest.approx({"X": 10.0, "Y": 20.0, "Z": 6.0, "E": 0.0})
     # Left in absolute mode: a plain G1 typed afterwards goes to the coordinate, not by it.
-    await printer.send("G1 X1")
-    assert (await printer.position())["X"] == pytest.approx(1.0)
+    await mem_printer.send("G1 X1")
+    assert (await mem_printer.position())["X"] == pytest.approx(1.0)
 
 
 async def test_extrude_moves_e_by_the_length_and_leaves_e_absolute(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    await printer.send("G92 E10")
-    await printer.extrude(5, feedrate_mm_min=600)
-    assert (await printer.position())["E"] == pytest.approx(15.0)
-    await printer.extrude(-2)
-    assert (await printer.position())["E"] == pytest.approx(13.0)
-    await printer.send("G1 E1")
-    assert (await printer.position())["E"] == pytest.approx(1.0)
+    await mem_printer.send("G92 E10")
+    await mem_printer.extrude(5, feedrate_mm_min=600)
+    assert (await mem_printer.position())["E"] == pytest.approx(15.0)
+    await mem_printer.extrude(-2)
+    assert (await mem_printer.position())["E"] == pytest.approx(13.0)
+    await mem_printer.send("G1 E1")
+    assert (await mem_printer.position())["E"] == pytest.approx(1.0)
 
 
-async def test_disable_motors_sends_m84_with_the_axes(printer: marlin_aio.Printer, pty_sim: SimulatorServer) -> None:
-    start = len(pty_sim.printer.executed)
-    await printer.disable_motors("E")
-    await printer.disable_motors()
-    assert executed_since(pty_sim, start) == ["M84 E", "M84"]
+async def test_disable_motors_sends_m84_with_the_axes(
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
+) -> None:
+    start = len(mem_sim.printer.executed)
+    await mem_printer.disable_motors("E")
+    await mem_printer.disable_motors()
+    assert executed_since(mem_sim, start) == ["M84 E", "M84"]
 
 
 async def test_bad_arguments_raise_before_anything_is_written(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    await printer.send("M400")
-    start = len(pty_sim.printer.executed)
-    written = printer.stats
+    await mem_printer.send("M400")
+    start = len(mem_sim.printer.executed)
+    written = mem_printer.stats
     with pytest.raises(ValueError, match="finite"):
-        await printer.move(x=math.nan, relative=True)  # would otherwise have sent G91 first
+        await mem_printer.move(x=math.nan, relative=True)  # would otherwise have sent G91 first
     with pytest.raises(ValueError, match="cannot home"):
-        await printer.home("X", "Q")
+        await mem_printer.home("X", "Q")
     with pytest.raises(ValueError, match="must be positive"):
-        await printer.move(x=10, feedrate_mm_min=-50)
+        await mem_printer.move(x=10, feedrate_mm_min=-50)
     with pytest.raises(ValueError, match="nothing to extrude"):
-        await printer.extrude(0)
+        await mem_printer.extrude(0)
     with pytest.raises(ValueError, match="cannot disable"):
-        await printer.disable_motors("XY")
-    await printer.send("M400")  # anything written before this would run before it
-    assert executed_since(pty_sim, start) == ["M400"]
-    assert printer.stats.submitted == written.submitted + 1
+        await mem_printer.disable_motors("XY")
+    await mem_printer.send("M400")  # anything written before this would run before it
+    assert executed_since(mem_sim, start) == ["M400"]
+    assert mem_printer.stats.submitted == written.submitted + 1
 
 
 async def test_a_relative_move_is_not_split_by_another_tasks_command(
-    printer: marlin_aio.Printer, pty_sim: SimulatorServer
+    mem_printer: marlin_aio.Printer, mem_sim: SimulatorServer
 ) -> None:
-    start = len(pty_sim.printer.executed)
-    await asyncio.gather(printer.move(x=5, relative=True), printer.send("G1 Y50"), printer.move(y=1, relative=True))
-    run = executed_since(pty_sim, start)
+    start = len(mem_sim.printer.executed)
+    await asyncio.gather(
+        mem_printer.move(x=5, relative=True), mem_printer.send("G1 Y50"), mem_printer.move(y=1, relative=True)
+    )
+    run = executed_since(mem_sim, start)
     assert sorted(run) == sorted(["G91", "G1 X5", "G90", "G1 Y50", "G91", "G1 Y1", "G90"])
     for index in (i for i, command in enumerate(run) if command == "G91"):
         assert run[index + 1] in ("G1 X5", "G1 Y1") and run[index + 2] == "G90"
     # Whichever order the tasks got: the absolute move went to Y50, the relative one moved by 1 from where it was.
     y = 51.0 if run.index("G1 Y50") < run.index("G1 Y1") else 50.0
-    assert (await printer.position())["Y"] == pytest.approx(y)
+    assert (await mem_printer.position())["Y"] == pytest.approx(y)
 
 
 async def test_homing_on_a_board_without_keepalives_outlasts_the_client_timeout() -> None:
     # No `busy: processing` while homing takes 60 simulated seconds (3 s here): only the long wait covers it.
     config = SimulatorConfig(keepalive_interval_s=0, homing_s=60.0)
     async with (
-        serve_pty(config, time_scale=TIME_SCALE) as server,
+        serve_memory(config, time_scale=TIME_SCALE) as server,
         marlin_aio.connect(server.url, timeout_s=1.0) as printer,
     ):
         await printer.move(x=50, z=10)

@@ -1,30 +1,25 @@
 """`marlin_aio.aio.keep_connected`: a session again after an unplug, waits that double while nothing answers and
-start over once a connection is made, and a bug that is not retried; through the simulator on TCP (which can be
-unplugged and plugged back) and a port where nothing listens."""
+start over once a connection is made, and a bug that is not retried; through the simulator on the in-memory link
+(which can be unplugged and plugged back) and a name where nothing listens."""
 
 from __future__ import annotations
 
 import asyncio
-import socket
 
 import pytest
 
 import marlin_aio
 from marlin_aio.aio import Backoff, Retry, keep_connected
-from marlin_aio.simulator import SimulatorConfig, serve_tcp
+from marlin_aio.simulator import SimulatorConfig, serve_memory
 
-
-def closed_port() -> str:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port: int = probe.getsockname()[1]
-    return f"socket://127.0.0.1:{port}"  # nothing listens there once the probe is closed
+#: Where nothing listens: each attempt fails at once with PortNotFoundError.
+NOBODY = "memory://nobody-listens-here"
 
 
 async def test_a_session_lost_to_an_unplug_runs_again_on_a_new_connection() -> None:
     retries: list[Retry] = []
     sessions = 0
-    async with serve_tcp(SimulatorConfig(), time_scale=20) as sim:
+    async with serve_memory(SimulatorConfig(), time_scale=20) as sim:
 
         async def session(printer: marlin_aio.Printer) -> str:
             nonlocal sessions
@@ -62,10 +57,9 @@ async def test_attempts_wait_longer_each_time_up_to_the_most() -> None:
     async def never(printer: marlin_aio.Printer) -> None:
         raise AssertionError("nothing listens: no session can start")
 
-    port = closed_port()
     with pytest.raises(Enough):
         await keep_connected(
-            lambda: marlin_aio.Printer(port, timeout_s=1), never, backoff=Backoff(0.01, 0.04), on_retry=on_retry
+            lambda: marlin_aio.Printer(NOBODY, timeout_s=1), never, backoff=Backoff(0.01, 0.04), on_retry=on_retry
         )
     assert [retry.delay_s for retry in retries] == [0.01, 0.02, 0.04, 0.04, 0.04]
     assert [retry.attempt for retry in retries] == [1, 2, 3, 4, 5]
@@ -75,7 +69,7 @@ async def test_attempts_wait_longer_each_time_up_to_the_most() -> None:
 
 async def test_a_bug_in_the_session_is_not_retried() -> None:
     retries: list[Retry] = []
-    async with serve_tcp(SimulatorConfig(), time_scale=20) as sim:
+    async with serve_memory(SimulatorConfig(), time_scale=20) as sim:
 
         async def buggy(printer: marlin_aio.Printer) -> None:
             raise KeyError("a bug")
@@ -98,15 +92,18 @@ async def test_a_stop_or_the_deadline_ends_a_wait_at_once() -> None:
     async def never(printer: marlin_aio.Printer) -> int:
         raise AssertionError("nothing listens: no session can start")
 
-    port = closed_port()
     async with asyncio.timeout(10):
         stopped = await keep_connected(
-            lambda: marlin_aio.Printer(port, timeout_s=1), never, backoff=Backoff(30, 30), on_retry=on_retry, stop=stop
+            lambda: marlin_aio.Printer(NOBODY, timeout_s=1),
+            never,
+            backoff=Backoff(30, 30),
+            on_retry=on_retry,
+            stop=stop,
         )
         assert stopped is None and len(retries) == 1 and retries[0].delay_s == 30
         deadline = asyncio.get_running_loop().time() + 0.2
         ended = await keep_connected(
-            lambda: marlin_aio.Printer(port, timeout_s=1), never, backoff=Backoff(30, 30), deadline=deadline
+            lambda: marlin_aio.Printer(NOBODY, timeout_s=1), never, backoff=Backoff(30, 30), deadline=deadline
         )
         assert ended is None and asyncio.get_running_loop().time() >= deadline
 

@@ -1,4 +1,6 @@
-"""Streaming G-code through the simulated printer on a real pty: exactly once, in order, whatever the link does.
+"""Streaming G-code through the simulated printer: exactly once, in order, whatever the link does.
+
+In memory, except one faulty stream through the real serial stack and one on a paced 250000-baud pty.
 
 The file is the one the issue describes: 17,000 short G1 moves (about 30 bytes a line), generated here so every run
 streams the same bytes. Moves take no simulated time (`motion_time_scale=0`), so the link, not the planner, sets
@@ -12,9 +14,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import until
 
 import marlin_aio
-from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_pty
+from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_memory, serve_pty
 
 LINES = 17_000
 
@@ -49,16 +52,16 @@ def gcode_path(tmp_path: Path) -> Path:
 
 @pytest.mark.parametrize("send_ahead", [True, False], ids=["send-ahead", "ping-pong"])
 async def test_clean_stream_executes_every_line_once_in_order(
-    fast_sim: SimulatorServer, gcode_path: Path, send_ahead: bool
+    fast_mem_sim: SimulatorServer, gcode_path: Path, send_ahead: bool
 ) -> None:
-    async with marlin_aio.connect(fast_sim.url) as printer:
+    async with marlin_aio.connect(fast_mem_sim.url) as printer:
         progress = await printer.print_file(gcode_path, send_ahead=send_ahead)
-    assert moves(fast_sim) == [g1_line(i) for i in range(LINES)]
+    assert moves(fast_mem_sim) == [g1_line(i) for i in range(LINES)]
     assert progress.state is marlin_aio.PrintState.DONE
     assert progress.lines_acked == progress.lines_total == LINES
     assert progress.fraction == 1.0
     assert progress.resends == 0
-    assert fast_sim.printer.rx_overflows == 0
+    assert fast_mem_sim.printer.rx_overflows == 0
 
 
 async def test_a_faulty_link_still_executes_every_line_once_in_order() -> None:
@@ -100,7 +103,7 @@ async def test_send_ahead_never_overflows_a_128_byte_buffer_on_a_paced_link() ->
 async def test_a_printer_that_goes_silent_fails_the_print_with_a_diagnosis(gcode_path: Path) -> None:
     faults = Faults(silent_after_lines=8_000)
     async with (
-        serve_pty(SimulatorConfig(motion_time_scale=0), faults, time_scale=50) as server,
+        serve_memory(SimulatorConfig(motion_time_scale=0), faults, time_scale=50) as server,
         marlin_aio.connect(server.url, timeout_s=1.0) as printer,
     ):
         loop = asyncio.get_running_loop()
@@ -128,33 +131,33 @@ async def test_a_printer_that_goes_silent_fails_the_print_with_a_diagnosis(gcode
         assert loop.time() - stalled_at < 5.0
 
 
-async def test_a_reset_mid_print_stops_it_and_nothing_is_replayed(fast_sim: SimulatorServer) -> None:
-    async with marlin_aio.connect(fast_sim.url) as printer:
+async def test_a_reset_mid_print_stops_it_and_nothing_is_replayed(fast_mem_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(fast_mem_sim.url) as printer:
         handle = await printer.start_print(gcode_file(), send_ahead=True)
         await wait_for_progress(handle, 2_000)
-        fast_sim.printer.reset(fast_sim.now())
-        fast_sim.poke()
+        fast_mem_sim.printer.reset(fast_mem_sim.now())
+        fast_mem_sim.poke()
         with pytest.raises(marlin_aio.PrinterResetError, match=r"print stopped: G-code, after line \d+"):
             await handle
-        executed_at_reset = len(moves(fast_sim))
+        executed_at_reset = len(moves(fast_mem_sim))
         # Nothing more reaches the freshly reset board: the stream is over, only the user's own command goes.
         await printer.send("M114")
-        assert len(moves(fast_sim)) == executed_at_reset
-        assert moves(fast_sim) == [g1_line(i) for i in range(executed_at_reset)]
+        assert len(moves(fast_mem_sim)) == executed_at_reset
+        assert moves(fast_mem_sim) == [g1_line(i) for i in range(executed_at_reset)]
 
 
-async def test_thermal_runaway_mid_print_stops_it_with_the_printers_message(fast_sim: SimulatorServer) -> None:
-    async with marlin_aio.connect(fast_sim.url) as printer:
+async def test_thermal_runaway_mid_print_stops_it_with_the_printers_message(fast_mem_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(fast_mem_sim.url) as printer:
         handle = await printer.start_print(gcode_file(), send_ahead=True)
         await wait_for_progress(handle, 1_000)
-        fast_sim.printer.thermal_runaway(fast_sim.now())
-        fast_sim.poke()
+        fast_mem_sim.printer.thermal_runaway(fast_mem_sim.now())
+        fast_mem_sim.poke()
         with pytest.raises(marlin_aio.ThermalRunawayError, match=r"Thermal Runaway.*print stopped"):
             await handle
 
 
-async def test_pause_resume_and_cancel_with_a_script(fast_sim: SimulatorServer) -> None:
-    async with marlin_aio.connect(fast_sim.url) as printer:
+async def test_pause_resume_and_cancel_with_a_script(fast_mem_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(fast_mem_sim.url) as printer:
         handle = await printer.start_print(gcode_file(), send_ahead=True)
         await wait_for_progress(handle, 1_000)
         handle.pause()
@@ -166,18 +169,18 @@ async def test_pause_resume_and_cancel_with_a_script(fast_sim: SimulatorServer) 
         for _ in range(20):
             await printer.send("M114")
         assert handle.progress.lines_sent == paused_at
-        assert len(moves(fast_sim)) == paused_at
+        assert len(moves(fast_mem_sim)) == paused_at
         handle.resume()
         await wait_for_progress(handle, paused_at + 1_000)
         final = await handle.cancel(["M104 S0", "M140 S0"])
         assert final.state is marlin_aio.PrintState.CANCELLED
         assert final.lines_acked < LINES
-        assert fast_sim.printer.executed[-2:] == ["M104 S0", "M140 S0"]
-        assert moves(fast_sim) == [g1_line(i) for i in range(final.lines_acked)]
+        assert fast_mem_sim.printer.executed[-2:] == ["M104 S0", "M140 S0"]
+        assert moves(fast_mem_sim) == [g1_line(i) for i in range(final.lines_acked)]
 
 
-async def test_polls_and_commands_keep_working_during_a_print(fast_sim: SimulatorServer) -> None:
-    async with marlin_aio.connect(fast_sim.url) as printer:
+async def test_polls_and_commands_keep_working_during_a_print(fast_mem_sim: SimulatorServer) -> None:
+    async with marlin_aio.connect(fast_mem_sim.url) as printer:
         readings: list[marlin_aio.TemperatureReading] = []
 
         async def collect() -> None:
@@ -199,19 +202,19 @@ async def test_polls_and_commands_keep_working_during_a_print(fast_sim: Simulato
         polls_during = [r for r in readings if r.source == "poll"]
         elapsed = handle.progress.elapsed_s
         assert len(polls_during) < 100 * elapsed / 2
-    assert moves(fast_sim) == [g1_line(i) for i in range(LINES)]
+    assert moves(fast_mem_sim) == [g1_line(i) for i in range(LINES)]
 
 
-async def test_a_bad_line_is_found_before_anything_is_sent(tmp_path: Path, fast_sim: SimulatorServer) -> None:
+async def test_a_bad_line_is_found_before_anything_is_sent(tmp_path: Path, fast_mem_sim: SimulatorServer) -> None:
     path = tmp_path / "bad.gcode"
     path.write_text("G28\nG1 X10\nM117 caf\u00e9 au lait\nG1 X20\n")
-    async with marlin_aio.connect(fast_sim.url) as printer:
+    async with marlin_aio.connect(fast_mem_sim.url) as printer:
         with pytest.raises(ValueError, match=r"bad.gcode: line 3: command contains non-ASCII"):
             await printer.print_file(path)
-    assert "G28" not in fast_sim.printer.executed
+    assert "G28" not in fast_mem_sim.printer.executed
 
 
-async def test_the_source_is_read_lazily(fast_sim: SimulatorServer) -> None:
+async def test_the_source_is_read_lazily(fast_mem_sim: SimulatorServer) -> None:
     consumed = 0
     high_water = 0
 
@@ -221,7 +224,7 @@ async def test_the_source_is_read_lazily(fast_sim: SimulatorServer) -> None:
             consumed += 1
             yield g1_line(index) + "\n"
 
-    async with marlin_aio.connect(fast_sim.url) as printer:
+    async with marlin_aio.connect(fast_mem_sim.url) as printer:
         handle = await printer.start_print(counting_source(), send_ahead=True)
         while not handle.finished:
             # Read ahead of what the printer acknowledged by no more than the window: constant memory, any file size.
@@ -234,11 +237,11 @@ async def test_the_source_is_read_lazily(fast_sim: SimulatorServer) -> None:
 
 async def wait_for_progress(handle: marlin_aio.PrintHandle, lines: int) -> None:
     """Wait until the printer has acknowledged `lines` lines, on the print's own progress (bounded)."""
-    for _ in range(100_000):
-        if handle.progress.lines_acked >= lines or handle.finished:
-            return
-        await asyncio.sleep(0.001)  # yield to the loop; progress is the condition, not the time
-    raise AssertionError(f"the print never reached {lines} lines: {handle.progress}")
+    await until(
+        lambda: handle.progress.lines_acked >= lines or handle.finished,
+        f"the print to reach {lines} lines",
+        every_s=0.001,
+    )
 
 
 async def test_a_long_dwell_in_the_file_does_not_stall_while_keepalives_arrive() -> None:
@@ -246,7 +249,7 @@ async def test_a_long_dwell_in_the_file_does_not_stall_while_keepalives_arrive()
     # keepalives every 2 simulated seconds (0.1 s here) are what keep the print alive.
     lines = [g1_line(i) for i in range(50)] + ["G4 S40"] + [g1_line(i) for i in range(50, 100)]
     async with (
-        serve_pty(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=20) as server,
+        serve_memory(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=20) as server,
         marlin_aio.connect(server.url, timeout_s=0.5) as printer,
     ):
         progress = await printer.print_file(lines, send_ahead=True)
@@ -259,7 +262,7 @@ async def test_a_long_dwell_in_the_file_does_not_stall_while_keepalives_arrive()
 
 async def test_a_line_rejected_over_and_over_fails_the_print_clearly() -> None:
     async with (
-        serve_pty(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=50) as server,
+        serve_memory(SimulatorConfig(motion_time_scale=0), Faults(), time_scale=50) as server,
         marlin_aio.connect(server.url) as printer,
     ):
         handle = await printer.start_print(gcode_file(100), send_ahead=False)
