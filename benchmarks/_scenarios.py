@@ -1,8 +1,16 @@
-"""The four scenarios: who runs, against which simulated printer, and how the runs are summed up into ratios.
+"""The six scenarios (round trips, polling, streaming, memory, many printers, the farm): who runs, against which
+simulated printer, and how the runs are summed up into ratios and targets.
 
 Each scenario alternates its contenders run by run (the starting contender rotates, so none always goes first
 after a quiet machine), with a fresh `marlin-sim` process for every run so each contender meets the same
 printer in the same state. Summaries are medians over runs; ratios are taken between medians of one invocation.
+The contenders themselves, the code that runs in the worker process, are in `_contender_*.py`.
+
+Over 400 lines (about 730) because the scenarios are read side by side: each is one function of the same shape
+(its contenders, `_alternate`, the figures derived from each run, medians, ratios, targets), under a numbered
+banner, and they share the helpers at the top (`Contender`, `Settings`, `_alternate`, `_median`, `_ratio`,
+`_target`). Whether two scenarios are summed up alike is answered by scrolling, not by opening six files. The
+seam, if one scenario grows much: the helpers into a module of their own and that scenario into another.
 """
 
 from __future__ import annotations
