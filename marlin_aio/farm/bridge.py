@@ -61,6 +61,7 @@ import aiomqtt
 
 import marlin_aio
 import marlin_aio.protocol
+from marlin_aio.aio import Backoff
 
 from .commands import (
     MAX_COMMAND_AGE_S,
@@ -113,6 +114,8 @@ class BrokerSettings:
     tls_cert: str | None = None
     tls_key: str | None = None
     keepalive_s: int = 30
+    connect_timeout_s: float = 10.0
+    """How long an attempt to open a session may take (a TLS handshake the broker refused ends only by it)."""
 
     @property
     def address(self) -> str:
@@ -266,6 +269,10 @@ class Bridge:
         """True while a session with the broker is open."""
         self.connections = 0
         """Sessions opened with the broker so far."""
+        self.connect_failures = 0
+        """Attempts to open a session with the broker that failed (refused, unreachable, TLS or login refused)."""
+        self.broker_error: str | None = None
+        """Why the last session with the broker ended or could not open (None: none has yet)."""
         self.published = 0
         """Messages handed to the broker."""
         self.telemetry_dropped = 0
@@ -379,13 +386,15 @@ class Bridge:
             await asyncio.sleep(delay)
 
     async def _connection_loop(self) -> None:
-        delay = self.settings.backoff_start_s
+        # The same waits as a printer's reconnect (`marlin_aio.aio.Backoff`), with the bridge's own bounds.
+        backoff = Backoff(self.settings.backoff_start_s, self.settings.backoff_max_s)
         while True:
+            delay = backoff.start_s  # (set again by the failure that ends the attempt)
             try:
                 async with self._client() as client:
                     self.connected = True
                     self.connections += 1
-                    delay = self.settings.backoff_start_s
+                    backoff.reset()
                     _log.info("connected to the broker at %s", self.broker.address)
                     try:
                         await self._announce(client)
@@ -413,9 +422,12 @@ class Bridge:
                         await self._say_goodbye(client)
                         raise
             except aiomqtt.MqttError as exc:
+                self.broker_error = str(exc)
+                delay = backoff.next_delay()
                 if self.connected:
                     _log.warning("lost the broker at %s: %s; reconnecting", self.broker.address, exc)
                 else:
+                    self.connect_failures += 1
                     _log.warning("cannot reach the broker at %s: %s; retrying in %g s", self.broker.address, exc, delay)
             finally:
                 self.connected = False
@@ -424,7 +436,6 @@ class Bridge:
                 self._overwritten.clear()
                 self._given_up.clear()  # a new session: a fight that ended may be over
             await asyncio.sleep(delay)
-            delay = min(delay * 2, self.settings.backoff_max_s)
 
     async def _listen(self, client: aiomqtt.Client) -> None:
         """Watch the bridge's own retained topics and, with commands allowed, take commands from
@@ -562,6 +573,7 @@ class Bridge:
             password=broker.password,
             identifier=broker.client_id,
             keepalive=broker.keepalive_s,
+            timeout=broker.connect_timeout_s,
             tls_context=broker.tls_context(),
             will=aiomqtt.Will(self.bridge_availability_topic, "offline", qos=1, retain=True),
         )
