@@ -20,9 +20,9 @@ Three kinds of file are refused whole, each with one `ValueError` line, before a
 - a file that is not text (`_check_text`): a NUL byte, or a high share of undecodable or control bytes in its
   first `SNIFF_BYTES`, so a `.bgcode` or a picture is refused by name instead of dumped as mojibake (a UTF-8 or
   Latin-1 file with a few accented comments is text);
-- a command that sets a heater above its limit (`marlin_aio.protocol.check_gcode_targets`, per command sent),
-  naming the line and the option that raises the limit: the print would otherwise fail at that line, hot, half way
-  through;
+- a command the library would refuse in a print (`marlin_aio.protocol.check_command`, the check every line of a
+  print passes: Marlin can take it, and it sets no heater above its limit), naming the line, and for a limit the
+  option that raises it: the print would otherwise fail at that line, hot, half way through;
 - with `--from-line`, a resume that would do harm (`_Resume`), unless `force`: absolute extrusion resumed from the
   header's E (the filament of every skipped layer pushed out at once), an extrusion mode set in the skipped part
   that the printer will not be in, a heater the skipped part heated and the header leaves cold. What a resume
@@ -39,10 +39,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import marlin_aio
-import marlin_aio.protocol
 from marlin_aio import HeaterLimits
 from marlin_aio.aio import file_lines
-from marlin_aio.protocol import GCodeLine, command_code, parse_gcode
+from marlin_aio.protocol import GCodeLine, check_command, command_code, parse_gcode, strip_comment
 
 __all__ = ["SNIFF_BYTES", "GcodePlan", "HeatWait", "plan_print", "transliterate"]
 
@@ -133,13 +132,25 @@ class GcodePlan:
         """
         source = file_lines(self.path, size_bytes=self.size_bytes, mtime_ns=self.mtime_ns, lines_total=self.file_lines)
         for number, raw in enumerate(source, 1):
-            command = marlin_aio.protocol.strip_comment(raw)
-            if not command or not self._selected(number):
-                yield "\n"
-            elif command.isascii():
-                yield command + "\n"
-            else:
-                yield transliterate(command) + "\n"
+            yield (self._to_send(number, strip_comment(raw)) or "") + "\n"
+
+    def _to_send(self, number: int, command: str) -> str | None:
+        """What line `number` of the file, `command` once its comment is removed, sends: the command, transliterated
+        where it is text for people; None for a blank line or a line `from_line` skips. `plan_print` checks what
+        this gives, `lines` sends it.
+
+        Raises:
+            ValueError: non-ASCII characters in a command that is not text for people (no letter of it can be
+                changed without changing what the printer does).
+        """
+        if not command or not self._selected(number):
+            return None
+        if command.isascii():
+            return command
+        code = command_code(command)
+        if code not in _TEXT_COMMANDS:
+            raise ValueError(f"non-ASCII characters in a {code or 'G-code'} command: {_shown(command)}")
+        return transliterate(command)
 
     def _selected(self, number: int) -> bool:
         if self.from_line is None or self.first_move_line is None:
@@ -194,7 +205,7 @@ def plan_print(
     number = 0
     with path.open(encoding="utf-8", errors="replace") as source:
         for number, raw in enumerate(source, 1):
-            command = marlin_aio.protocol.strip_comment(raw)
+            command = strip_comment(raw)
             if not command:
                 continue
             last_command_line = number
@@ -202,28 +213,21 @@ def plan_print(
             code = parsed.code
             if resume is not None:
                 resume.follow(number, parsed)
-            if not plan._selected(number):
-                continue
-            if not command.isascii():
-                if code not in _TEXT_COMMANDS:
-                    raise ValueError(
-                        f"{path}: line {number}: non-ASCII characters in a {code or 'G-code'} command: "
-                        f"{_shown(command)}"
-                    )
-                sent = transliterate(command)
+            try:
+                sent = plan._to_send(number, command)
+                if sent is None:
+                    continue  # skipped by --from-line
+                check_command(sent, limits)  # the library's check of every line of a print
+            except ValueError as exc:
+                raise ValueError(f"{path}: line {number}: {_naming_the_option(str(exc))}") from None
+            if sent != command:
                 changed_count += 1
                 if len(changed) < 3:
                     changed.append((number, command, sent))
-                command = sent
-            try:
-                marlin_aio.protocol.encode_command(command)
-            except ValueError as exc:
-                raise ValueError(f"{path}: line {number}: {exc}") from None
-            _check_targets(path, number, command, limits)
             if code in _HEAT_WAITS:
                 waits[previous] = _heat_wait(number, parsed)
             elif code in _DISPLAY_COMMANDS:
-                texts.append((number, parse_gcode(command).string_arg or ""))
+                texts.append((number, parse_gcode(sent).string_arg or ""))
             commands += 1
             if first_move is not None and number < first_move:
                 header += 1
@@ -279,20 +283,10 @@ def _check_text(path: Path) -> None:
         raise ValueError(f"{path} is not a text G-code file (binary data at byte {bad[0]})")
 
 
-def _check_targets(path: Path, number: int, command: str, limits: HeaterLimits) -> None:
-    """Refuse a command that sets a target above its limit, naming the line and the option to raise it.
-
-    Raises:
-        ValueError: as `marlin_aio.protocol.check_gcode_targets`, with the file, the line and the option.
-    """
-    try:
-        marlin_aio.protocol.check_gcode_targets(command, limits)
-    except ValueError as exc:
-        message = str(exc)
-        option = _LIMIT_OPTIONS.get(message.split(" ", 1)[0])  # the message starts with the heater's name
-        if option is not None and "above the limit" in message:
-            message += f" ({option})"
-        raise ValueError(f"{path}: line {number}: {message}") from None
+def _naming_the_option(message: str) -> str:
+    """The library's `message`, and where it is a heater's target over its limit, the option that raises it."""
+    option = _LIMIT_OPTIONS.get(message.split(" ", 1)[0])  # the library's message starts with the heater's name
+    return f"{message} ({option})" if option is not None and "above the limit" in message else message
 
 
 def _mode_name(absolute: bool) -> str:
@@ -420,7 +414,7 @@ class _Resume:
 def _first_move(path: Path) -> int | None:
     with path.open(encoding="utf-8", errors="replace") as source:
         for number, raw in enumerate(source, 1):
-            if command_code(marlin_aio.protocol.strip_comment(raw)) in _MOVES:
+            if command_code(strip_comment(raw)) in _MOVES:
                 return number
     return None
 

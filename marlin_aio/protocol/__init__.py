@@ -62,7 +62,7 @@ from marlin_aio.protocol.motion import (
     move_commands,
 )
 from marlin_aio.protocol.parsing import EventParser, classify_line, parse_endstops, parse_position
-from marlin_aio.protocol.printjob import PrintJob, PrintProgress, PrintState
+from marlin_aio.protocol.printjob import PrintJob, PrintProgress, PrintState, check_command
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import (
@@ -122,6 +122,7 @@ __all__ = [
     "TraceEntry",
     "UnknownCommand",
     "UnrecognisedLine",
+    "check_command",
     "check_gcode_targets",
     "check_target",
     "checksum",

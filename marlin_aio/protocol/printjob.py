@@ -21,7 +21,7 @@ from marlin_aio.errors import FileChangedError, MarlinError
 from marlin_aio.protocol.commands import encode_command, strip_comment
 from marlin_aio.protocol.heaters import HeaterLimits, check_gcode_targets
 
-__all__ = ["PrintJob", "PrintProgress", "PrintState", "gcode_commands"]
+__all__ = ["PrintJob", "PrintProgress", "PrintState", "check_command", "gcode_commands"]
 
 
 # Checked every 16 lines, reading costs about 0.2 us a line more than a bare file (1M lines: 0.28 s against 0.07 s),
@@ -78,6 +78,20 @@ class PrintProgress:
         return self.elapsed_s * (1 - fraction) / fraction
 
 
+def check_command(command: str, limits: HeaterLimits | None = None) -> None:
+    """Check one command (its comment removed) as a print sends it: Marlin can take it (`encode_command`: one line,
+    ASCII, no `*`, short enough) and, with `limits`, it sets no heater above them however it is spelt
+    (`check_gcode_targets`). Every line of a print passes this, whoever reads the file: `gcode_commands` here, or
+    a front end that reads it its own way (the CLI's print plan, which also transliterates display text).
+
+    Raises:
+        ValueError: the command is not valid, or sets a target that is not a number, negative or over `limits`.
+    """
+    encode_command(command)
+    if limits is not None:
+        check_gcode_targets(command, limits)
+
+
 def gcode_commands(lines: Iterable[str], limits: HeaterLimits | None = None) -> Iterator[tuple[str, int, int]]:
     """Yield (command, source line number, source bytes) for each line that holds a command.
 
@@ -96,9 +110,7 @@ def gcode_commands(lines: Iterable[str], limits: HeaterLimits | None = None) -> 
         if not command:
             continue
         try:
-            encode_command(command)
-            if limits is not None:
-                check_gcode_targets(command, limits)
+            check_command(command, limits)
         except ValueError as exc:
             raise ValueError(f"line {number}: {exc}") from None
         yield command, number, pending_bytes
