@@ -15,6 +15,7 @@ import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
+from dataclasses import replace
 
 import pytest
 from rich.console import Console
@@ -22,17 +23,17 @@ from test_cli_terminal import Tmux
 from typer.testing import CliRunner
 
 import marlin_aio
-from marlin_aio import TemperatureReading
+from marlin_aio import HeaterLimits, TemperatureReading
 from marlin_aio.protocol import ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.common.keys import split_keys
+from marlin_temp.common.limits import DEFAULT_LIMITS
 from marlin_temp.common.model import (
     Notice,
     Quit,
     SendCommand,
     SetFan,
     SetTargets,
-    TargetLimits,
     TurnOff,
     WatchControls,
     WatchModel,
@@ -94,16 +95,16 @@ def test_typing_a_target_sets_it_on_enter_and_esc_cancels() -> None:
     [
         (
             "h900\r",
-            TargetLimits(),
+            DEFAULT_LIMITS,
             "hotend target 900 C is above the limit of 260 C (raise the limit with --max-hotend)",
         ),
-        ("b141\r", TargetLimits(), "above the limit of 140 C (raise the limit with --max-bed)"),
-        ("h.\r", TargetLimits(), "must be a number"),
-        ("2", TargetLimits(hotend_celsius=230), "PETG: hotend target 240 C is above the limit of 230 C"),
-        ("1", TargetLimits(bed_celsius=50), "PLA: bed target 60 C is above the limit of 50 C"),
+        ("b141\r", DEFAULT_LIMITS, "above the limit of 140 C (raise the limit with --max-bed)"),
+        ("h.\r", DEFAULT_LIMITS, "must be a number"),
+        ("2", replace(DEFAULT_LIMITS, hotend=230), "PETG: hotend target 240 C is above the limit of 230 C"),
+        ("1", replace(DEFAULT_LIMITS, bed=50), "PLA: bed target 60 C is above the limit of 50 C"),
     ],
 )
-def test_a_refused_target_is_a_notice_never_an_action(keys: str, limits: TargetLimits, message: str) -> None:
+def test_a_refused_target_is_a_notice_never_an_action(keys: str, limits: HeaterLimits, message: str) -> None:
     controls = WatchControls(limits)
     assert press(controls, keys) == []
     assert controls.notice is not None and controls.notice.error

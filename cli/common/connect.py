@@ -14,8 +14,9 @@ from pathlib import Path
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS
 from marlin_aio.aio import Backoff, Retry, keep_connected
+
+from .limits import DEFAULT_LIMITS
 
 __all__ = [
     "EXIT_CODES_HELP",
@@ -119,16 +120,16 @@ def exit_code_for(exc: marlin_aio.MarlinError) -> Exit:
 
 @dataclass(frozen=True)
 class ConnectOptions:
-    """The options every command that talks to a printer shares."""
+    """The options every command that talks to a printer shares (`options.connect_options` makes them from the
+    command line)."""
 
     port: str | None = None
     baud: int | None = None
     sim: bool = False
     sim_speed: float = 1.0
     timeout_s: float = 10.0
-    max_hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS
-    max_bed_celsius: float = DEFAULT_MAX_BED_CELSIUS
-    max_chamber_celsius: float = DEFAULT_MAX_CHAMBER_CELSIUS
+    limits: marlin_aio.HeaterLimits = DEFAULT_LIMITS
+    """The highest targets any command may set (--max-hotend, --max-bed, --max-chamber)."""
     password: str | None = None
 
     def printer(self, port: str, baud: int) -> marlin_aio.Printer:
@@ -137,9 +138,9 @@ class ConnectOptions:
             port,
             baudrate=baud,
             timeout_s=self.timeout_s,
-            max_hotend_celsius=self.max_hotend_celsius,
-            max_bed_celsius=self.max_bed_celsius,
-            max_chamber_celsius=self.max_chamber_celsius,
+            max_hotend_celsius=self.limits.hotend,
+            max_bed_celsius=self.limits.bed,
+            max_chamber_celsius=self.limits.chamber,
             password=self.password,
         )
 

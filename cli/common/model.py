@@ -14,10 +14,11 @@ import statistics
 from collections import deque
 from dataclasses import dataclass
 
-from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, TemperatureReading
+from marlin_aio import HeaterLimits, TemperatureReading
 from marlin_aio.protocol import HEATER_NAMES, check_target, command_code, heater_name
 
 from .keys import PASTE
+from .limits import DEFAULT_LIMITS
 
 __all__ = [
     "HEATER_NAMES",
@@ -32,7 +33,6 @@ __all__ = [
     "SendCommand",
     "SetFan",
     "SetTargets",
-    "TargetLimits",
     "TurnOff",
     "WatchControls",
     "WatchModel",
@@ -184,14 +184,6 @@ class WatchModel:
 
 
 @dataclass(frozen=True, slots=True)
-class TargetLimits:
-    """The highest targets keys may set: the same `--max-hotend` and `--max-bed` as `marlin-temp set`."""
-
-    hotend_celsius: float = DEFAULT_MAX_HOTEND_CELSIUS
-    bed_celsius: float = DEFAULT_MAX_BED_CELSIUS
-
-
-@dataclass(frozen=True, slots=True)
 class Preset:
     """A material's usual targets, set with one key."""
 
@@ -281,12 +273,12 @@ class WatchControls:
     and no action.
 
     Args:
-        limits: the highest hotend and bed targets allowed.
+        limits: the highest targets allowed: the same `--max-hotend` and `--max-bed` as `marlin-temp set`.
         keys_enabled: whether key presses can arrive at all (stdin is a terminal); the view says so.
     """
 
-    def __init__(self, limits: TargetLimits | None = None, *, keys_enabled: bool = True) -> None:
-        self.limits = limits or TargetLimits()
+    def __init__(self, limits: HeaterLimits = DEFAULT_LIMITS, *, keys_enabled: bool = True) -> None:
+        self.limits = limits
         self.keys_enabled = keys_enabled
         self.notice: Notice | None = None
         self.prompt: str | None = None  # the input line's label while one is open
@@ -447,8 +439,8 @@ class WatchControls:
         # Both are checked before either is sent: a preset is set whole or not at all.
         checked: dict[str, float] = {}
         for name, raw, limit in (
-            ("hotend", hotend, self.limits.hotend_celsius),
-            ("bed", bed, self.limits.bed_celsius),
+            ("hotend", hotend, self.limits.hotend),
+            ("bed", bed, self.limits.bed),
         ):
             if raw is None:
                 continue

@@ -16,7 +16,7 @@ from collections.abc import Mapping, Sequence
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio import DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS, DEFAULT_MAX_HOTEND_CELSIUS, HeaterLimits
+from marlin_aio import HeaterLimits
 from marlin_aio.protocol import (
     MAX_COMMAND_BYTES,
     check_gcode_targets,
@@ -26,6 +26,7 @@ from marlin_aio.protocol import (
 )
 
 from ..common.connect import ConnectOptions, Exit, UsageProblem, open_printer
+from ..common.limits import DEFAULT_LIMITS
 
 __all__ = [
     "check_command",
@@ -52,20 +53,16 @@ def emergency_stop_notes(capabilities: Mapping[str, bool]) -> list[str]:
     return notes
 
 
-#: The limits `send` checks targets against when it is given none: the library's, as `Printer` has them.
-_DEFAULT_LIMITS = HeaterLimits(DEFAULT_MAX_HOTEND_CELSIUS, DEFAULT_MAX_BED_CELSIUS, DEFAULT_MAX_CHAMBER_CELSIUS)
-
-
-def check_command(text: str, *, limits: HeaterLimits | None = None) -> str:
+def check_command(text: str, *, limits: HeaterLimits = DEFAULT_LIMITS) -> str:
     """The command as it will be sent (comment and surrounding blanks removed).
 
     Raises:
         ValueError: a line break, non-ASCII, `*` or nothing in it, too long for Marlin once numbered, or a target
-            that is not a number, negative or above `limits` (None: the library's defaults).
+            that is not a number, negative or above `limits` (by default the library's).
     """
     command = validate_command(text)
     # The client refuses it too, but only once connected: checked here, a bad target opens nothing.
-    check_gcode_targets(command, _DEFAULT_LIMITS if limits is None else limits)
+    check_gcode_targets(command, limits)
     if len(command) + _NUMBERING > MAX_COMMAND_BYTES:
         raise ValueError(
             f"command is too long: {command[:40]!r}... with a line number and checksum would exceed Marlin's "
@@ -74,7 +71,7 @@ def check_command(text: str, *, limits: HeaterLimits | None = None) -> str:
     return command
 
 
-def check_commands(texts: Sequence[str], *, limits: HeaterLimits | None = None) -> list[str]:
+def check_commands(texts: Sequence[str], *, limits: HeaterLimits = DEFAULT_LIMITS) -> list[str]:
     """Every command checked (see `check_command`, with `limits`), before any is sent.
 
     Raises:

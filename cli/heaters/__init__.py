@@ -1,2 +1,3 @@
 """`marlin-temp set`: send heater targets, report what the printer confirmed and optionally wait
-(`command`); also says which heaters are left on when another command ends."""
+(`command`), with its command line (`options`); also says which heaters are left on when another command
+ends."""

@@ -38,10 +38,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import marlin_aio
 from marlin_aio import HeaterLimits
 from marlin_aio.aio import file_lines
 from marlin_aio.protocol import GCodeLine, check_command, command_code, parse_gcode, strip_comment
+
+from ..common.limits import DEFAULT_LIMITS
 
 __all__ = ["SNIFF_BYTES", "GcodePlan", "HeatWait", "plan_print", "transliterate"]
 
@@ -168,11 +169,11 @@ class GcodePlan:
 
 
 def plan_print(
-    path: Path, from_line: int | None = None, *, force: bool = False, limits: HeaterLimits | None = None
+    path: Path, from_line: int | None = None, *, force: bool = False, limits: HeaterLimits = DEFAULT_LIMITS
 ) -> GcodePlan:
     """Read and check `path` before printing it.
 
-    `limits` bounds the targets the file may set (None: the library's defaults, `marlin_aio.DEFAULT_MAX_*`);
+    `limits` bounds the targets the file may set (by default the library's, Marlin's own clamps);
     `force` lets a `from_line` resume go on although it would do harm (the reasons are then in `resume_dangers`).
 
     Raises:
@@ -182,12 +183,6 @@ def plan_print(
             (the message says why and to add --force).
         OSError: the file cannot be read.
     """
-    if limits is None:
-        limits = HeaterLimits(
-            marlin_aio.DEFAULT_MAX_HOTEND_CELSIUS,
-            marlin_aio.DEFAULT_MAX_BED_CELSIUS,
-            marlin_aio.DEFAULT_MAX_CHAMBER_CELSIUS,
-        )
     stamp = path.stat()  # before the file is read: a change while it is checked is a change too
     _check_text(path)
     first_move = _first_move(path) if from_line is not None else None

@@ -13,6 +13,9 @@ traceback; quitting while a target set by the keys is still on says so, in `set`
 
 The printer's text (replies, its firmware name) reaches the view as `rich.text.Text`, and the lines printed on
 stderr have markup and emoji codes off: nothing the printer or the user typed is read as rich markup.
+
+Over 400 lines because it runs both views, one printer's and the farm's, which share the refresh loop, the
+keys and the plain-line output; what is drawn is in `common.render`, what a key means in `common.model`.
 """
 
 from __future__ import annotations
@@ -42,7 +45,6 @@ from ..common.model import (
     SendCommand,
     SetFan,
     SetTargets,
-    TargetLimits,
     TurnOff,
     WatchControls,
     WatchModel,
@@ -311,7 +313,7 @@ async def watch_printer(options: ConnectOptions, settings: WatchSettings, consol
     started = loop.time()
     log = TemperatureLog(settings.log_path) if settings.log_path is not None else None
     # One for the whole run: what the keys set is remembered across reconnects, for the word on the way out.
-    controls = WatchControls(TargetLimits(options.max_hotend_celsius, options.max_bed_celsius))
+    controls = WatchControls(options.limits)
     with on_stop_signals(stop.set):
         try:
             async with log if log is not None else contextlib.nullcontext():

@@ -1,0 +1,197 @@
+"""The command line of `marlin-temp watch`: its options and help, checked before `command` watches anything.
+
+Its connect options are the shared ones, declared here rather than through `with_connect_options`: `--port` is
+repeatable (a farm of printers), and watch's own options stand between the shared ones in `--help`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from rich.console import Console
+
+import marlin_aio
+
+from ..common.connect import ConnectOptions, Exit
+from ..common.limits import DEFAULT_LIMITS
+from ..common.options import (
+    AskPasswordOption,
+    BaudOption,
+    MaxBedOption,
+    MaxHotendOption,
+    PasswordFileOption,
+    PasswordOption,
+    SimOption,
+    SimSpeedOption,
+    TimeoutOption,
+    connect_options,
+    error_console,
+    fail,
+    run,
+)
+
+if TYPE_CHECKING:
+    from marlin_aio.farm.supervisor import PrinterSpec
+
+__all__ = ["WATCH_HELP", "watch"]
+
+# Typer keeps single line breaks in help paragraphs, so each paragraph is one string.
+WATCH_HELP = "\n\n".join(
+    (
+        "Live view of every heater: table, chart of the last minute, link statistics. q or Ctrl-C quits.",
+        "Keys set targets while watching: h hotend and b bed (type the degrees, Enter; Esc cancels), o every "
+        "heater off, + and - step the last one chosen by 5 C, 1 PLA (200/60 C), 2 PETG (240/80 C), f the fan "
+        "(percent), and : sends one G-code line, its reply shown under the chart. Targets are checked against "
+        "--max-hotend and --max-bed as in set; one refused is shown in the view and nothing is sent. Narrow "
+        "terminals (down to 40 columns) get a compact table.",
+        "With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and "
+        "power, and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints "
+        "one plain line per refresh instead (or JSON lines with --json), and q is the only key.",
+        "The footer counts timeouts and errors (failed commands, board resets) from the moment the connection is "
+        "established: a board that resets when the port opens, printing 'start' and its banner during the "
+        "handshake, is starting up, not failing.",
+        "Several printers (--port given more than once, as NAME=PORT or PORT, and/or --sims N simulated ones) "
+        "get the farm view: one row per printer with each heater's actual/target, its state and its link (up, or "
+        "down and when it reconnects, with the last error). Each printer reconnects by itself, so one "
+        "unplugged shows down while the others go on. 1-9, or the arrows and Enter, open one printer's detail "
+        "(the single-printer view, without the keys that set targets); Esc or Backspace goes back; q quits. "
+        "Piped, it prints one line per printer per refresh.",
+    )
+)
+
+
+def watch(
+    ports: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--port",
+            "-p",
+            help="Device path (/dev/ttyUSB0) or pyserial URL (socket://host:port); give it again for each printer "
+            "of a farm, as NAME=PORT. Default: the one printer-like port.",
+            show_default=False,
+            metavar="[NAME=]PORT",
+        ),
+    ] = None,
+    baud: BaudOption = None,
+    sim: SimOption = False,
+    sims: Annotated[
+        int,
+        typer.Option(
+            "--sims", help="Watch N simulated printers (sim1, sim2, ...) in the farm view.", min=0, metavar="N"
+        ),
+    ] = 0,
+    sim_speed: SimSpeedOption = 1.0,
+    timeout: TimeoutOption = 10.0,
+    password: PasswordOption = None,
+    password_file: PasswordFileOption = None,
+    ask_password: AskPasswordOption = False,
+    interval: Annotated[
+        float | None,
+        typer.Option(
+            "--interval",
+            help="Seconds between M105 polls (default 0.01; with several printers 0.1 for each).",
+            min=0.001,
+            show_default=False,
+        ),
+    ] = None,
+    refresh: Annotated[float, typer.Option("--refresh", help="Seconds between screen redraws.", min=0.05)] = 1.0,
+    window: Annotated[float, typer.Option("--window", help="Seconds of history in the chart.", min=5)] = 60.0,
+    tolerance: Annotated[
+        float, typer.Option("--tolerance", help="Within this many C a heater is holding.", min=0)
+    ] = 2.0,
+    log: Annotated[
+        Path | None, typer.Option("--log", help="Also record every reading to this CSV file (on disk within a second).")
+    ] = None,
+    json_lines: Annotated[bool, typer.Option("--json", help="Print JSON lines instead of the live view.")] = False,
+    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    reconnect: Annotated[
+        bool,
+        typer.Option("--reconnect", help="When the printer goes away, keep retrying (after 1 s, doubling up to 30 s)."),
+    ] = False,
+    max_hotend: MaxHotendOption = DEFAULT_LIMITS.hotend,
+    max_bed: MaxBedOption = DEFAULT_LIMITS.bed,
+) -> None:
+    """Live view of every heater, with keys to set targets; the farm view for several printers (the help text
+    is `WATCH_HELP`)."""
+    ports = ports or []
+    options = connect_options(
+        port=_single_port(ports),
+        baud=baud,
+        sim=sim or sims == 1,
+        sim_speed=sim_speed,
+        timeout=timeout,
+        password=password,
+        password_file=password_file,
+        ask_password=ask_password,
+        max_hotend=max_hotend,
+        max_bed=max_bed,
+    )
+    from .command import WatchSettings, watch_farm, watch_printer
+
+    if sim and sims:
+        fail("--sim is one simulated printer, --sims N is N of them: give one of the two", Exit.USAGE)
+    farm_specs = _farm_specs(ports, sims + int(sim), options, interval) if len(ports) + sims + int(sim) > 1 else []
+    if duration is not None and not duration > 0:
+        fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
+    settings = WatchSettings(
+        interval_s=interval or (0.1 if farm_specs else 0.01),
+        refresh_s=refresh,
+        window_s=window,
+        tolerance_c=tolerance,
+        log_path=log,
+        json_lines=json_lines,
+        duration_s=duration,
+        reconnect=reconnect,
+    )
+    if farm_specs:
+        if log is not None:
+            fail("--log records one printer: watch it alone (one --port or --sim) to log it", Exit.USAGE)
+        code = run(watch_farm(farm_specs, settings, Console(highlight=False, emoji=False), error_console()))
+    else:
+        code = run(watch_printer(options, settings, Console(highlight=False, emoji=False), error_console()))
+    raise typer.Exit(int(code))
+
+
+def _single_port(ports: list[str]) -> str | None:
+    """The port of a single printer: the first --port, its name dropped if given as NAME=PORT (it is not used)."""
+    if not ports:
+        return None
+    name, sep, after = ports[0].partition("=")
+    return after if sep and "://" not in name else ports[0]
+
+
+def _farm_specs(ports: list[str], sims: int, options: ConnectOptions, interval_s: float | None) -> list[PrinterSpec]:
+    """The printers of the farm view (--port NAME=PORT given again, --sims N), each with the connect options of
+    the command line: its timeout, password and heater limits.
+
+    The farm keeps a printer's limits as the three numbers of its TOML file (`max_hotend_celsius` ...), so the
+    one `HeaterLimits` of the options is spread into them here.
+    """
+    from dataclasses import replace
+
+    from marlin_aio.farm.config import specs_from_options
+
+    try:
+        specs = specs_from_options(
+            ports,
+            sims,
+            baud=options.baud or marlin_aio.DEFAULT_BAUDRATE,
+            poll_interval_s=interval_s or 0.1,
+            sim_speed=options.sim_speed,
+        )
+    except ValueError as exc:
+        fail(str(exc), Exit.USAGE)
+    limits = options.limits
+    return [
+        replace(
+            spec,
+            timeout_s=options.timeout_s,
+            password=options.password,
+            max_hotend_celsius=limits.hotend,
+            max_bed_celsius=limits.bed,
+            max_chamber_celsius=limits.chamber,
+        )
+        for spec in specs
+    ]
