@@ -629,19 +629,26 @@ async def test_an_absent_broker_never_slows_the_printers_and_each_keeps_its_own_
             PrinterSpec("slow", slow.url, poll_interval_s=0.2),
         ]
         farm, bridge, _ = farm_and_bridge(specs, nobody, telemetry_buffer=10, rate_hz=50.0)
+
+        def newest_slow_buffered() -> bool:
+            latest = farm.printers["slow"].latest
+            buffered = bridge._telemetry["slow"]
+            if not buffered or latest is None:
+                return False
+            return bool(json.loads(buffered[-1])["time"] == round(latest.wall_time_s, 3))
+
         async with running(farm, bridge):
             await until(
                 lambda: farm.printers["busy"].readings > 100 and farm.printers["slow"].readings > 15,
                 "readings flow",
                 limit_s=30,
             )
+            # The busy printer's readings do not push the slow one's out: its newest reading reaches its buffer (the
+            # bridge samples 50 times a second, so between a reading and its sample the two differ for a moment).
+            await until(newest_slow_buffered, "the slow printer's newest reading in its buffer")
         assert farm.printers["busy"].readings > 100  # polls went on at their rate
         assert bridge.telemetry_dropped > 50  # each buffer kept its newest 10 and counted the rest
-        # The busy printer's readings did not push the slow one's out: each printer has its own newest ten.
         assert {name: len(buffer) for name, buffer in bridge._telemetry.items()} == {"busy": 10, "slow": 10}
-        newest_slow = json.loads(bridge._telemetry["slow"][-1])["time"]
-        latest = farm.printers["slow"].latest
-        assert latest is not None and newest_slow == round(latest.wall_time_s, 3)
         assert bridge.connections == 0
 
 
