@@ -103,8 +103,9 @@ async def test_auto_report_keeps_readings_coming_during_a_long_command(mem_print
 
 
 async def test_long_m190_with_keepalives_never_times_out() -> None:
+    # Three times the suite's time scale: the bed still takes about a second to heat, twice the client's timeout.
     async with (
-        serve_memory(SimulatorConfig(), Faults(), time_scale=TIME_SCALE) as server,
+        serve_memory(SimulatorConfig(), Faults(), time_scale=3 * TIME_SCALE) as server,
         marlin_aio.connect(server.url, timeout_s=0.5) as printer,
     ):
         wait_lines: list[marlin_aio.TemperatureReading] = []
