@@ -12,8 +12,9 @@ What it keeps of a real transport, so the code above it cannot tell the differen
   turn (`call_soon`), never from inside the writer's call, so a protocol that writes from `data_received` (the
   link and the simulator both do) is never re-entered. Writes made in one turn may arrive as one chunk, as on a
   stream socket. `connection_made` and `connection_lost` come from the loop too.
-- `close()` ends both sides: the peer first gets the bytes already written to it, then `connection_lost(None)`
-  (as a socket's orderly close); the closer gets nothing more. `abort()` drops those bytes as well.
+- `close()` ends both sides: the peer first gets the bytes already written to it (unless it paused reading), then
+  `connection_lost(None)`, as after a socket's orderly close; the closer gets nothing more. `abort()` drops those
+  bytes as well.
 - `pause_reading()` holds the bytes for the protocol until `resume_reading()` (the simulator's pause and its
   paced wire use it), as a pty or a socket keeps them in the kernel meanwhile.
 
