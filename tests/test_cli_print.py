@@ -263,9 +263,11 @@ async def test_from_line_runs_the_header_then_line_n_on(tmp_path: Path) -> None:
 async def test_a_heater_wait_in_the_file_shows_heating_not_zero_lines_per_s(tmp_path: Path) -> None:
     gcode = tmp_path / "part.gcode"
     gcode.write_text("M109 S150\n" + "".join(f"G1 X{i}\n" for i in range(50)), encoding="utf-8")
-    # 5x: the heat-up takes some seconds of real time, so the plain lines (every 2 s) catch it.
-    async with serve_pty(SimulatorConfig(motion_time_scale=0), time_scale=5) as sim:
-        result = await asyncio.to_thread(runner.invoke, app, ["print", str(gcode), "--port", sim.url])
+    # 25x: the heat-up takes about two seconds of real time, and the plain lines (every 0.1 s) catch it.
+    async with serve_pty(SimulatorConfig(motion_time_scale=0), time_scale=25) as sim:
+        result = await asyncio.to_thread(
+            runner.invoke, app, ["print", str(gcode), "--port", sim.url, "--refresh", "0.1"]
+        )
     assert result.exit_code == Exit.OK, result.output
     heating = [line for line in result.stdout.splitlines() if re.search(r"(heating|waiting for) hotend", line)]
     assert heating, result.output

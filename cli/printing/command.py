@@ -44,7 +44,6 @@ __all__ = ["PrintSettings", "print_gcode", "print_status"]
 CANCEL_SCRIPT = marlin_aio.COOL_DOWN
 _QUESTION = "cancel the print? y = yes, any other key = go on"
 _ENDED_QUESTION = "the print has ended: press any key"
-_PLAIN_EVERY_S = 2.0
 _FRESH_READING_S = 2.0  # a reading for the closing message: longer and the latest one says it as well
 _M108_SENT = "M108 sent: the heat-up wait ended"
 _NO_EMERGENCY_PARSER = (
@@ -61,6 +60,7 @@ class PrintSettings:
     send_ahead: bool = False
     window_bytes: int | None = None
     keep_heaters: bool = False
+    plain_every_s: float = 2.0  # between progress lines, when the output is not a terminal
 
 
 class _Outcome(enum.Enum):
@@ -161,7 +161,9 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
             errors.print(f"printing {plan.path.name} on {label} ({mode}); Ctrl-C to cancel", style="dim")
             script = () if settings.keep_heaters else CANCEL_SCRIPT
             try:
-                outcome = await _follow(handle, printer, plan, console, errors, interrupted, script)
+                outcome = await _follow(
+                    handle, printer, plan, console, errors, interrupted, script, settings.plain_every_s
+                )
             except marlin_aio.MarlinError as exc:
                 return await _failed(exc, handle, printer, plan, errors, script)
             final = handle.progress
@@ -270,6 +272,7 @@ async def _follow(
     errors: Console,
     interrupted: asyncio.Event,
     script: tuple[str, ...],
+    plain_every_s: float,
 ) -> _Outcome:
     """Show progress until the print ends; act on the keys and on Ctrl-C (cancelling with `script`).
 
@@ -286,7 +289,7 @@ async def _follow(
     note: str | None = None
     outcome = _Outcome.DONE
     done = asyncio.create_task(handle.wait())
-    last_plain = -_PLAIN_EVERY_S
+    last_plain = -plain_every_s
     last_message: str | None = None
     live = Live(console=console, auto_refresh=False) if console.is_terminal else None
 
@@ -387,7 +390,7 @@ async def _follow(
                     print(f"printer: {status.message}", flush=True)
                 if status.question is not None and signalled:
                     print(status.question, flush=True)  # keys on a terminal, output to a pipe: ask plainly
-                elif time.monotonic() - last_plain >= _PLAIN_EVERY_S:
+                elif time.monotonic() - last_plain >= plain_every_s:
                     last_plain = time.monotonic()
                     print(plain_status(status), flush=True)
             if live is not None:

@@ -87,6 +87,15 @@ def print_file(
             "warnings.",
         ),
     ] = False,
+    refresh: Annotated[
+        float,
+        typer.Option(
+            "--refresh",
+            help="Seconds between progress lines when the output is not a terminal (the live view on a terminal "
+            "redraws four times a second).",
+            min=0.05,
+        ),
+    ] = 2.0,
     *,
     options: ConnectOptions,
 ) -> None:
@@ -107,6 +116,8 @@ def print_file(
     except OSError as exc:
         fail(f"cannot read {path}: {exc.strerror or exc}", Exit.USAGE)
     ahead = window is not None if send_ahead is None else send_ahead
-    settings = PrintSettings(plan=plan, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters)
+    settings = PrintSettings(
+        plan=plan, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters, plain_every_s=refresh
+    )
     code = run(print_gcode(options, settings, Console(highlight=False, emoji=False), error_console()))
     raise typer.Exit(int(code))
