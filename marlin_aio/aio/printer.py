@@ -286,18 +286,21 @@ class Printer:
             self._link = self._new_link()
             self._poller = Poller(self._link, self.timeout_s, self._poll_slow_down)
             self._print = None
-        await self._link.open()
-        _log.info("opened %s at %d baud", self.port, self.baudrate)
-        if not self._handshake_enabled:
-            return
-        self._connecting = True
+        # Connecting from before the port opens: a boot banner read the moment it is open is the handshake's, never
+        # a reset of a connected printer.
+        self._connecting = self._handshake_enabled
         try:
-            self._reset_on_open = await handshake(
-                self._link, timeout_s=self.timeout_s, boot_quiet_s=self._boot_quiet_s, password=self._password
-            )
-        except BaseException:
-            await self.close()
-            raise
+            await self._link.open()
+            _log.info("opened %s at %d baud", self.port, self.baudrate)
+            if not self._handshake_enabled:
+                return
+            try:
+                self._reset_on_open = await handshake(
+                    self._link, timeout_s=self.timeout_s, boot_quiet_s=self._boot_quiet_s, password=self._password
+                )
+            except BaseException:
+                await self.close()
+                raise
         finally:
             self._connecting = False
         _log.info("connected to %s: %s", self.port, self.firmware.name if self.firmware else "unknown firmware")
