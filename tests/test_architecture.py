@@ -181,3 +181,24 @@ def test_simulator_handlers_see_only_the_board() -> None:
             if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
                 owner = ast.unparse(node.value)
                 assert owner == "self", f"{where} reaches into {owner}.{node.attr}"
+
+
+#: Past this many lines a module says in its docstring why it is one module ("Over 400 lines because ...").
+LONG_MODULE_LINES = 400
+
+
+@pytest.mark.parametrize(
+    "path",
+    sorted([*ROOT.glob("marlin_aio/**/*.py"), *ROOT.glob("cli/**/*.py"), *ROOT.glob("benchmarks/*.py")]),
+    ids=lambda path: str(path.relative_to(ROOT)),
+)
+def test_a_long_module_says_why_it_is_one(path: Path) -> None:
+    source = path.read_text(encoding="utf-8")
+    lines = len(source.splitlines())
+    if lines <= LONG_MODULE_LINES:
+        return
+    docstring = ast.get_docstring(ast.parse(source)) or ""
+    assert "over 400 lines" in docstring.lower(), (
+        f"{path.relative_to(ROOT)} has {lines} lines: its docstring should say why it is one module "
+        f"(a paragraph beginning 'Over 400 lines because ...'), or it should be split"
+    )

@@ -6,6 +6,9 @@ Readings arrive about every 10 ms, so adding one must be cheap: it appends to a 
 `WatchControls` turns key presses into actions (set targets, fan, a G-code line, quit) without touching the
 printer: every target is checked here, with the limits `set` uses, so a refused one becomes a notice in the view
 and never an action. `watch/command.py` performs the actions and hands their outcome back as a `Notice`.
+
+Over 400 lines because the view's data and the keys' meaning are read together: `WatchControls` checks a target
+against what `WatchModel` shows (the heaters the printer has), and both are pure, so one test file covers them.
 """
 
 from __future__ import annotations

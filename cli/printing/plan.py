@@ -27,6 +27,9 @@ Three kinds of file are refused whole, each with one `ValueError` line, before a
   header's E (the filament of every skipped layer pushed out at once), an extrusion mode set in the skipped part
   that the printer will not be in, a heater the skipped part heated and the header leaves cold. What a resume
   merely changes (a target the header sets otherwise than the skipped part did) is a note, never a refusal.
+
+Over 400 lines because everything decided before a print is decided in one reading of the file: the check, the
+selection for a resume, the heat waits and the display texts all follow the same line numbers.
 """
 
 from __future__ import annotations

@@ -31,6 +31,9 @@ bytes.
 Only os, pty, tty, termios and ctypes (for inotify, which the standard library does not wrap) are used here,
 never the serial package (the client's business); and `marlin_aio.aio.memory`, the one module of the client the
 simulator imports: a memory link's two ends are one pair of transports, so both sides use the same module.
+
+Over 400 lines because the three endpoints are one interface, read side by side; most of the length is the pty's
+open-watch (inotify through ctypes), which has no counterpart to share with the others.
 """
 
 from __future__ import annotations

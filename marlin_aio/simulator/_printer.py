@@ -6,7 +6,7 @@
 the tests drive it through minutes of simulated heating in microseconds.
 
 This module is the core: time, the command ring, execution and output, one state machine in one class. It is
-about 460 lines, over half of them this docstring, the public face and the documented counters; the core proper
+over 400 lines, over half of them this docstring, the public face and the documented counters; the core proper
 is some 210 lines whose steps share the ring, the running task and the output, and parting it further would put
 calls on the per-line path. It composes the parts that live in files of their own:
 
