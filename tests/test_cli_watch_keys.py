@@ -24,10 +24,9 @@ from typer.testing import CliRunner
 
 import marlin_aio
 from marlin_aio import HeaterLimits, TemperatureReading
-from marlin_aio.protocol import ReadingSource, parse_temperatures
+from marlin_aio.protocol import DEFAULT_LIMITS, ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatorConfig, SimulatorServer, serve_pty
 from marlin_temp.common.keys import split_keys
-from marlin_temp.common.limits import DEFAULT_LIMITS
 from marlin_temp.common.model import (
     Notice,
     Quit,

@@ -327,6 +327,13 @@ async def test_forged_retained_topics_are_put_back_and_a_clean_exit_leaves_every
             await sub.until(
                 lambda: bridge.corrections >= len(forged), f"every forgery corrected ({bridge.corrections})"
             )
+            # The bridge counts a correction as it decides to publish it: wait until the broker has passed each
+            # one on (the last word on every topic is the bridge's own again), or a latecomer could subscribe
+            # between the two and get the correction live rather than retained.
+            await sub.until(
+                lambda: all([p for t, p, _ in sub.messages if t == topic][-1:] == [ours[topic]] for topic in ours),
+                "every correction through the broker",
+            )
             # A client that comes now finds the bridge's own, not the forgeries.
             async with subscribed(broker.port, identifier="latecomer") as late:
                 await late.until(

@@ -3,7 +3,8 @@ timeouts keep their order and their simulated deadlines, a client on the memory 
 seconds, and work handed to a thread is waited for in real time.
 
 Each test runs its own loop with `run_in_simulated_time` (plain functions, not pytest-asyncio's loop), and asserts
-on `loop.time()`; real durations only get a generous sanity bound.
+on `loop.time()`. Real durations are only compared with the simulated ones: a clock that jumps covers its
+simulated span in well under half of it for real, however loaded the machine (a real one could not).
 """
 
 from __future__ import annotations
@@ -15,9 +16,6 @@ import pytest
 
 import marlin_aio
 from marlin_aio.simulator import Faults, SimulatedTimeLoop, SimulatorConfig, run_in_simulated_time, serve_memory
-
-# Whatever a run does in simulated hours, it must not take this long for real (a wait that really slept).
-REAL_BOUND_S = 5.0
 
 
 def test_time_starts_at_zero_and_an_hour_of_sleep_takes_none() -> None:
@@ -32,7 +30,7 @@ def test_time_starts_at_zero_and_an_hour_of_sleep_takes_none() -> None:
     assert simulated
     assert start == 0.0
     assert end == pytest.approx(3600.0)
-    assert time.monotonic() - began < REAL_BOUND_S
+    assert time.monotonic() - began < (end - start) / 2
 
 
 def test_timers_fire_in_order_each_at_its_simulated_time() -> None:
@@ -120,7 +118,7 @@ def test_a_g28_on_the_memory_link_takes_the_simulators_seconds() -> None:
     # 20 s of homing (well past the 2 s timeout: its busy keepalives keep it alive), and a few turns of the loop.
     assert 20.0 <= took_s < 20.1
     assert any(line.startswith("X:0.00") for line in lines)
-    assert time.monotonic() - began < REAL_BOUND_S
+    assert time.monotonic() - began < took_s / 2
 
 
 def test_work_in_a_thread_is_waited_for_in_real_time() -> None:
@@ -134,7 +132,10 @@ def test_work_in_a_thread_is_waited_for_in_real_time() -> None:
 
     result, now = run_in_simulated_time(main())
     assert result == "done"
-    assert 0.04 <= now < REAL_BOUND_S  # about the thread's 0.05 s, counted from the first wait for it
+    # Had the clock jumped past the thread to the timeout's timer, the timeout would have raised; it moved with
+    # real time instead (about the thread's 0.05 s, counted from the loop's first wait for it: on a loaded machine
+    # less, as the thread may start sleeping before the loop waits).
+    assert now < 60.0
 
 
 def _slow(result: str) -> str:

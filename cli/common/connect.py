@@ -15,8 +15,7 @@ from rich.console import Console
 
 import marlin_aio
 from marlin_aio.aio import Backoff, Retry, keep_connected
-
-from .limits import DEFAULT_LIMITS
+from marlin_aio.protocol import DEFAULT_LIMITS
 
 __all__ = [
     "EXIT_CODES_HELP",

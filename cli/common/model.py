@@ -18,10 +18,9 @@ from collections import deque
 from dataclasses import dataclass
 
 from marlin_aio import HeaterLimits, TemperatureReading
-from marlin_aio.protocol import HEATER_NAMES, check_target, command_code, heater_name
+from marlin_aio.protocol import DEFAULT_LIMITS, HEATER_NAMES, check_target, command_code, heater_name
 
 from .keys import PASTE
-from .limits import DEFAULT_LIMITS
 
 __all__ = [
     "HEATER_NAMES",

@@ -25,10 +25,9 @@ from rich.console import Console
 from rich.markup import escape
 
 import marlin_aio
-from marlin_aio.protocol import check_target
+from marlin_aio.protocol import DEFAULT_LIMITS, check_target
 
 from .connect import PASSWORD_ENV, ConnectOptions, Exit, UsageProblem, exit_code_for, printer_password
-from .limits import DEFAULT_LIMITS
 
 __all__ = [
     "AskPasswordOption",

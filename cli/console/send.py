@@ -17,16 +17,9 @@ from rich.console import Console
 
 import marlin_aio
 from marlin_aio import HeaterLimits
-from marlin_aio.protocol import (
-    MAX_COMMAND_BYTES,
-    check_gcode_targets,
-    command_code,
-    command_timeout_s,
-    validate_command,
-)
+from marlin_aio.protocol import DEFAULT_LIMITS, command_code, command_timeout_s, validate_command
 
 from ..common.connect import ConnectOptions, Exit, UsageProblem, open_printer
-from ..common.limits import DEFAULT_LIMITS
 
 __all__ = [
     "check_command",
@@ -36,9 +29,6 @@ __all__ = [
     "send_commands",
     "unknown_command",
 ]
-
-#: What a line number and checksum add to a command on the wire, at their longest while a console session lasts.
-_NUMBERING = len("N99999 *255")
 
 
 def emergency_stop_notes(capabilities: Mapping[str, bool]) -> list[str]:
@@ -61,13 +51,8 @@ def check_command(text: str, *, limits: HeaterLimits = DEFAULT_LIMITS) -> str:
             that is not a number, negative or above `limits` (by default the library's).
     """
     command = validate_command(text)
-    # The client refuses it too, but only once connected: checked here, a bad target opens nothing.
-    check_gcode_targets(command, limits)
-    if len(command) + _NUMBERING > MAX_COMMAND_BYTES:
-        raise ValueError(
-            f"command is too long: {command[:40]!r}... with a line number and checksum would exceed Marlin's "
-            f"{MAX_COMMAND_BYTES}-byte limit"
-        )
+    # The client refuses it too, but only once connected: checked here, a bad command opens nothing.
+    marlin_aio.protocol.check_command(command, limits)
     return command
 
 

@@ -278,8 +278,7 @@ class _Console:
     def limits(self) -> marlin_aio.HeaterLimits:
         """The printer's target limits (--max-hotend, --max-bed): a line is checked against them as it is entered,
         so a refusal is said right under it; the client checks again as it sends."""
-        printer = self.printer
-        return marlin_aio.HeaterLimits(printer.max_hotend_celsius, printer.max_bed_celsius, printer.max_chamber_celsius)
+        return self.printer.heater_limits
 
     # --------------------------------------------------------------------------------------- output
 

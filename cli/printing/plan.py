@@ -43,9 +43,7 @@ from pathlib import Path
 
 from marlin_aio import HeaterLimits
 from marlin_aio.aio import file_lines
-from marlin_aio.protocol import GCodeLine, check_command, command_code, parse_gcode, strip_comment
-
-from ..common.limits import DEFAULT_LIMITS
+from marlin_aio.protocol import DEFAULT_LIMITS, GCodeLine, check_command, command_code, parse_gcode, strip_comment
 
 __all__ = ["SNIFF_BYTES", "GcodePlan", "HeatWait", "plan_print", "transliterate"]
 

@@ -13,9 +13,9 @@ import typer
 from rich.console import Console
 
 import marlin_aio
+from marlin_aio.protocol import DEFAULT_LIMITS
 
 from ..common.connect import ConnectOptions, Exit
-from ..common.limits import DEFAULT_LIMITS
 from ..common.options import (
     AskPasswordOption,
     BaudOption,

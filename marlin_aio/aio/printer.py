@@ -176,6 +176,11 @@ class Printer:
         self._link_listeners: list[Callable[[LinkEvent], None]] = []
 
     @property
+    def heater_limits(self) -> HeaterLimits:
+        """The three limits below as one `HeaterLimits`: what every command and print line is checked against."""
+        return self._heater_limits
+
+    @property
     def max_hotend_celsius(self) -> float:
         """The highest hotend target any command may set (checked as the firmware reads each command)."""
         return self._heater_limits.hotend

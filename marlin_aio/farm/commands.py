@@ -143,13 +143,12 @@ def _clip(message: str) -> str:
 
 
 def _targets(values: dict[str, Any], farm_printer: FarmPrinter) -> dict[str, float | int]:
-    spec = farm_printer.spec
-    limits = {"hotend": spec.max_hotend_celsius, "bed": spec.max_bed_celsius, "chamber": spec.max_chamber_celsius}
+    limits = farm_printer.spec.limits
     targets: dict[str, float | int] = {}
-    for heater, limit in limits.items():
+    for heater in ("hotend", "bed", "chamber"):
         if heater in values:
             try:
-                targets[heater] = marlin_aio.protocol.check_target(heater, values[heater], limit)
+                targets[heater] = marlin_aio.protocol.check_target(heater, values[heater], limits.of(heater))
             except ValueError as exc:
                 raise CommandError(_one_line(exc)) from None
     if "tool" in values:
@@ -409,8 +408,7 @@ def _gcode(body: dict[str, Any], farm_printer: FarmPrinter) -> tuple[str, ...]:
     if len(commands) > MAX_GCODE_COMMANDS:
         raise CommandError(f"at most {MAX_GCODE_COMMANDS} commands at once, got {len(commands)}")
     checked = []
-    spec = farm_printer.spec
-    limits = marlin_aio.HeaterLimits(spec.max_hotend_celsius, spec.max_bed_celsius, spec.max_chamber_celsius)
+    limits = farm_printer.spec.limits
     for text in commands:
         if len(text) > MAX_GCODE_CHARS:
             # Not shown: it may carry a password (M511), which only the library's own messages redact.

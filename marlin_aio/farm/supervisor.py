@@ -100,6 +100,11 @@ class PrinterSpec:
     """Serve a simulated printer for it in this process (on a pty) instead of opening `port`."""
     sim_speed: float = 1.0
 
+    @property
+    def limits(self) -> marlin_aio.HeaterLimits:
+        """The three `max_*_celsius` settings (the TOML file's words) as the one `HeaterLimits` checks take."""
+        return marlin_aio.HeaterLimits(self.max_hotend_celsius, self.max_bed_celsius, self.max_chamber_celsius)
+
 
 @dataclass(frozen=True)
 class FarmEvent:

@@ -48,7 +48,7 @@ from marlin_aio.protocol.events import (
 )
 from marlin_aio.protocol.framing import LineSplitter
 from marlin_aio.protocol.gcode import GCodeLine, parse_gcode
-from marlin_aio.protocol.heaters import HeaterLimits, check_gcode_targets
+from marlin_aio.protocol.heaters import DEFAULT_LIMITS, HeaterLimits, check_gcode_targets
 from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.motion import (
     LONG_COMMAND_TIMEOUT_S,
@@ -77,6 +77,7 @@ from marlin_aio.protocol.temperatures import (
 from marlin_aio.protocol.trace import Trace, TraceEntry
 
 __all__ = [
+    "DEFAULT_LIMITS",
     "DEFAULT_MAX_BED_CELSIUS",
     "DEFAULT_MAX_CHAMBER_CELSIUS",
     "DEFAULT_MAX_HOTEND_CELSIUS",

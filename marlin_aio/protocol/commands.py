@@ -16,6 +16,8 @@ __all__ = [
     "DEFAULT_MAX_CHAMBER_CELSIUS",
     "DEFAULT_MAX_HOTEND_CELSIUS",
     "MAX_COMMAND_BYTES",
+    "NUMBERING_BYTES",
+    "check_numbered_length",
     "check_target",
     "checksum",
     "command_code",
@@ -28,6 +30,23 @@ __all__ = [
 
 #: Marlin's `MAX_CMD_SIZE` is 96 bytes including the terminating NUL, so 95 bytes of text fit.
 MAX_COMMAND_BYTES = 95
+
+#: What numbering adds to a command checked before it is queued (`N<number> ` and `*<checksum>`): room for line
+#: numbers of up to seven digits, past what a print of millions of lines reaches.
+NUMBERING_BYTES = len("N9999999 *255")
+
+
+def check_numbered_length(command: str) -> None:
+    """Refuse a command that would not fit Marlin's buffer once numbered and checksummed (`NUMBERING_BYTES`).
+
+    Raises:
+        ValueError: it is too long; the message says why.
+    """
+    if len(command) + NUMBERING_BYTES > MAX_COMMAND_BYTES:
+        raise ValueError(
+            f"command is too long: {redact(command)[:40]!r}... with a line number and checksum it would exceed "
+            f"Marlin's {MAX_COMMAND_BYTES}-byte limit (at most {MAX_COMMAND_BYTES - NUMBERING_BYTES} characters)"
+        )
 
 
 def checksum(data: bytes) -> int:

@@ -446,10 +446,18 @@ class Connection:
                 core.queue.popleft()
             if not command.wire:
                 if resends.wire_size(command) - 1 > MAX_COMMAND_BYTES:
-                    # Only possible if the line numbers grew by over a thousand while it waited in the queue.
-                    core.finish(
-                        command, MarlinError(f"{redact(command.text)!r} grew too long for Marlin once numbered")
-                    )
+                    # A command checked with room for its number outgrew it (the numbers grew by over a thousand
+                    # while it waited, or a print line unchecked reached a long number). A print line is never
+                    # skipped: the print stops at it, saying so.
+                    error = MarlinError(f"{redact(command.text)!r} grew too long for Marlin once numbered")
+                    if command.job is None:
+                        core.finish(command, error)
+                    else:
+                        command.move(LineEvent.WITHDRAWN)
+                        core.stop_job(
+                            MarlinError(f"print stopped at line {command.source_line} of {command.job.name}: {error}"),
+                            now,
+                        )
                     continue
                 # Keep enough history for everything that can be in flight, with a wide margin.
                 resends.assign_wire(command, max(256, 4 * core.max_in_flight))

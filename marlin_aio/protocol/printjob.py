@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from marlin_aio.errors import FileChangedError, MarlinError
-from marlin_aio.protocol.commands import encode_command, strip_comment
+from marlin_aio.protocol.commands import check_numbered_length, encode_command, strip_comment
 from marlin_aio.protocol.heaters import HeaterLimits, check_gcode_targets
 
 __all__ = ["PrintJob", "PrintProgress", "PrintState", "check_command", "gcode_commands"]
@@ -80,14 +80,16 @@ class PrintProgress:
 
 def check_command(command: str, limits: HeaterLimits | None = None) -> None:
     """Check one command (its comment removed) as a print sends it: Marlin can take it (`encode_command`: one line,
-    ASCII, no `*`, short enough) and, with `limits`, it sets no heater above them however it is spelt
-    (`check_gcode_targets`). Every line of a print passes this, whoever reads the file: `gcode_commands` here, or
-    a front end that reads it its own way (the CLI's print plan, which also transliterates display text).
+    ASCII, no `*`; and short enough once numbered and checksummed, as every print line is: `check_numbered_length`)
+    and, with `limits`, it sets no heater above them however it is spelt (`check_gcode_targets`). Every line of a
+    print passes this, whoever reads the file: `gcode_commands` here, or a front end that reads it its own way
+    (the CLI's print plan, which also transliterates display text).
 
     Raises:
         ValueError: the command is not valid, or sets a target that is not a number, negative or over `limits`.
     """
     encode_command(command)
+    check_numbered_length(command)
     if limits is not None:
         check_gcode_targets(command, limits)
 
