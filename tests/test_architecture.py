@@ -19,8 +19,8 @@ import marlin_aio.protocol
 ROOT = Path(__file__).resolve().parent.parent
 
 #: What each folder of the library may import from the library, and from outside the standard library. A folder
-#: reads only from the ones before it: errors <- protocol <- aio <- (farm, simulator). `marlin_aio` alone means the
-#: package's public names (its __init__).
+#: reads only from the ones before it: errors <- protocol <- aio <- (farm, simulator) <- service. `marlin_aio`
+#: alone means the package's public names (its __init__).
 LAYERS: dict[str, tuple[set[str], set[str]]] = {
     "protocol": ({"marlin_aio.errors", "marlin_aio.protocol"}, set()),
     "aio": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.aio"}, {"serial", "serial_asyncio_fast"}),
@@ -41,6 +41,20 @@ LAYERS: dict[str, tuple[set[str], set[str]]] = {
         },
         {"aiomqtt"},
     ),
+    # The service is the farm's supervisor shared on a socket: it may import the farm, never its MQTT bridge's
+    # library (a service without the [farm] extra still runs).
+    "service": (
+        {
+            "marlin_aio",
+            "marlin_aio.aio",
+            "marlin_aio.errors",
+            "marlin_aio.farm.supervisor",
+            "marlin_aio.protocol",
+            "marlin_aio.service",
+            "marlin_aio.simulator",
+        },
+        set(),
+    ),
 }
 
 #: The sans-I/O core touches no port, socket, clock or file: these modules, and these calls, are not for it.
@@ -60,6 +74,7 @@ PUBLIC_MODULES = (
     "marlin_aio.farm.commands",
     "marlin_aio.farm.config",
     "marlin_aio.farm.supervisor",
+    "marlin_aio.service",
 )
 
 #: Modules outside the package's public names that the CLI may still name: the simulator's command line.

@@ -82,6 +82,9 @@ class LinkEvent:
 
 DEFAULT_BAUDRATE = BAUD_RATES[0]
 
+#: A port that starts with this names a printer of `marlin-temp serve` (`serve:NAME`), not a device.
+SERVE_PREFIX = "serve:"
+
 _log = logging.getLogger("marlin_aio")
 
 
@@ -126,6 +129,15 @@ class Printer:
     Raises:
         ValueError: `timeout_s` is not positive, or the password cannot travel in M511.
     """
+
+    def __new__(cls, port: str, *args: object, **kwargs: object) -> Self:
+        # `Printer("serve:NAME")` is a printer that a `marlin-temp serve` process owns: the same API, spoken to the
+        # service over its socket (`marlin_aio.aio.served`), so every program written for a port works with it.
+        if cls is Printer and isinstance(port, str) and port.startswith(SERVE_PREFIX):
+            from marlin_aio.aio.served import ServedPrinter
+
+            return ServedPrinter.__new__(ServedPrinter, port)  # type: ignore[return-value]
+        return super().__new__(cls)
 
     def __init__(
         self,
@@ -529,6 +541,10 @@ class Printer:
                 with contextlib.suppress(MarlinError):
                     await self.send("M155 S0")
 
+    def _polled(self) -> bool:
+        """True while readings come without asking (a poller runs)."""
+        return self._poller.active
+
     def _poll_slow_down(self) -> float | None:
         return self.print_poll_interval_s if self._print is not None and not self._print.finished else None
 
@@ -591,7 +607,7 @@ class Printer:
                 await readings.aclose()
             raise ConnectionLostError(f"the connection to {self.port} ended while waiting for temperatures")
 
-        poller = self.poll_temperatures(poll_interval_s, auto_report=False) if not self._poller.active else None
+        poller = self.poll_temperatures(poll_interval_s, auto_report=False) if not self._polled() else None
         async with contextlib.AsyncExitStack() as stack:
             if poller is not None:
                 await stack.enter_async_context(poller)
@@ -818,5 +834,5 @@ class Printer:
 
 
 #: `connect(port, ...)` makes a `Printer` with the same options (one definition of them: `Printer`'s); open it
-#: with `async with`.
+#: with `async with`. `connect("serve:NAME")` gives the printer NAME of a running `marlin-temp serve`.
 connect = Printer

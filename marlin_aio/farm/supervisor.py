@@ -240,7 +240,9 @@ class Farm:
             for server in self.sims.values():
                 await server.aclose()
 
-    async def start_print(self, farm_printer: FarmPrinter, path: Path) -> marlin_aio.PrintHandle:
+    async def start_print(
+        self, farm_printer: FarmPrinter, path: Path, *, send_ahead: bool = False, timeout_s: float | None = None
+    ) -> marlin_aio.PrintHandle:
         """Start printing `path` on `farm_printer` and follow the print in a task of the farm's own.
 
         However the print ends (done, cancelled, halted, a reset, the link lost, a stall) becomes one `print_*`
@@ -263,7 +265,7 @@ class Farm:
         # must not both pass the check above while the first one's M110 is on its way.
         farm_printer.print_starting = True
         try:
-            handle = await printer.start_print(path)
+            handle = await printer.start_print(path, send_ahead=send_ahead, timeout_s=timeout_s)
         finally:
             farm_printer.print_starting = False
         farm_printer.print_handle = handle

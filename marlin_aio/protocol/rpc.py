@@ -1,0 +1,304 @@
+"""The wire format of `marlin-temp serve`'s local API: JSON-RPC 2.0, one message per line, sans-I/O.
+
+One process owns each printer (`marlin_aio.service`); its clients (`marlin_aio.connect("serve:NAME")`, any
+program) send requests and get each answered by its own reply, matched by `id`, and receive notifications
+(readings, console lines, print progress, link events) for what they subscribed to. A message is one JSON object
+on one line (`\\n`-terminated, UTF-8), at most `MAX_MESSAGE_BYTES`: a reader never has to guess where one ends,
+and a client in any language needs nothing but a socket and a JSON parser (Moonraker's API is the model, framed
+by lines instead of Klipper's 0x03).
+
+This module only turns values into messages and back: the service and the client do the I/O. What travels:
+
+- a `TemperatureReading` as `{"heaters": {"T": [actual, target, power], ...}, "waiting", "remaining_s", "time_s",
+  "source"}` (`reading_to_json`);
+- a `Reply` as its command, lines, the `ok` line's payload and times (`reply_to_json`);
+- a `PrintProgress` as its fields (`progress_to_json`);
+- an error as JSON-RPC's `{"code", "message", "data": {"type": "CommandTimeoutError"}}`, so the client raises the
+  same `MarlinError` subclass the printer's own link would have raised (`error_to_json`, `error_from_json`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import marlin_aio.errors as errors
+from marlin_aio.protocol.events import Ok
+from marlin_aio.protocol.printjob import PrintProgress, PrintState
+from marlin_aio.protocol.replies import Reply
+from marlin_aio.protocol.temperatures import (
+    HeaterReading,
+    ReadingSource,
+    TemperatureReading,
+    Temperatures,
+    parse_temperatures,
+)
+
+__all__ = [
+    "INTERNAL_ERROR",
+    "INVALID_PARAMS",
+    "INVALID_REQUEST",
+    "MARLIN_ERROR",
+    "MAX_MESSAGE_BYTES",
+    "METHOD_NOT_FOUND",
+    "PARSE_ERROR",
+    "RpcError",
+    "decode_message",
+    "encode_message",
+    "error_from_json",
+    "error_to_json",
+    "notification",
+    "progress_from_json",
+    "progress_to_json",
+    "reading_from_json",
+    "reading_to_json",
+    "reply_from_json",
+    "reply_to_json",
+    "request",
+    "response",
+]
+
+#: The longest message either side accepts, newline included: a G-code upload travels as a path, not inline.
+MAX_MESSAGE_BYTES = 1 << 20
+
+# JSON-RPC 2.0's own codes, and one of ours (the server's range) for everything the printer or link refused.
+PARSE_ERROR = -32700
+INVALID_REQUEST = -32600
+METHOD_NOT_FOUND = -32601
+INVALID_PARAMS = -32602
+INTERNAL_ERROR = -32603
+MARLIN_ERROR = -32000
+
+#: The error types a reply may name: marlin_aio's own (raised again as themselves) and the built-ins a caller of
+#: `Printer` also gets (a bad argument, a print already running, an unreadable file).
+_ERROR_TYPES: dict[str, type[Exception]] = {
+    **{name: getattr(errors, name) for name in errors.__all__},
+    "ValueError": ValueError,
+    "RuntimeError": RuntimeError,
+    "OSError": OSError,
+    "FileNotFoundError": FileNotFoundError,
+    "PermissionError": PermissionError,
+}
+
+
+class RpcError(Exception):
+    """A request the service could not take as a request: not JSON, no such method, parameters that do not fit.
+
+    `code` is JSON-RPC's (`PARSE_ERROR`, `INVALID_REQUEST`, `METHOD_NOT_FOUND`, `INVALID_PARAMS`).
+    """
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def encode_message(message: dict[str, Any]) -> bytes:
+    """`message` as one line of compact JSON (ASCII, so a control character never breaks the line).
+
+    Raises:
+        ValueError: it is longer than `MAX_MESSAGE_BYTES`, or holds a value JSON cannot carry (NaN).
+    """
+    data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode("ascii") + b"\n"
+    if len(data) > MAX_MESSAGE_BYTES:
+        raise ValueError(f"message of {len(data)} bytes is over the limit of {MAX_MESSAGE_BYTES}")
+    return data
+
+
+def decode_message(line: bytes) -> dict[str, Any]:
+    """One received line as a JSON object.
+
+    Raises:
+        RpcError: `PARSE_ERROR` for what is not JSON (or not an object, or nested past reason).
+    """
+    try:
+        message = json.loads(line)
+    except (ValueError, RecursionError) as exc:
+        raise RpcError(PARSE_ERROR, f"not JSON: {_first_line(str(exc))}") from None
+    if not isinstance(message, dict):
+        raise RpcError(INVALID_REQUEST, f"a message is a JSON object, got {type(message).__name__}")
+    return message
+
+
+def request(request_id: int, method: str, params: dict[str, Any]) -> dict[str, Any]:
+    """A request that expects a response with `request_id`."""
+    return {"jsonrpc": "2.0", "id": request_id, "method": method, "params": params}
+
+
+def notification(method: str, params: dict[str, Any]) -> dict[str, Any]:
+    """A message that expects no response (the service's readings, console lines, progress and link events)."""
+    return {"jsonrpc": "2.0", "method": method, "params": params}
+
+
+def response(request_id: object, result: object = None, error: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The response to `request_id`: its result, or its error (`error_to_json`)."""
+    if error is not None:
+        return {"jsonrpc": "2.0", "id": request_id, "error": error}
+    return {"jsonrpc": "2.0", "id": request_id, "result": result}
+
+
+def error_to_json(exc: BaseException) -> dict[str, Any]:
+    """A JSON-RPC error object for `exc`: its JSON-RPC code for an `RpcError`, else `MARLIN_ERROR` with the type
+    named so the client raises the same one."""
+    if isinstance(exc, RpcError):
+        return {"code": exc.code, "message": str(exc)}
+    kind = type(exc).__name__ if type(exc).__name__ in _ERROR_TYPES else _nearest(exc)
+    data: dict[str, Any] = {"type": kind}
+    step = getattr(exc, "step", None)
+    if isinstance(step, str):
+        data["step"] = step
+    command = getattr(exc, "command", None)
+    if isinstance(command, str):
+        data["command"] = command
+    return {"code": MARLIN_ERROR, "message": str(exc), "data": data}
+
+
+def _nearest(exc: BaseException) -> str:
+    for cls in type(exc).__mro__:
+        if cls.__name__ in _ERROR_TYPES and _ERROR_TYPES[cls.__name__] is cls:
+            return cls.__name__
+    return "MarlinError"
+
+
+def error_from_json(error: object) -> Exception:
+    """The exception a response's error stands for: the same `MarlinError` subclass (or built-in) the service
+    raised, else a `RemoteProtocolError` saying what the service answered."""
+    if not isinstance(error, dict):
+        return errors.RemoteProtocolError(f"the service answered a malformed error: {error!r}")
+    message = str(error.get("message", "the service gave no reason"))
+    data = error.get("data")
+    kind = _ERROR_TYPES.get(data.get("type", "")) if isinstance(data, dict) else None
+    if kind is None:
+        if error.get("code") == METHOD_NOT_FOUND:
+            return errors.RemoteProtocolError(f"the service does not know this request: {message}")
+        return errors.MarlinError(message) if error.get("code") == MARLIN_ERROR else ValueError(message)
+    assert isinstance(data, dict)
+    if issubclass(kind, errors.PrintStalledError):
+        return kind(message, command=str(data.get("command", "")), trace="")
+    if issubclass(kind, errors.CommandTimeoutError):
+        return kind(message, command=str(data.get("command", "")))
+    if issubclass(kind, errors.HandshakeError):
+        return kind(message, step=str(data.get("step", "")))
+    return kind(message)
+
+
+# ------------------------------------------------------------------------------------------- values
+
+
+def reading_to_json(reading: TemperatureReading) -> dict[str, Any]:
+    """A reading as JSON: each heater as `[actual, target, power]` (null where the firmware said none)."""
+    temperatures = reading.temperatures
+    return {
+        "heaters": {
+            key: [_finite(heater.actual), _finite(heater.target), heater.power]
+            for key, heater in temperatures.heaters.items()
+        },
+        "waiting": temperatures.waiting,
+        "remaining_s": temperatures.wait_remaining_s,
+        "time_s": reading.wall_time_s,
+        "source": reading.source.value,
+    }
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is None or math.isfinite(value) else None
+
+
+def reading_from_json(value: object, monotonic_s: float) -> TemperatureReading:
+    """The reading `reading_to_json` made, stamped `monotonic_s` on the receiver's clock.
+
+    Raises:
+        RpcError: `INVALID_PARAMS` if it is not a reading's shape.
+    """
+    try:
+        assert isinstance(value, dict)
+        heaters = {}
+        for key, fields in value["heaters"].items():
+            actual, target, power = fields
+            heaters[str(key)] = HeaterReading(
+                actual=float(actual),
+                target=None if target is None else float(target),
+                power=None if power is None else int(power),
+            )
+        remaining = value.get("remaining_s")
+        temperatures = Temperatures(
+            heaters, bool(value.get("waiting")), None if remaining is None else float(remaining)
+        )
+        return TemperatureReading(temperatures, monotonic_s, float(value["time_s"]), ReadingSource(value["source"]))
+    except (AssertionError, AttributeError, KeyError, TypeError, ValueError):
+        raise RpcError(INVALID_PARAMS, f"not a reading: {str(value)[:200]}") from None
+
+
+def reply_to_json(reply: Reply) -> dict[str, Any]:
+    """A reply as JSON: the command, its lines, the `ok` line's payload and the times on the service's clock."""
+    return {
+        "command": reply.command,
+        "lines": list(reply.lines),
+        "ok": reply.ok.payload,
+        "sent_s": reply.sent_s,
+        "answered_s": reply.answered_s,
+        "lines_dropped": reply.lines_dropped,
+        "ok_lost": reply.ok_lost,
+    }
+
+
+def reply_from_json(value: object) -> Reply:
+    """The reply `reply_to_json` made (an M105's temperatures parsed again from its `ok` payload).
+
+    Raises:
+        RpcError: `INVALID_PARAMS` if it is not a reply's shape.
+    """
+    try:
+        assert isinstance(value, dict)
+        payload = str(value["ok"])
+        ok = Ok(payload=payload, temperatures=parse_temperatures(payload) if payload else None)
+        return Reply(
+            command=str(value["command"]),
+            lines=tuple(str(line) for line in value["lines"]),
+            ok=ok,
+            sent_s=float(value["sent_s"]),
+            answered_s=float(value["answered_s"]),
+            lines_dropped=int(value.get("lines_dropped", 0)),
+            ok_lost=bool(value.get("ok_lost", False)),
+        )
+    except (AssertionError, KeyError, TypeError, ValueError):
+        raise RpcError(INVALID_PARAMS, f"not a reply: {str(value)[:200]}") from None
+
+
+_PROGRESS_FIELDS = (
+    "lines_sent",
+    "lines_acked",
+    "lines_total",
+    "bytes_acked",
+    "source_bytes_acked",
+    "source_bytes_total",
+    "elapsed_s",
+    "resends",
+    "last_source_line",
+)
+
+
+def progress_to_json(progress: PrintProgress) -> dict[str, Any]:
+    """A print's progress as JSON: its state and counts."""
+    value: dict[str, Any] = {"state": progress.state.value}
+    for name in _PROGRESS_FIELDS:
+        value[name] = getattr(progress, name)
+    return value
+
+
+def progress_from_json(value: object) -> PrintProgress:
+    """The progress `progress_to_json` made.
+
+    Raises:
+        RpcError: `INVALID_PARAMS` if it is not a progress's shape.
+    """
+    try:
+        assert isinstance(value, dict)
+        fields = {name: value[name] for name in _PROGRESS_FIELDS}
+        return PrintProgress(state=PrintState(value["state"]), **fields)
+    except (AssertionError, KeyError, TypeError, ValueError):
+        raise RpcError(INVALID_PARAMS, f"not a print's progress: {str(value)[:200]}") from None
+
+
+def _first_line(text: str) -> str:
+    return text.splitlines()[0] if text else text

@@ -1,0 +1,20 @@
+"""`marlin-temp serve`: one process owns the printers and keeps them connected; local clients share them over a
+Unix socket (JSON-RPC 2.0, `marlin_aio.protocol.rpc`), and `marlin_aio.connect("serve:NAME")` is such a client
+with `Printer`'s API. `server` is the service, `history` what it keeps for clients that join later."""
+
+from __future__ import annotations
+
+from marlin_aio.aio.served import SOCKET_ENV, default_socket_path, service_holding
+from marlin_aio.service.history import ConsoleLine, History
+from marlin_aio.service.server import TOPICS, Service, ServiceRunningError
+
+__all__ = [
+    "SOCKET_ENV",
+    "TOPICS",
+    "ConsoleLine",
+    "History",
+    "Service",
+    "ServiceRunningError",
+    "default_socket_path",
+    "service_holding",
+]

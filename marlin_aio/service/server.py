@@ -1,0 +1,598 @@
+"""`marlin-temp serve`: one process owns the printers, and any number of local clients share them.
+
+Moonraker's shape, at this project's size. The farm's supervisor (`marlin_aio.farm.supervisor.Farm`) keeps each
+printer connected, polls it and runs its prints as tasks of its own, so a print outlives the client that started
+it. Clients reach the service on a Unix socket (owner-only: the folder 0700, the socket 0600) speaking JSON-RPC
+2.0, one message per line (`marlin_aio.protocol.rpc`): requests, each answered by its own response, and
+notifications for what a client subscribed to (readings, console lines, print progress, link events).
+
+Why a client can never slow the printer or another client: the serial side never awaits a client. Each client has
+one bounded queue of outgoing messages and one writer task; a notification that finds the queue full is dropped
+and counted (`dropped` in `status`), and a client whose unread responses pass the bound is disconnected. Requests
+are handled in tasks of their client's own, at most `MAX_REQUESTS_IN_FLIGHT` at once; beyond that a request is
+refused as busy. Commands of all clients meet in the printer's one FIFO (the library's), so each reply goes to the
+request that sent its command. Nothing a client sent is replayed when the service restarts: requests live only in
+the process that took them.
+
+One module: the session (a client's reader, writer and queue) and the service (the socket, the farm, the
+notifications) are two halves of one exchange that only make sense together; the methods are one table.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import tempfile
+from collections import deque
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import marlin_aio
+from marlin_aio.aio.served import default_socket_path
+from marlin_aio.farm.supervisor import Farm, FarmEvent, FarmPrinter, PrinterSpec
+from marlin_aio.protocol import redact
+from marlin_aio.protocol.rpc import (
+    INVALID_PARAMS,
+    INVALID_REQUEST,
+    MAX_MESSAGE_BYTES,
+    METHOD_NOT_FOUND,
+    RpcError,
+    decode_message,
+    encode_message,
+    error_to_json,
+    notification,
+    progress_to_json,
+    reading_to_json,
+    reply_to_json,
+    response,
+)
+from marlin_aio.service.history import History
+
+__all__ = ["CLIENT_QUEUE_MESSAGES", "MAX_REQUESTS_IN_FLIGHT", "TOPICS", "Service", "ServiceRunningError"]
+
+_log = logging.getLogger("marlin_aio.service")
+
+#: Messages a client may have waiting to be read before notifications to it are dropped.
+CLIENT_QUEUE_MESSAGES = 1_000
+#: Requests one client may have under way at once (a long M109 among them); more are refused as busy.
+MAX_REQUESTS_IN_FLIGHT = 32
+#: What a client can subscribe to.
+TOPICS = frozenset({"readings", "console", "progress", "link"})
+#: How often a running print's progress is told to its subscribers.
+PROGRESS_INTERVAL_S = 0.5
+#: The longest print a client may send as lines (a file travels as its path).
+MAX_UPLOAD_LINES = 20_000
+
+
+class ServiceRunningError(RuntimeError):
+    """Another `marlin-temp serve` already listens at the socket."""
+
+
+class _Session:
+    """One client: its reader, its writer task and its bounded outgoing queue, its subscriptions."""
+
+    def __init__(self, service: Service, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, number: int):
+        self.service = service
+        self.reader = reader
+        self.writer = writer
+        self.number = number
+        self.queue: deque[bytes] = deque()
+        self.wakeup = asyncio.Event()
+        self.drained = asyncio.Event()  # set by the writer each time it has written all that was queued
+        self.dropped = 0
+        self.subscriptions: dict[str, set[str]] = {}
+        self.requests: set[asyncio.Task[None]] = set()
+        self.closing = False
+
+    def subscribed(self, printer: str, topic: str) -> bool:
+        return topic in self.subscriptions.get(printer, ())
+
+    def push(self, data: bytes, *, droppable: bool = True) -> None:
+        """Queue a message; a notification finding the queue full is dropped, a response closes the session."""
+        if self.closing:
+            return
+        if len(self.queue) >= CLIENT_QUEUE_MESSAGES:
+            if droppable:
+                self.dropped += 1
+                return
+            if len(self.queue) >= 2 * CLIENT_QUEUE_MESSAGES:
+                _log.warning("client %d reads nothing: disconnected", self.number)
+                self.close()
+                return
+        self.queue.append(data)
+        self.wakeup.set()
+
+    def close(self) -> None:
+        self.closing = True
+        self.wakeup.set()
+        self.writer.close()
+
+    async def write_loop(self) -> None:
+        with contextlib.suppress(OSError):
+            while not self.closing:
+                if not self.queue:
+                    self.wakeup.clear()
+                    await self.wakeup.wait()
+                    continue
+                batch = b"".join(self.queue)
+                self.queue.clear()
+                self.writer.write(batch)
+                await self.writer.drain()
+                self.drained.set()
+
+    async def run(self) -> None:
+        writer_task = asyncio.create_task(self.write_loop(), name=f"client {self.number} writer")
+        try:
+            while not self.closing:
+                try:
+                    line = await self.reader.readline()
+                except ValueError:  # a line past the limit: answered once, then the client is let go
+                    self.push(
+                        encode_message(
+                            response(
+                                None,
+                                error=error_to_json(
+                                    RpcError(INVALID_REQUEST, f"a message is at most {MAX_MESSAGE_BYTES} bytes")
+                                ),
+                            )
+                        ),
+                        droppable=False,
+                    )
+                    break
+                except OSError:
+                    break
+                if not line.endswith(b"\n"):
+                    break
+                self.take(line)
+        finally:
+            for task in self.requests:
+                task.cancel()  # a client that left waits for nothing; a print it started goes on in the farm
+            if self.queue and not self.closing:
+                # What was answered before the client hung up its sending side still reaches it.
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(self._flushed(), 1.0)
+            self.close()
+            writer_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, OSError):
+                await writer_task
+            with contextlib.suppress(OSError):
+                await self.writer.wait_closed()
+
+    async def _flushed(self) -> None:
+        while self.queue:
+            self.drained.clear()
+            await self.drained.wait()
+
+    def take(self, line: bytes) -> None:
+        """Handle one received line: a request gets a task of its own, a malformed one an error at once."""
+        request_id: object = None
+        try:
+            message = decode_message(line)
+            request_id = message.get("id")
+            method = message.get("method")
+            params = message.get("params", {})
+            if message.get("jsonrpc") != "2.0" or not isinstance(method, str):
+                raise RpcError(INVALID_REQUEST, 'a request has "jsonrpc": "2.0" and a "method"')
+            if not isinstance(params, dict):
+                raise RpcError(INVALID_PARAMS, "params are an object: by name, not by position")
+            handler = self.service.methods.get(method)
+            if handler is None:
+                raise RpcError(
+                    METHOD_NOT_FOUND, f"no method {method[:60]!r}; there are {', '.join(sorted(self.service.methods))}"
+                )
+            if len(self.requests) >= MAX_REQUESTS_IN_FLIGHT:
+                raise RpcError(INVALID_REQUEST, f"busy: {MAX_REQUESTS_IN_FLIGHT} requests of this client are under way")
+        except RpcError as exc:
+            self.answer(request_id, error=error_to_json(exc))
+            return
+        task = asyncio.create_task(
+            self._handle(request_id, handler(self, params)), name=f"client {self.number} {method}"
+        )
+        self.requests.add(task)
+        task.add_done_callback(self.requests.discard)
+
+    async def _handle(self, request_id: object, call: Awaitable[object]) -> None:
+        try:
+            result = await call
+        except asyncio.CancelledError:
+            raise
+        except (RpcError, marlin_aio.MarlinError, ValueError, RuntimeError, OSError) as exc:
+            self.answer(request_id, error=error_to_json(exc))
+        except Exception as exc:  # a bug of ours: answered and logged, never the end of the service
+            _log.exception("request failed")
+            self.answer(request_id, error=error_to_json(RuntimeError(f"the service failed: {exc!r}")))
+        else:
+            self.answer(request_id, result)
+
+    def answer(self, request_id: object, result: object = None, *, error: dict[str, Any] | None = None) -> None:
+        if request_id is None and error is None:
+            return  # a notification from the client: nothing to answer
+        try:
+            data = encode_message(response(request_id, result, error))
+        except (TypeError, ValueError) as exc:
+            data = encode_message(response(request_id, error=error_to_json(RuntimeError(f"unanswerable: {exc}"))))
+        self.push(data, droppable=False)
+
+
+Handler = Callable[[_Session, dict[str, Any]], Awaitable[object]]
+
+
+def _param(
+    params: dict[str, Any], name: str, kind: type | tuple[type, ...], default: Any = ..., *, optional: bool = False
+) -> Any:
+    value = params.get(name, default)
+    if value is ...:
+        raise RpcError(INVALID_PARAMS, f"missing parameter {name!r}")
+    if value is None and (optional or default is None):
+        return None
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):  # JSON's true is no number
+        raise RpcError(INVALID_PARAMS, f"parameter {name!r} has the wrong type ({type(value).__name__})")
+    return value
+
+
+def _prepare_folder(path: Path) -> bool:
+    """Make the socket's folder (owner-only) if need be; say whether something is at the socket's path already."""
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    return path.exists() or path.is_socket()
+
+
+def _remove(path: Path) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+
+
+class Service:
+    """The printers of `specs`, kept connected and shared on the socket at `socket_path` until cancelled.
+
+    Args:
+        specs: the printers (names unique), as for the farm.
+        socket_path: where to listen (default: `default_socket_path()`).
+        uploads_dir: where prints sent as lines are written before they run (default: beside the socket).
+        on_event: also called with every `FarmEvent` (the serve command prints them).
+        history_recent_s: how far back every reading is kept for late joiners.
+        history_long_s: how far back one reading a second is kept.
+    """
+
+    def __init__(
+        self,
+        specs: list[PrinterSpec],
+        socket_path: Path | None = None,
+        *,
+        uploads_dir: Path | None = None,
+        on_event: Callable[[FarmEvent], None] | None = None,
+        history_recent_s: float = 300.0,
+        history_long_s: float = 6 * 3600.0,
+    ) -> None:
+        self.socket_path = socket_path or default_socket_path()
+        self.uploads_dir = uploads_dir or self.socket_path.parent / "uploads"
+        self.farm = Farm(specs, self._on_farm_event)
+        self._on_event = on_event
+        self.histories = {
+            name: History(recent_s=history_recent_s, long_s=history_long_s) for name in self.farm.printers
+        }
+        for name, farm_printer in self.farm.printers.items():
+            farm_printer.reading_listeners.append(self._reader_of(name))
+        self.sessions: set[_Session] = set()
+        self._numbers = 0
+        self.ready = asyncio.Event()
+        self._announced: dict[str, object] = {}  # the last progress told per printer, not to repeat it
+        self.methods: dict[str, Handler] = {
+            "hello": self._hello,
+            "printers": self._printers,
+            "status": self._status,
+            "subscribe": self._subscribe,
+            "unsubscribe": self._unsubscribe,
+            "history": self._history,
+            "send": self._send,
+            "read_temperatures": self._read_temperatures,
+            "set_temperatures": self._set_temperatures,
+            "start_print": self._start_print,
+            "pause": self._pause,
+            "resume": self._resume,
+            "cancel": self._cancel,
+            "emergency_stop": self._emergency_stop,
+            "interrupt_wait": self._interrupt_wait,
+        }
+
+    # ------------------------------------------------------------------------------------------- running
+
+    async def run(self) -> None:
+        """Listen and supervise until cancelled; the socket and the registry are removed on the way out.
+
+        Raises:
+            ServiceRunningError: another service listens at the socket.
+            OSError: the socket's folder cannot be made or the socket bound.
+        """
+        path = self.socket_path
+        await self._claim(path)
+        server = await asyncio.start_unix_server(self._client, str(path), limit=MAX_MESSAGE_BYTES)
+        try:
+            os.chmod(path, 0o600)
+            self._write_registry()
+            self.ready.set()
+            _log.info("serving %s at %s", ", ".join(self.farm.printers), path)
+            async with asyncio.TaskGroup() as group:
+                group.create_task(self.farm.run(), name="farm")
+                group.create_task(self._tell_progress(), name="progress")
+        finally:
+            server.close()
+            for session in list(self.sessions):
+                session.close()
+            with contextlib.suppress(OSError):
+                path.unlink()
+            with contextlib.suppress(OSError):
+                self.registry_path.unlink()
+
+    @property
+    def registry_path(self) -> Path:
+        """`serve.json` beside the socket: which port each printer is on, so a command asked for a port the
+        service holds uses the service instead (`marlin_aio.aio.served.service_holding`)."""
+        return self.socket_path.with_name("serve.json")
+
+    async def _claim(self, path: Path) -> None:
+        if _prepare_folder(path):
+            try:
+                _, writer = await asyncio.open_unix_connection(str(path))
+            except OSError:
+                _remove(path)  # left by a service that is gone
+            else:
+                writer.close()
+                raise ServiceRunningError(f"a marlin-temp serve is already running at {path}")
+
+    def _write_registry(self) -> None:
+        printers = {name: fp.spec.port or "sim" for name, fp in self.farm.printers.items()}
+        data = json.dumps({"pid": os.getpid(), "socket": str(self.socket_path), "printers": printers})
+        fd, temporary = tempfile.mkstemp(dir=self.registry_path.parent, prefix=".serve.", suffix=".json")
+        with os.fdopen(fd, "w") as handle:
+            handle.write(data)
+        os.replace(temporary, self.registry_path)
+
+    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._numbers += 1
+        session = _Session(self, reader, writer, self._numbers)
+        self.sessions.add(session)
+        try:
+            await session.run()
+        finally:
+            self.sessions.discard(session)
+
+    # ------------------------------------------------------------------------------------------- notifications
+
+    def _broadcast(self, printer: str, topic: str, method: str, params: dict[str, Any]) -> None:
+        data: bytes | None = None
+        for session in self.sessions:
+            if session.subscribed(printer, topic):
+                if data is None:
+                    data = encode_message(notification(method, {"printer": printer, **params}))  # once for all
+                session.push(data)
+
+    def _reader_of(self, name: str) -> Callable[[marlin_aio.TemperatureReading], None]:
+        history = self.histories[name]
+
+        def on_reading(reading: marlin_aio.TemperatureReading) -> None:
+            history.add(reading)
+            self._broadcast(name, "readings", "reading", {"reading": reading_to_json(reading)})
+
+        return on_reading
+
+    def _note(self, printer: str, direction: str, text: str) -> None:
+        text = redact(text)
+        self.histories[printer].note(direction, text)
+        self._broadcast(printer, "console", "console", {"direction": direction, "text": text})
+
+    def _on_farm_event(self, event: FarmEvent) -> None:
+        self._note(event.printer, "!", f"{event.kind}: {event.message}")
+        self._broadcast(
+            event.printer, "link", "link", {"kind": event.kind, "message": event.message, "time_s": event.time_s}
+        )
+        if event.kind.startswith("print_"):
+            self._progress_of(self.farm.printers[event.printer], final=True)
+        if self._on_event is not None:
+            try:
+                self._on_event(event)
+            except Exception:  # the serve command's printing must not stop a supervisor
+                _log.exception("event listener failed")
+
+    async def _tell_progress(self) -> None:
+        while True:
+            await asyncio.sleep(PROGRESS_INTERVAL_S)  # a ticker: progress is told at this rate, not synchronised
+            for farm_printer in self.farm.printers.values():
+                handle = farm_printer.print_handle
+                if handle is not None and not handle.finished:
+                    self._progress_of(farm_printer)
+
+    def _progress_of(self, farm_printer: FarmPrinter, *, final: bool = False) -> None:
+        handle = farm_printer.print_handle
+        if handle is None:
+            return
+        progress = handle.progress
+        params: dict[str, Any] = {"file": farm_printer.print_file, "progress": progress_to_json(progress)}
+        if progress.state is marlin_aio.PrintState.FAILED and handle.job.error is not None:
+            params["error"] = error_to_json(handle.job.error)
+        if not final and self._announced.get(farm_printer.name) == params:
+            return
+        self._announced[farm_printer.name] = params
+        self._broadcast(farm_printer.name, "progress", "progress", params)
+
+    # ------------------------------------------------------------------------------------------- methods
+
+    def _printer_of(self, params: dict[str, Any]) -> FarmPrinter:
+        name = _param(params, "printer", str, None)
+        printers = self.farm.printers
+        if name is None:
+            if len(printers) == 1:
+                return next(iter(printers.values()))
+            raise RpcError(INVALID_PARAMS, f"which printer? this service has {', '.join(printers)}")
+        if name not in printers:
+            raise marlin_aio.PortNotFoundError(
+                f"no printer named {name[:60]!r} in the service at {self.socket_path} (it has: {', '.join(printers)})"
+            )
+        return printers[name]
+
+    def _connected(self, farm_printer: FarmPrinter) -> marlin_aio.Printer:
+        printer = farm_printer.printer
+        if printer is None or not farm_printer.link_up:
+            reason = farm_printer.last_error or "connecting"
+            raise marlin_aio.ConnectionLostError(f"printer {farm_printer.name} is not connected now ({reason})")
+        return printer
+
+    def _info(self, farm_printer: FarmPrinter) -> dict[str, Any]:
+        printer = farm_printer.printer
+        firmware = printer.firmware if printer is not None else None
+        latest = farm_printer.latest
+        return {
+            "name": farm_printer.name,
+            "port": farm_printer.spec.port or "sim",
+            "link_up": farm_printer.link_up,
+            "firmware": None if firmware is None else {"name": firmware.name, "fields": firmware.fields},
+            "capabilities": dict(printer.capabilities) if printer is not None else {},
+            "last_error": farm_printer.last_error,
+            "latest": None if latest is None else reading_to_json(latest),
+            "print": farm_printer.print_status(),
+        }
+
+    def _subscribe_to(self, session: _Session, farm_printer: FarmPrinter, topics: object) -> list[str]:
+        if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
+            raise RpcError(INVALID_PARAMS, f"topics are a list of names: {', '.join(sorted(TOPICS))}")
+        unknown = set(topics) - TOPICS
+        if unknown:
+            raise RpcError(
+                INVALID_PARAMS, f"no topic {sorted(unknown)[0][:40]!r}; there are {', '.join(sorted(TOPICS))}"
+            )
+        session.subscriptions.setdefault(farm_printer.name, set()).update(topics)
+        return sorted(session.subscriptions[farm_printer.name])
+
+    async def _hello(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        topics = params.get("subscribe", [])
+        subscribed = self._subscribe_to(session, farm_printer, topics) if topics else []
+        return {
+            "service": {"version": marlin_aio.__version__, "printers": list(self.farm.printers)},
+            "printer": self._info(farm_printer),
+            "subscribed": subscribed,
+        }
+
+    async def _printers(self, session: _Session, params: dict[str, Any]) -> object:
+        return [self._info(farm_printer) for farm_printer in self.farm.printers.values()]
+
+    async def _status(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        info = self._info(farm_printer)
+        info["clients"] = len(self.sessions)
+        info["dropped"] = session.dropped
+        return info
+
+    async def _subscribe(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        subscribed = self._subscribe_to(session, farm_printer, params.get("topics"))
+        return {"subscribed": subscribed}
+
+    async def _unsubscribe(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        topics = params.get("topics")
+        if topics is None:
+            session.subscriptions.pop(farm_printer.name, None)
+        elif isinstance(topics, list):
+            session.subscriptions.get(farm_printer.name, set()).difference_update(str(t) for t in topics)
+        return {"subscribed": sorted(session.subscriptions.get(farm_printer.name, ()))}
+
+    async def _history(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        seconds = float(_param(params, "seconds", (int, float), 300.0))
+        history = self.histories[farm_printer.name]
+        return {
+            "readings": [reading_to_json(r) for r in history.readings(seconds)],
+            "console": [{"direction": c.direction, "text": c.text, "time_s": c.time_s} for c in history.console],
+        }
+
+    async def _send(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        command = _param(params, "command", str)
+        timeout_s = _param(params, "timeout_s", (int, float), None)
+        printer = self._connected(farm_printer)
+        reply = await printer.send(command, timeout_s=timeout_s)
+        self._note(farm_printer.name, ">", command)
+        for line in reply.lines:
+            self._note(farm_printer.name, "<", line)
+        self._note(farm_printer.name, "<", f"ok {reply.ok.payload}".rstrip())
+        return reply_to_json(reply)
+
+    async def _read_temperatures(self, session: _Session, params: dict[str, Any]) -> object:
+        printer = self._connected(self._printer_of(params))
+        return reading_to_json(await printer.read_temperatures())
+
+    async def _set_temperatures(self, session: _Session, params: dict[str, Any]) -> object:
+        printer = self._connected(self._printer_of(params))
+        targets = {name: _param(params, name, (int, float), None) for name in ("hotend", "bed", "chamber")}
+        await printer.set_temperatures(**targets, tool=_param(params, "tool", int, None))
+        return None
+
+    async def _start_print(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        self._connected(farm_printer)
+        path_text = _param(params, "path", str, None)
+        lines = _param(params, "lines", list, None)
+        if (path_text is None) == (lines is None):
+            raise RpcError(INVALID_PARAMS, "give a print either a path or lines")
+        if lines is not None:
+            if len(lines) > MAX_UPLOAD_LINES or not all(isinstance(line, str) for line in lines):
+                raise RpcError(INVALID_PARAMS, f"lines are at most {MAX_UPLOAD_LINES} strings (a file goes by path)")
+            path = self._upload(farm_printer.name, lines)
+        else:
+            assert path_text is not None
+            path = Path(path_text)
+            if not path.is_absolute():
+                raise RpcError(INVALID_PARAMS, f"the service needs an absolute path, got {path_text[:200]!r}")
+        options = {
+            "send_ahead": bool(params.get("send_ahead", False)),
+            "timeout_s": _param(params, "timeout_s", (int, float), None),
+        }
+        handle = await self.farm.start_print(farm_printer, path, **options)
+        return {"file": farm_printer.print_file, "progress": progress_to_json(handle.progress)}
+
+    def _upload(self, name: str, lines: list[str]) -> Path:
+        self.uploads_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
+        fd, temporary = tempfile.mkstemp(dir=self.uploads_dir, prefix=f"{name}-", suffix=".gcode")
+        with os.fdopen(fd, "w", encoding="ascii", errors="strict") as handle:
+            handle.writelines(line.rstrip("\r\n") + "\n" for line in lines)
+        return Path(temporary)
+
+    def _running(self, farm_printer: FarmPrinter) -> marlin_aio.PrintHandle:
+        handle = farm_printer.print_handle
+        if handle is None or handle.finished:
+            raise RuntimeError(f"no print is running on {farm_printer.name}")
+        return handle
+
+    async def _pause(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        self._running(farm_printer).pause()
+        self._progress_of(farm_printer)
+        return None
+
+    async def _resume(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        self._running(farm_printer).resume()
+        self._progress_of(farm_printer)
+        return None
+
+    async def _cancel(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        script = _param(params, "script", list, [])
+        if not all(isinstance(command, str) for command in script):
+            raise RpcError(INVALID_PARAMS, "script is a list of commands")
+        progress = await self._running(farm_printer).cancel(tuple(script))
+        return progress_to_json(progress)
+
+    async def _emergency_stop(self, session: _Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        self._connected(farm_printer).emergency_stop()
+        self._note(farm_printer.name, ">", "M112 (emergency stop)")
+        return None
+
+    async def _interrupt_wait(self, session: _Session, params: dict[str, Any]) -> object:
+        return self._connected(self._printer_of(params)).interrupt_wait()
