@@ -30,6 +30,7 @@ from .heaters import options as heaters
 from .logs import options as logs
 from .ports import options as ports
 from .printing import options as printing
+from .serve import options as serve
 from .watch import options as watch
 
 __all__ = ["app"]
@@ -124,6 +125,7 @@ app.command("log", help=logs.LOG_HELP, epilog=EXIT_CODES_HELP)(logs.log)
 app.command("print", help=printing.PRINT_HELP, epilog=EXIT_CODES_HELP)(printing.print_file)
 app.command("send", help=console.SEND_HELP, epilog=EXIT_CODES_HELP)(console.send)
 app.command("terminal", help=console.TERMINAL_HELP, epilog=EXIT_CODES_HELP)(console.terminal)
+app.command("serve", help=serve.SERVE_HELP, epilog=EXIT_CODES_HELP)(serve.serve)
 app.command("farm", help=farm.FARM_HELP, epilog=EXIT_CODES_HELP)(farm.farm)
 app.command("bench", help=bench.BENCH_HELP, epilog=EXIT_CODES_HELP)(bench.bench)
 app.command("plot", epilog=EXIT_CODES_HELP)(logs.plot)

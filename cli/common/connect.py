@@ -183,7 +183,18 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
     if options.port is not None and not options.port.strip():
         raise UsageProblem("--port is empty: give a device path or URL, or leave --port out to find the printer")
     port = options.port or _choose_port(console)
-    rates = [options.baud] if options.baud else list(marlin_aio.BAUD_RATES)
+    if not port.startswith("serve:"):
+        from marlin_aio.service import service_holding
+
+        served = service_holding(port)
+        if served is not None:
+            # The service owns the port (opening it would fail as busy): go through it instead, and say so.
+            console.print(f"{port} is held by marlin-temp serve: using it ({served})", style="dim")
+            port = served
+    served_port = port.startswith("serve:")
+    rates = (
+        [options.baud or marlin_aio.DEFAULT_BAUDRATE] if served_port or options.baud else list(marlin_aio.BAUD_RATES)
+    )
     for index, baud in enumerate(rates):
         try:
             printer = options.printer(port, baud)
@@ -201,7 +212,9 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
                     step=exc.step,
                 ) from exc
             raise
-        if printer.reset_on_open:
+        if served_port:
+            port = f"{port} (served)"
+        elif printer.reset_on_open:
             # Boards reset by DTR on the first open after plugging in; a user who set targets before must know.
             console.print(
                 "note: the board reset when the port was opened; targets set earlier were cleared", style="yellow"

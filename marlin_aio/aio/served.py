@@ -23,17 +23,17 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import itertools
 import logging
 import os
-import tempfile
-import time
-from collections.abc import AsyncGenerator, AsyncIterator, Callable, Generator, Iterable, Sequence
+from collections.abc import AsyncGenerator, AsyncIterator, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from marlin_aio.aio.printer import SERVE_PREFIX, LinkEvent, Printer
+from marlin_aio.aio.printer import LinkEvent, Printer
 from marlin_aio.aio.printhandle import PrintHandle
+from marlin_aio.aio.rpcclient import RpcClient
+from marlin_aio.aio.servedprint import ServedPrintHandle
+from marlin_aio.aio.servicepaths import parse_served_port
 from marlin_aio.errors import (
     ConnectError,
     ConnectionLostError,
@@ -45,163 +45,19 @@ from marlin_aio.errors import (
 from marlin_aio.protocol.events import FirmwareInfo
 from marlin_aio.protocol.heaters import HeaterLimits
 from marlin_aio.protocol.linkstate import LinkState
-from marlin_aio.protocol.printjob import PrintProgress, PrintState
 from marlin_aio.protocol.replies import Reply
 from marlin_aio.protocol.rpc import (
     MAX_MESSAGE_BYTES,
     RpcError,
-    decode_message,
-    encode_message,
-    error_from_json,
     progress_from_json,
     reading_from_json,
     reply_from_json,
-    request,
 )
 from marlin_aio.protocol.temperatures import TemperatureReading
 
-__all__ = ["SOCKET_ENV", "ServedPrinter", "default_socket_path", "parse_served_port", "service_holding"]
+__all__ = ["ServedPrinter"]
 
 _log = logging.getLogger("marlin_aio")
-
-#: Names the service's socket instead of the default (`marlin-temp serve --socket` sets it for its children too).
-SOCKET_ENV = "MARLIN_SERVE_SOCKET"
-
-
-def default_socket_path() -> Path:
-    """Where `marlin-temp serve` listens unless told otherwise: `$MARLIN_SERVE_SOCKET`, else
-    `$XDG_RUNTIME_DIR/marlin-temp/serve.sock` (a per-user folder the system empties at logout), else
-    `/tmp/marlin-temp-UID/serve.sock`."""
-    named = os.environ.get(SOCKET_ENV)
-    if named:
-        return Path(named)
-    runtime = os.environ.get("XDG_RUNTIME_DIR")
-    folder = Path(runtime) / "marlin-temp" if runtime else Path(tempfile.gettempdir()) / f"marlin-temp-{os.getuid()}"
-    return folder / "serve.sock"
-
-
-def parse_served_port(port: str) -> tuple[str | None, Path]:
-    """(printer name or None for the only one, socket path) of `serve:NAME`, `serve:NAME@/path.sock` or `serve:`.
-
-    Raises:
-        ValueError: `port` does not start with `serve:`.
-    """
-    if not port.startswith(SERVE_PREFIX):
-        raise ValueError(f"not a served printer: {port!r} (expected serve:NAME)")
-    rest = port[len(SERVE_PREFIX) :]
-    name, at, path = rest.partition("@")
-    return (name or None), (Path(path) if at else default_socket_path())
-
-
-class _Rpc:
-    """One connection to the service: requests matched to their responses by id, notifications to a handler.
-
-    The read loop only resolves futures and hands notifications on (no user code runs in it); it ends when the
-    service closes the socket, failing every request still waiting.
-    """
-
-    def __init__(
-        self,
-        reader: asyncio.StreamReader,
-        writer: asyncio.StreamWriter,
-        on_notification: Callable[[str, dict[str, Any]], None],
-        on_closed: Callable[[MarlinError], None],
-        where: str,
-    ) -> None:
-        self._reader = reader
-        self._writer = writer
-        self._on_notification = on_notification
-        self._on_closed = on_closed
-        self._where = where
-        self._ids = itertools.count(1)
-        self._waiting: dict[int, asyncio.Future[Any]] = {}
-        self.closed: MarlinError | None = None
-        self._task = asyncio.get_running_loop().create_task(self._read(), name=f"served printer reader {where}")
-
-    def call_soon(self, method: str, params: dict[str, Any]) -> None:
-        """Write a request now and ignore its answer (an emergency stop, which must not wait for a turn).
-
-        Raises:
-            ConnectionLostError: the service is gone.
-        """
-        if self.closed is not None:
-            raise ConnectionLostError(str(self.closed))
-        self._writer.write(encode_message(request(next(self._ids), method, params)))
-
-    async def call(self, method: str, params: dict[str, Any]) -> Any:
-        """Send a request and return its result, or raise the error the service answered with.
-
-        Raises:
-            ConnectionLostError: the service went away before answering.
-            MarlinError, ValueError, RuntimeError, OSError: as the service raised them.
-        """
-        if self.closed is not None:
-            raise ConnectionLostError(str(self.closed))
-        request_id = next(self._ids)
-        future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
-        self._waiting[request_id] = future
-        try:
-            self._writer.write(encode_message(request(request_id, method, params)))
-            return await future
-        finally:
-            # Given up (cancelled) or answered: either way nobody waits for this id any more.
-            self._waiting.pop(request_id, None)
-
-    async def _read(self) -> None:
-        reason = f"the service at {self._where} closed the connection"
-        try:
-            while True:
-                try:
-                    line = await self._reader.readline()
-                except ValueError:  # asyncio's LimitOverrunError: a line past MAX_MESSAGE_BYTES
-                    reason = f"the service at {self._where} sent a message over {MAX_MESSAGE_BYTES} bytes"
-                    break
-                if not line.endswith(b"\n"):
-                    break
-                try:
-                    message = decode_message(line)
-                except RpcError as exc:
-                    reason = f"the service at {self._where} sent what is not JSON-RPC: {exc}"
-                    break
-                self._dispatch(message)
-        except OSError as exc:
-            reason = f"the connection to the service at {self._where} failed: {exc}"
-        finally:
-            self._close(ConnectionLostError(reason))
-
-    def _dispatch(self, message: dict[str, Any]) -> None:
-        if "method" in message:
-            params = message.get("params")
-            if isinstance(params, dict):
-                self._on_notification(str(message["method"]), params)
-            return
-        future = self._waiting.get(message.get("id"))  # type: ignore[arg-type]
-        if future is None or future.done():
-            return  # the answer to a request given up, or to one written with call_soon
-        if "error" in message:
-            future.set_exception(error_from_json(message["error"]))
-        else:
-            future.set_result(message.get("result"))
-
-    def _close(self, error: MarlinError) -> None:
-        if self.closed is not None:
-            return
-        self.closed = error
-        for future in self._waiting.values():
-            if not future.done():
-                future.set_exception(error)
-        self._waiting.clear()
-        self._writer.close()
-        self._on_closed(error)
-
-    async def aclose(self) -> None:
-        """Close the connection and wait for the reader to end."""
-        self._close(ConnectionLostError(f"the connection to the service at {self._where} was closed"))
-        self._task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await self._task
-        with contextlib.suppress(OSError):
-            await self._writer.wait_closed()
 
 
 class ServedPrinter(Printer):
@@ -212,7 +68,7 @@ class ServedPrinter(Printer):
     is refused before anything is sent (and the service checks against its own).
     """
 
-    _rpc: _Rpc | None = None
+    _rpc: RpcClient | None = None
 
     def __init__(self, port: str, **options: Any) -> None:
         super().__init__(port, **options)
@@ -252,7 +108,7 @@ class ServedPrinter(Printer):
         self._lost = None
         self._served_print = None
         self._feed = type(self._feed)()  # readings of an earlier connection are not this one's
-        self._rpc = _Rpc(reader, writer, self._notified, self._service_closed, where)
+        self._rpc = RpcClient(reader, writer, self._notified, self._service_closed, where)
         try:
             hello = await self._rpc.call("hello", {"printer": self.name, "subscribe": ["readings", "link", "progress"]})
             self._take_hello(hello)
@@ -332,6 +188,26 @@ class ServedPrinter(Printer):
     def _link_event(self, event: LinkEvent) -> None:
         if self._link_listeners and self._loop is not None:
             self._loop.call_soon(self._tell_link_listeners, event)
+
+    async def call(self, method: str, **params: Any) -> Any:
+        """Send the service a request about this printer (`method` and its parameters, as `marlin_aio.protocol.rpc`
+        lists them) and return its result: for what `Printer`'s API has no name for.
+
+        Raises:
+            ConnectionLostError: not open, or the service went away.
+            MarlinError, ValueError, RuntimeError, OSError: as the service raised them.
+        """
+        return await self._call(method, **params)
+
+    def call_soon(self, method: str) -> None:
+        """Write a request about this printer now and ignore its answer (an emergency stop, a pause).
+
+        Raises:
+            ConnectionLostError: not open, or the service went away.
+        """
+        if self._rpc is None:
+            raise ConnectionLostError(f"the printer {self.port} is not open")
+        self._rpc.call_soon(method, {"printer": self.name})
 
     def _call(self, method: str, **params: Any) -> Any:
         rpc = self._rpc
@@ -476,112 +352,6 @@ class ServedPrinter(Printer):
     def heater_limits(self) -> HeaterLimits:
         """The limits this client checks targets against before the service checks its own."""
         return self._heater_limits
-
-
-class ServedPrintHandle(PrintHandle):
-    """A print running inside the service, as its starter follows it: progress from the service's notifications,
-    `pause`, `resume` and `cancel` as requests. Leaving (closing the printer) does not stop the print."""
-
-    def __init__(self, printer: ServedPrinter, progress: PrintProgress, file: str) -> None:
-        # Not PrintHandle's link-bound state: the job and its link live in the service.
-        self._printer = printer
-        self._progress = progress
-        self.file = file
-        loop = asyncio.get_running_loop()
-        self._done: asyncio.Future[PrintProgress] = loop.create_future()
-        self._progress_s = time.monotonic()
-
-    @property
-    def progress(self) -> PrintProgress:
-        """The progress the service last told (it tells every half second while the print runs, and at once on
-        a change of state)."""
-        return self._progress
-
-    @property
-    def finished(self) -> bool:
-        """True once the service said the print ended."""
-        return self._done.done()
-
-    def update(self, params: dict[str, Any]) -> None:
-        """Take a progress notification from the service."""
-        with contextlib.suppress(RpcError):
-            self._progress = progress_from_json(params.get("progress"))
-        if self._done.done():
-            return
-        if self._progress.state is PrintState.FAILED:
-            self._done.set_exception(error_from_json(params.get("error") or {"message": "the print failed"}))
-            self._done.exception()  # a print nobody awaits must not log "exception never retrieved"
-        elif self._progress.state in (PrintState.DONE, PrintState.CANCELLED):
-            self._done.set_result(self._progress)
-
-    def orphaned(self, error: MarlinError) -> None:
-        """The connection to the service ended: the print goes on there, but this handle can follow it no more."""
-        if not self._done.done():
-            self._done.set_exception(
-                ConnectionLostError(f"{error} (the print goes on in the service: `marlin-temp serve` shows it)")
-            )
-            self._done.exception()
-
-    def pause(self) -> None:
-        """Ask the service to stop feeding lines (what is in flight completes)."""
-        self._ask("pause")
-
-    def resume(self) -> None:
-        """Ask the service to feed lines again."""
-        self._ask("resume")
-
-    def _ask(self, method: str) -> None:
-        rpc = self._printer._rpc
-        if rpc is None:
-            raise ConnectionLostError(f"the printer {self._printer.port} is not open")
-        rpc.call_soon(method, {"printer": self._printer.name})
-
-    async def cancel(self, script: list[str] | tuple[str, ...] = ()) -> PrintProgress:
-        """Have the service stop the print, wait for it to end, then send `script` (see `PrintHandle.cancel`).
-
-        Raises:
-            MarlinError: the print failed before it could be cancelled, or the script failed.
-        """
-        await self._printer._call("cancel", script=list(script))
-        return await self.wait()
-
-    async def wait(self) -> PrintProgress:
-        """Wait for the print to end in the service; return its final progress.
-
-        Raises:
-            MarlinError: as `PrintHandle.wait`; ConnectionLostError if the service went away meanwhile.
-        """
-        return await asyncio.shield(self._done)
-
-    def __await__(self) -> Generator[object, None, PrintProgress]:
-        return self.wait().__await__()
-
-    def check(self) -> None:
-        """Nothing to do: the service tells when the print ends."""
-
-
-def service_holding(port: str, socket_path: Path | None = None) -> str | None:
-    """The `serve:NAME` URL of the printer that a running service holds on `port`, or None.
-
-    Reads the service's registry (`serve.json` beside its socket) without connecting; a registry left by a
-    service that is gone (its socket refuses) is not believed by whoever then connects.
-    """
-    import json
-
-    path = (socket_path or default_socket_path()).with_name("serve.json")
-    try:
-        registry = json.loads(path.read_text())
-        printers = registry["printers"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    if not isinstance(printers, dict):
-        return None
-    wanted = os.path.realpath(port) if port.startswith("/") else port
-    for name, held in printers.items():
-        if isinstance(held, str) and (held == port or (held.startswith("/") and os.path.realpath(held) == wanted)):
-            suffix = "" if socket_path is None else f"@{socket_path}"
-            return f"{SERVE_PREFIX}{name}{suffix}"
-    return None
 
 
 def _absolute(path: str | Path) -> str:

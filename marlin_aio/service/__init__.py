@@ -4,7 +4,7 @@ with `Printer`'s API. `server` is the service, `history` what it keeps for clien
 
 from __future__ import annotations
 
-from marlin_aio.aio.served import SOCKET_ENV, default_socket_path, service_holding
+from marlin_aio.aio.servicepaths import SOCKET_ENV, default_socket_path, service_holding
 from marlin_aio.service.history import ConsoleLine, History
 from marlin_aio.service.server import TOPICS, Service, ServiceRunningError
 

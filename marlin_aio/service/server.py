@@ -14,8 +14,8 @@ refused as busy. Commands of all clients meet in the printer's one FIFO (the lib
 request that sent its command. Nothing a client sent is replayed when the service restarts: requests live only in
 the process that took them.
 
-One module: the session (a client's reader, writer and queue) and the service (the socket, the farm, the
-notifications) are two halves of one exchange that only make sense together; the methods are one table.
+A client's reader, writer and queue are `session.Session`. Over 400 lines because the methods are one table: each
+is a few lines over the farm, and spread over modules they would hide which requests exist.
 """
 
 from __future__ import annotations
@@ -26,40 +26,32 @@ import json
 import logging
 import os
 import tempfile
-from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import marlin_aio
-from marlin_aio.aio.served import default_socket_path
+from marlin_aio.aio.servicepaths import default_socket_path
 from marlin_aio.farm.supervisor import Farm, FarmEvent, FarmPrinter, PrinterSpec
 from marlin_aio.protocol import redact
 from marlin_aio.protocol.rpc import (
     INVALID_PARAMS,
-    INVALID_REQUEST,
     MAX_MESSAGE_BYTES,
-    METHOD_NOT_FOUND,
     RpcError,
-    decode_message,
     encode_message,
     error_to_json,
     notification,
     progress_to_json,
     reading_to_json,
     reply_to_json,
-    response,
 )
 from marlin_aio.service.history import History
+from marlin_aio.service.session import Handler, Session, param
 
-__all__ = ["CLIENT_QUEUE_MESSAGES", "MAX_REQUESTS_IN_FLIGHT", "TOPICS", "Service", "ServiceRunningError"]
+__all__ = ["TOPICS", "Service", "ServiceRunningError"]
 
 _log = logging.getLogger("marlin_aio.service")
 
-#: Messages a client may have waiting to be read before notifications to it are dropped.
-CLIENT_QUEUE_MESSAGES = 1_000
-#: Requests one client may have under way at once (a long M109 among them); more are refused as busy.
-MAX_REQUESTS_IN_FLIGHT = 32
 #: What a client can subscribe to.
 TOPICS = frozenset({"readings", "console", "progress", "link"})
 #: How often a running print's progress is told to its subscribers.
@@ -70,169 +62,6 @@ MAX_UPLOAD_LINES = 20_000
 
 class ServiceRunningError(RuntimeError):
     """Another `marlin-temp serve` already listens at the socket."""
-
-
-class _Session:
-    """One client: its reader, its writer task and its bounded outgoing queue, its subscriptions."""
-
-    def __init__(self, service: Service, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, number: int):
-        self.service = service
-        self.reader = reader
-        self.writer = writer
-        self.number = number
-        self.queue: deque[bytes] = deque()
-        self.wakeup = asyncio.Event()
-        self.drained = asyncio.Event()  # set by the writer each time it has written all that was queued
-        self.dropped = 0
-        self.subscriptions: dict[str, set[str]] = {}
-        self.requests: set[asyncio.Task[None]] = set()
-        self.closing = False
-
-    def subscribed(self, printer: str, topic: str) -> bool:
-        return topic in self.subscriptions.get(printer, ())
-
-    def push(self, data: bytes, *, droppable: bool = True) -> None:
-        """Queue a message; a notification finding the queue full is dropped, a response closes the session."""
-        if self.closing:
-            return
-        if len(self.queue) >= CLIENT_QUEUE_MESSAGES:
-            if droppable:
-                self.dropped += 1
-                return
-            if len(self.queue) >= 2 * CLIENT_QUEUE_MESSAGES:
-                _log.warning("client %d reads nothing: disconnected", self.number)
-                self.close()
-                return
-        self.queue.append(data)
-        self.wakeup.set()
-
-    def close(self) -> None:
-        self.closing = True
-        self.wakeup.set()
-        self.writer.close()
-
-    async def write_loop(self) -> None:
-        with contextlib.suppress(OSError):
-            while not self.closing:
-                if not self.queue:
-                    self.wakeup.clear()
-                    await self.wakeup.wait()
-                    continue
-                batch = b"".join(self.queue)
-                self.queue.clear()
-                self.writer.write(batch)
-                await self.writer.drain()
-                self.drained.set()
-
-    async def run(self) -> None:
-        writer_task = asyncio.create_task(self.write_loop(), name=f"client {self.number} writer")
-        try:
-            while not self.closing:
-                try:
-                    line = await self.reader.readline()
-                except ValueError:  # a line past the limit: answered once, then the client is let go
-                    self.push(
-                        encode_message(
-                            response(
-                                None,
-                                error=error_to_json(
-                                    RpcError(INVALID_REQUEST, f"a message is at most {MAX_MESSAGE_BYTES} bytes")
-                                ),
-                            )
-                        ),
-                        droppable=False,
-                    )
-                    break
-                except OSError:
-                    break
-                if not line.endswith(b"\n"):
-                    break
-                self.take(line)
-        finally:
-            for task in self.requests:
-                task.cancel()  # a client that left waits for nothing; a print it started goes on in the farm
-            if self.queue and not self.closing:
-                # What was answered before the client hung up its sending side still reaches it.
-                with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(self._flushed(), 1.0)
-            self.close()
-            writer_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, OSError):
-                await writer_task
-            with contextlib.suppress(OSError):
-                await self.writer.wait_closed()
-
-    async def _flushed(self) -> None:
-        while self.queue:
-            self.drained.clear()
-            await self.drained.wait()
-
-    def take(self, line: bytes) -> None:
-        """Handle one received line: a request gets a task of its own, a malformed one an error at once."""
-        request_id: object = None
-        try:
-            message = decode_message(line)
-            request_id = message.get("id")
-            method = message.get("method")
-            params = message.get("params", {})
-            if message.get("jsonrpc") != "2.0" or not isinstance(method, str):
-                raise RpcError(INVALID_REQUEST, 'a request has "jsonrpc": "2.0" and a "method"')
-            if not isinstance(params, dict):
-                raise RpcError(INVALID_PARAMS, "params are an object: by name, not by position")
-            handler = self.service.methods.get(method)
-            if handler is None:
-                raise RpcError(
-                    METHOD_NOT_FOUND, f"no method {method[:60]!r}; there are {', '.join(sorted(self.service.methods))}"
-                )
-            if len(self.requests) >= MAX_REQUESTS_IN_FLIGHT:
-                raise RpcError(INVALID_REQUEST, f"busy: {MAX_REQUESTS_IN_FLIGHT} requests of this client are under way")
-        except RpcError as exc:
-            self.answer(request_id, error=error_to_json(exc))
-            return
-        task = asyncio.create_task(
-            self._handle(request_id, handler(self, params)), name=f"client {self.number} {method}"
-        )
-        self.requests.add(task)
-        task.add_done_callback(self.requests.discard)
-
-    async def _handle(self, request_id: object, call: Awaitable[object]) -> None:
-        try:
-            result = await call
-        except asyncio.CancelledError:
-            raise
-        except (RpcError, marlin_aio.MarlinError, ValueError, RuntimeError, OSError) as exc:
-            self.answer(request_id, error=error_to_json(exc))
-        except Exception as exc:  # a bug of ours: answered and logged, never the end of the service
-            _log.exception("request failed")
-            self.answer(request_id, error=error_to_json(RuntimeError(f"the service failed: {exc!r}")))
-        else:
-            self.answer(request_id, result)
-
-    def answer(self, request_id: object, result: object = None, *, error: dict[str, Any] | None = None) -> None:
-        if request_id is None and error is None:
-            return  # a notification from the client: nothing to answer
-        try:
-            data = encode_message(response(request_id, result, error))
-        except (TypeError, ValueError) as exc:
-            data = encode_message(response(request_id, error=error_to_json(RuntimeError(f"unanswerable: {exc}"))))
-        self.push(data, droppable=False)
-
-
-Handler = Callable[[_Session, dict[str, Any]], Awaitable[object]]
-
-
-def _param(
-    params: dict[str, Any], name: str, kind: type | tuple[type, ...], default: Any = ..., *, optional: bool = False
-) -> Any:
-    value = params.get(name, default)
-    if value is ...:
-        raise RpcError(INVALID_PARAMS, f"missing parameter {name!r}")
-    if value is None and (optional or default is None):
-        return None
-    kinds = kind if isinstance(kind, tuple) else (kind,)
-    if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):  # JSON's true is no number
-        raise RpcError(INVALID_PARAMS, f"parameter {name!r} has the wrong type ({type(value).__name__})")
-    return value
 
 
 def _prepare_folder(path: Path) -> bool:
@@ -277,7 +106,7 @@ class Service:
         }
         for name, farm_printer in self.farm.printers.items():
             farm_printer.reading_listeners.append(self._reader_of(name))
-        self.sessions: set[_Session] = set()
+        self.sessions: set[Session] = set()
         self._numbers = 0
         self.ready = asyncio.Event()
         self._announced: dict[str, object] = {}  # the last progress told per printer, not to repeat it
@@ -345,7 +174,7 @@ class Service:
                 raise ServiceRunningError(f"a marlin-temp serve is already running at {path}")
 
     def _write_registry(self) -> None:
-        printers = {name: fp.spec.port or "sim" for name, fp in self.farm.printers.items()}
+        printers = {name: fp.spec.port for name, fp in self.farm.printers.items() if fp.spec.port}
         data = json.dumps({"pid": os.getpid(), "socket": str(self.socket_path), "printers": printers})
         fd, temporary = tempfile.mkstemp(dir=self.registry_path.parent, prefix=".serve.", suffix=".json")
         with os.fdopen(fd, "w") as handle:
@@ -354,7 +183,7 @@ class Service:
 
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         self._numbers += 1
-        session = _Session(self, reader, writer, self._numbers)
+        session = Session(self, reader, writer, self._numbers)
         self.sessions.add(session)
         try:
             await session.run()
@@ -422,7 +251,7 @@ class Service:
     # ------------------------------------------------------------------------------------------- methods
 
     def _printer_of(self, params: dict[str, Any]) -> FarmPrinter:
-        name = _param(params, "printer", str, None)
+        name = param(params, "printer", str, None)
         printers = self.farm.printers
         if name is None:
             if len(printers) == 1:
@@ -456,7 +285,7 @@ class Service:
             "print": farm_printer.print_status(),
         }
 
-    def _subscribe_to(self, session: _Session, farm_printer: FarmPrinter, topics: object) -> list[str]:
+    def _subscribe_to(self, session: Session, farm_printer: FarmPrinter, topics: object) -> list[str]:
         if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
             raise RpcError(INVALID_PARAMS, f"topics are a list of names: {', '.join(sorted(TOPICS))}")
         unknown = set(topics) - TOPICS
@@ -467,7 +296,7 @@ class Service:
         session.subscriptions.setdefault(farm_printer.name, set()).update(topics)
         return sorted(session.subscriptions[farm_printer.name])
 
-    async def _hello(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _hello(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         topics = params.get("subscribe", [])
         subscribed = self._subscribe_to(session, farm_printer, topics) if topics else []
@@ -477,22 +306,22 @@ class Service:
             "subscribed": subscribed,
         }
 
-    async def _printers(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _printers(self, session: Session, params: dict[str, Any]) -> object:
         return [self._info(farm_printer) for farm_printer in self.farm.printers.values()]
 
-    async def _status(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _status(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         info = self._info(farm_printer)
         info["clients"] = len(self.sessions)
         info["dropped"] = session.dropped
         return info
 
-    async def _subscribe(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _subscribe(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         subscribed = self._subscribe_to(session, farm_printer, params.get("topics"))
         return {"subscribed": subscribed}
 
-    async def _unsubscribe(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _unsubscribe(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         topics = params.get("topics")
         if topics is None:
@@ -501,19 +330,19 @@ class Service:
             session.subscriptions.get(farm_printer.name, set()).difference_update(str(t) for t in topics)
         return {"subscribed": sorted(session.subscriptions.get(farm_printer.name, ()))}
 
-    async def _history(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _history(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
-        seconds = float(_param(params, "seconds", (int, float), 300.0))
+        seconds = float(param(params, "seconds", (int, float), 300.0))
         history = self.histories[farm_printer.name]
         return {
             "readings": [reading_to_json(r) for r in history.readings(seconds)],
             "console": [{"direction": c.direction, "text": c.text, "time_s": c.time_s} for c in history.console],
         }
 
-    async def _send(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _send(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
-        command = _param(params, "command", str)
-        timeout_s = _param(params, "timeout_s", (int, float), None)
+        command = param(params, "command", str)
+        timeout_s = param(params, "timeout_s", (int, float), None)
         printer = self._connected(farm_printer)
         reply = await printer.send(command, timeout_s=timeout_s)
         self._note(farm_printer.name, ">", command)
@@ -522,21 +351,21 @@ class Service:
         self._note(farm_printer.name, "<", f"ok {reply.ok.payload}".rstrip())
         return reply_to_json(reply)
 
-    async def _read_temperatures(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _read_temperatures(self, session: Session, params: dict[str, Any]) -> object:
         printer = self._connected(self._printer_of(params))
         return reading_to_json(await printer.read_temperatures())
 
-    async def _set_temperatures(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _set_temperatures(self, session: Session, params: dict[str, Any]) -> object:
         printer = self._connected(self._printer_of(params))
-        targets = {name: _param(params, name, (int, float), None) for name in ("hotend", "bed", "chamber")}
-        await printer.set_temperatures(**targets, tool=_param(params, "tool", int, None))
+        targets = {name: param(params, name, (int, float), None) for name in ("hotend", "bed", "chamber")}
+        await printer.set_temperatures(**targets, tool=param(params, "tool", int, None))
         return None
 
-    async def _start_print(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _start_print(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         self._connected(farm_printer)
-        path_text = _param(params, "path", str, None)
-        lines = _param(params, "lines", list, None)
+        path_text = param(params, "path", str, None)
+        lines = param(params, "lines", list, None)
         if (path_text is None) == (lines is None):
             raise RpcError(INVALID_PARAMS, "give a print either a path or lines")
         if lines is not None:
@@ -550,7 +379,7 @@ class Service:
                 raise RpcError(INVALID_PARAMS, f"the service needs an absolute path, got {path_text[:200]!r}")
         options = {
             "send_ahead": bool(params.get("send_ahead", False)),
-            "timeout_s": _param(params, "timeout_s", (int, float), None),
+            "timeout_s": param(params, "timeout_s", (int, float), None),
         }
         handle = await self.farm.start_print(farm_printer, path, **options)
         return {"file": farm_printer.print_file, "progress": progress_to_json(handle.progress)}
@@ -568,31 +397,31 @@ class Service:
             raise RuntimeError(f"no print is running on {farm_printer.name}")
         return handle
 
-    async def _pause(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _pause(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         self._running(farm_printer).pause()
         self._progress_of(farm_printer)
         return None
 
-    async def _resume(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _resume(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         self._running(farm_printer).resume()
         self._progress_of(farm_printer)
         return None
 
-    async def _cancel(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _cancel(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
-        script = _param(params, "script", list, [])
+        script = param(params, "script", list, [])
         if not all(isinstance(command, str) for command in script):
             raise RpcError(INVALID_PARAMS, "script is a list of commands")
         progress = await self._running(farm_printer).cancel(tuple(script))
         return progress_to_json(progress)
 
-    async def _emergency_stop(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _emergency_stop(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         self._connected(farm_printer).emergency_stop()
         self._note(farm_printer.name, ">", "M112 (emergency stop)")
         return None
 
-    async def _interrupt_wait(self, session: _Session, params: dict[str, Any]) -> object:
+    async def _interrupt_wait(self, session: Session, params: dict[str, Any]) -> object:
         return self._connected(self._printer_of(params)).interrupt_wait()

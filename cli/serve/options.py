@@ -1,0 +1,86 @@
+"""The command line of `marlin-temp serve`: its options and help, the printers checked before `command` runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+import marlin_aio
+
+from ..common.connect import Exit, UsageProblem
+from ..common.options import BaudOption, SimSpeedOption, error_console, fail, run
+
+__all__ = ["SERVE_HELP", "serve"]
+
+SERVE_HELP = (
+    "Own the printers' ports and share them: every other marlin-temp command, and any program, reaches a served "
+    "printer as --port serve:NAME (a command asked for a port the service holds uses the service by itself, and "
+    "says so)."
+    "\n\n"
+    "Give the printers as --port NAME=PORT (repeatable), --config FILE (the farm's TOML), --sim for one simulated "
+    "printer named sim, or --sims N. Each is kept connected (reconnecting with backoff when unplugged or halted) "
+    "and polled at --interval; prints started through the service run inside it, so a print survives the "
+    "terminal or SSH session that started it."
+    "\n\n"
+    "Where things live: the socket is $MARLIN_SERVE_SOCKET, else $XDG_RUNTIME_DIR/marlin-temp/serve.sock, else "
+    "/tmp/marlin-temp-UID/serve.sock (--socket overrides), in a folder only you can enter; beside it serve.json "
+    "names the ports held, and uploads/ the prints sent as lines. Clients speak JSON-RPC 2.0 on it, one message "
+    "per line (see the README)."
+    "\n\n"
+    "Try it: marlin-temp serve --sim, then in another terminal marlin-temp watch --port serve:sim"
+)
+
+
+def serve(
+    ports: Annotated[
+        list[str] | None, typer.Option("--port", "-p", help="A printer as NAME=PORT (or just PORT); repeatable.")
+    ] = None,
+    config: Annotated[Path | None, typer.Option("--config", help="TOML file listing the printers.")] = None,
+    sim: Annotated[bool, typer.Option("--sim", help="Serve one simulated printer, named sim.")] = False,
+    sims: Annotated[
+        int, typer.Option("--sims", help="Serve N simulated printers (sim1, sim2, ...).", min=0, metavar="N")
+    ] = 0,
+    sim_speed: SimSpeedOption = 1.0,
+    baud: BaudOption = None,
+    interval: Annotated[
+        float, typer.Option("--interval", help="Seconds between M105 polls of each printer.", min=0.005)
+    ] = 0.1,
+    socket: Annotated[
+        Path | None, typer.Option("--socket", help="Listen here instead of the default (see above).")
+    ] = None,
+    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+) -> None:
+    """Own the printers and share them on a local socket (the help text is `SERVE_HELP`)."""
+    from marlin_aio.farm.config import check_unique, load_config, specs_from_options
+    from marlin_aio.farm.supervisor import PrinterSpec
+
+    from .command import run_serve
+
+    if duration is not None and not duration > 0:
+        fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
+    if sim and sims:
+        fail("--sim is one simulated printer and --sims N several: give one of them", Exit.USAGE)
+    try:
+        specs = load_config(config) if config is not None else []
+        if sim:
+            specs.append(PrinterSpec("sim", None, poll_interval_s=interval, sim=True, sim_speed=sim_speed))
+        if ports or sims or not specs:
+            options_specs = specs_from_options(
+                ports or [],
+                sims,
+                baud=baud or marlin_aio.DEFAULT_BAUDRATE,
+                poll_interval_s=interval,
+                sim_speed=sim_speed,
+            )
+            specs = check_unique(specs + options_specs)
+        else:
+            specs = check_unique(specs)
+    except UsageProblem as exc:
+        fail(str(exc), exc.code)
+    except ValueError as exc:
+        fail(str(exc), Exit.USAGE)
+    except OSError as exc:
+        fail(f"{config}: {exc.strerror or exc}", Exit.USAGE)
+    run(run_serve(specs, socket, duration, error_console()))

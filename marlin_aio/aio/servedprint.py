@@ -1,0 +1,103 @@
+"""A print that runs inside `marlin-temp serve`, as the client that started it follows it (`ServedPrintHandle`)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Generator
+from typing import Any, Protocol
+
+from marlin_aio.aio.printhandle import PrintHandle
+from marlin_aio.errors import ConnectionLostError, MarlinError
+from marlin_aio.protocol.printjob import PrintProgress, PrintState
+from marlin_aio.protocol.rpc import RpcError, error_from_json, progress_from_json
+
+__all__ = ["ServedPrintHandle", "ServedPrinterLike"]
+
+
+class ServedPrinterLike(Protocol):
+    """What a served print needs of its printer: a request for its printer, awaited or written at once."""
+
+    async def call(self, method: str, **params: Any) -> Any:
+        """Send `method` for this printer and return its result."""
+
+    def call_soon(self, method: str) -> None:
+        """Write `method` for this printer now, not waiting for its answer."""
+
+
+class ServedPrintHandle(PrintHandle):
+    """A print running inside the service, as its starter follows it: progress from the service's notifications,
+    `pause`, `resume` and `cancel` as requests. Leaving (closing the printer) does not stop the print."""
+
+    def __init__(self, printer: ServedPrinterLike, progress: PrintProgress, file: str) -> None:
+        # Not PrintHandle's link-bound state: the job and its link live in the service.
+        self._printer = printer
+        self._progress = progress
+        self.file = file
+        loop = asyncio.get_running_loop()
+        self._done: asyncio.Future[PrintProgress] = loop.create_future()
+
+    @property
+    def progress(self) -> PrintProgress:
+        """The progress the service last told (it tells every half second while the print runs, and at once on
+        a change of state)."""
+        return self._progress
+
+    @property
+    def finished(self) -> bool:
+        """True once the service said the print ended."""
+        return self._done.done()
+
+    def update(self, params: dict[str, Any]) -> None:
+        """Take a progress notification from the service."""
+        with contextlib.suppress(RpcError):
+            self._progress = progress_from_json(params.get("progress"))
+        if self._done.done():
+            return
+        if self._progress.state is PrintState.FAILED:
+            self._done.set_exception(error_from_json(params.get("error") or {"message": "the print failed"}))
+            self._done.exception()  # a print nobody awaits must not log "exception never retrieved"
+        elif self._progress.state in (PrintState.DONE, PrintState.CANCELLED):
+            self._done.set_result(self._progress)
+
+    def orphaned(self, error: MarlinError) -> None:
+        """The connection to the service ended: the print goes on there, but this handle can follow it no more."""
+        if not self._done.done():
+            self._done.set_exception(
+                ConnectionLostError(f"{error} (the print goes on in the service: `marlin-temp serve` shows it)")
+            )
+            self._done.exception()
+
+    def pause(self) -> None:
+        """Ask the service to stop feeding lines (what is in flight completes)."""
+        self._ask("pause")
+
+    def resume(self) -> None:
+        """Ask the service to feed lines again."""
+        self._ask("resume")
+
+    def _ask(self, method: str) -> None:
+        self._printer.call_soon(method)
+
+    async def cancel(self, script: list[str] | tuple[str, ...] = ()) -> PrintProgress:
+        """Have the service stop the print, wait for it to end, then send `script` (see `PrintHandle.cancel`).
+
+        Raises:
+            MarlinError: the print failed before it could be cancelled, or the script failed.
+        """
+        await self._printer.call("cancel", script=list(script))
+        return await self.wait()
+
+    async def wait(self) -> PrintProgress:
+        """Wait for the print to end in the service; return its final progress.
+
+        Raises:
+            MarlinError: as `PrintHandle.wait`; ConnectionLostError if the service went away meanwhile.
+        """
+        return await asyncio.shield(self._done)
+
+    def __await__(self) -> Generator[object, None, PrintProgress]:
+        return self.wait().__await__()
+
+    def check(self) -> None:
+        """Nothing to do: the service tells when the print ends."""

@@ -1,0 +1,62 @@
+"""Where `marlin-temp serve` listens, how a `serve:` port names one of its printers, and which ports it holds."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from marlin_aio.aio.printer import SERVE_PREFIX
+
+__all__ = ["SOCKET_ENV", "default_socket_path", "parse_served_port", "service_holding"]
+
+#: Names the service's socket instead of the default (`marlin-temp serve --socket` sets it for its children too).
+SOCKET_ENV = "MARLIN_SERVE_SOCKET"
+
+
+def default_socket_path() -> Path:
+    """Where `marlin-temp serve` listens unless told otherwise: `$MARLIN_SERVE_SOCKET`, else
+    `$XDG_RUNTIME_DIR/marlin-temp/serve.sock` (a per-user folder the system empties at logout), else
+    `/tmp/marlin-temp-UID/serve.sock`."""
+    named = os.environ.get(SOCKET_ENV)
+    if named:
+        return Path(named)
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    folder = Path(runtime) / "marlin-temp" if runtime else Path(tempfile.gettempdir()) / f"marlin-temp-{os.getuid()}"
+    return folder / "serve.sock"
+
+
+def parse_served_port(port: str) -> tuple[str | None, Path]:
+    """(printer name or None for the only one, socket path) of `serve:NAME`, `serve:NAME@/path.sock` or `serve:`.
+
+    Raises:
+        ValueError: `port` does not start with `serve:`.
+    """
+    if not port.startswith(SERVE_PREFIX):
+        raise ValueError(f"not a served printer: {port!r} (expected serve:NAME)")
+    rest = port[len(SERVE_PREFIX) :]
+    name, at, path = rest.partition("@")
+    return (name or None), (Path(path) if at else default_socket_path())
+
+
+def service_holding(port: str, socket_path: Path | None = None) -> str | None:
+    """The `serve:NAME` URL of the printer that a running service holds on `port`, or None.
+
+    Reads the service's registry (`serve.json` beside its socket) without connecting; a registry left by a
+    service that is gone (its socket refuses) is not believed by whoever then connects.
+    """
+    path = (socket_path or default_socket_path()).with_name("serve.json")
+    try:
+        registry = json.loads(path.read_text())
+        printers = registry["printers"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not isinstance(printers, dict):
+        return None
+    wanted = os.path.realpath(port) if port.startswith("/") else port
+    for name, held in printers.items():
+        if isinstance(held, str) and (held == port or (held.startswith("/") and os.path.realpath(held) == wanted)):
+            suffix = "" if socket_path is None else f"@{socket_path}"
+            return f"{SERVE_PREFIX}{name}{suffix}"
+    return None

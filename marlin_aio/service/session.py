@@ -1,0 +1,214 @@
+"""One client of `marlin-temp serve`: its reader, its writer task and bounded outgoing queue, its subscriptions.
+
+The serial side never waits for a client: a notification that finds the queue full is dropped and counted, a client
+whose unread responses pass twice the bound is let go, and requests run in tasks of the client's own, at most
+`MAX_REQUESTS_IN_FLIGHT` at once (the service's methods are a table it looks requests up in).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import deque
+from collections.abc import Awaitable, Callable, Mapping
+from typing import Any, Protocol
+
+import marlin_aio
+from marlin_aio.protocol.rpc import (
+    INVALID_PARAMS,
+    INVALID_REQUEST,
+    MAX_MESSAGE_BYTES,
+    METHOD_NOT_FOUND,
+    RpcError,
+    decode_message,
+    encode_message,
+    error_to_json,
+    response,
+)
+
+__all__ = ["CLIENT_QUEUE_MESSAGES", "MAX_REQUESTS_IN_FLIGHT", "Handler", "ServiceLike", "Session", "param"]
+
+_log = logging.getLogger("marlin_aio.service")
+
+#: Messages a client may have waiting to be read before notifications to it are dropped.
+CLIENT_QUEUE_MESSAGES = 1_000
+#: Requests one client may have under way at once (a long M109 among them); more are refused as busy.
+MAX_REQUESTS_IN_FLIGHT = 32
+
+
+class ServiceLike(Protocol):
+    """What a session needs of its service: the table of methods requests are looked up in."""
+
+    @property
+    def methods(self) -> Mapping[str, Handler]:
+        """Each method's handler, by name."""
+
+
+class Session:
+    """One client: its reader, its writer task and its bounded outgoing queue, its subscriptions."""
+
+    def __init__(self, service: ServiceLike, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, number: int):
+        self.service = service
+        self.reader = reader
+        self.writer = writer
+        self.number = number
+        self.queue: deque[bytes] = deque()
+        self.wakeup = asyncio.Event()
+        self.drained = asyncio.Event()  # set by the writer each time it has written all that was queued
+        self.dropped = 0
+        self.subscriptions: dict[str, set[str]] = {}
+        self.requests: set[asyncio.Task[None]] = set()
+        self.closing = False
+
+    def subscribed(self, printer: str, topic: str) -> bool:
+        return topic in self.subscriptions.get(printer, ())
+
+    def push(self, data: bytes, *, droppable: bool = True) -> None:
+        """Queue a message; a notification finding the queue full is dropped, a response closes the session."""
+        if self.closing:
+            return
+        if len(self.queue) >= CLIENT_QUEUE_MESSAGES:
+            if droppable:
+                self.dropped += 1
+                return
+            if len(self.queue) >= 2 * CLIENT_QUEUE_MESSAGES:
+                _log.warning("client %d reads nothing: disconnected", self.number)
+                self.close()
+                return
+        self.queue.append(data)
+        self.wakeup.set()
+
+    def close(self) -> None:
+        self.closing = True
+        self.wakeup.set()
+        self.writer.close()
+
+    async def write_loop(self) -> None:
+        with contextlib.suppress(OSError):
+            while not self.closing:
+                if not self.queue:
+                    self.wakeup.clear()
+                    await self.wakeup.wait()
+                    continue
+                batch = b"".join(self.queue)
+                self.queue.clear()
+                self.writer.write(batch)
+                await self.writer.drain()
+                self.drained.set()
+
+    async def run(self) -> None:
+        writer_task = asyncio.create_task(self.write_loop(), name=f"client {self.number} writer")
+        try:
+            while not self.closing:
+                try:
+                    line = await self.reader.readline()
+                except ValueError:  # a line past the limit: answered once, then the client is let go
+                    self.push(
+                        encode_message(
+                            response(
+                                None,
+                                error=error_to_json(
+                                    RpcError(INVALID_REQUEST, f"a message is at most {MAX_MESSAGE_BYTES} bytes")
+                                ),
+                            )
+                        ),
+                        droppable=False,
+                    )
+                    break
+                except OSError:
+                    break
+                if not line.endswith(b"\n"):
+                    break
+                self.take(line)
+        finally:
+            for task in self.requests:
+                task.cancel()  # a client that left waits for nothing; a print it started goes on in the farm
+            if self.queue and not self.closing:
+                # What was answered before the client hung up its sending side still reaches it.
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(self._flushed(), 1.0)
+            self.close()
+            writer_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, OSError):
+                await writer_task
+            with contextlib.suppress(OSError):
+                await self.writer.wait_closed()
+
+    async def _flushed(self) -> None:
+        while self.queue:
+            self.drained.clear()
+            await self.drained.wait()
+
+    def take(self, line: bytes) -> None:
+        """Handle one received line: a request gets a task of its own, a malformed one an error at once."""
+        request_id: object = None
+        try:
+            message = decode_message(line)
+            request_id = message.get("id")
+            method = message.get("method")
+            params = message.get("params", {})
+            if message.get("jsonrpc") != "2.0" or not isinstance(method, str):
+                raise RpcError(INVALID_REQUEST, 'a request has "jsonrpc": "2.0" and a "method"')
+            if not isinstance(params, dict):
+                raise RpcError(INVALID_PARAMS, "params are an object: by name, not by position")
+            handler = self.service.methods.get(method)
+            if handler is None:
+                raise RpcError(
+                    METHOD_NOT_FOUND, f"no method {method[:60]!r}; there are {', '.join(sorted(self.service.methods))}"
+                )
+            if len(self.requests) >= MAX_REQUESTS_IN_FLIGHT:
+                raise RpcError(INVALID_REQUEST, f"busy: {MAX_REQUESTS_IN_FLIGHT} requests of this client are under way")
+        except RpcError as exc:
+            self.answer(request_id, error=error_to_json(exc))
+            return
+        task = asyncio.create_task(
+            self._handle(request_id, handler(self, params)), name=f"client {self.number} {method}"
+        )
+        self.requests.add(task)
+        task.add_done_callback(self.requests.discard)
+
+    async def _handle(self, request_id: object, call: Awaitable[object]) -> None:
+        try:
+            result = await call
+        except asyncio.CancelledError:
+            raise
+        except (RpcError, marlin_aio.MarlinError, ValueError, RuntimeError, OSError) as exc:
+            self.answer(request_id, error=error_to_json(exc))
+        except Exception as exc:  # a bug of ours: answered and logged, never the end of the service
+            _log.exception("request failed")
+            self.answer(request_id, error=error_to_json(RuntimeError(f"the service failed: {exc!r}")))
+        else:
+            self.answer(request_id, result)
+
+    def answer(self, request_id: object, result: object = None, *, error: dict[str, Any] | None = None) -> None:
+        if request_id is None and error is None:
+            return  # a notification from the client: nothing to answer
+        try:
+            data = encode_message(response(request_id, result, error))
+        except (TypeError, ValueError) as exc:
+            data = encode_message(response(request_id, error=error_to_json(RuntimeError(f"unanswerable: {exc}"))))
+        self.push(data, droppable=False)
+
+
+#: A method of the service: the session that asked, and the request's parameters; its result is the answer.
+Handler = Callable[["Session", dict[str, Any]], Awaitable[object]]
+
+
+def param(
+    params: dict[str, Any], name: str, kind: type | tuple[type, ...], default: Any = ..., *, optional: bool = False
+) -> Any:
+    value = params.get(name, default)
+    if value is ...:
+        raise RpcError(INVALID_PARAMS, f"missing parameter {name!r}")
+    if value is None and (optional or default is None):
+        return None
+    """The request parameter `name`, checked to be of `kind` (missing: `default`, or an error if none is given).
+
+    Raises:
+        RpcError: `INVALID_PARAMS`, naming the parameter.
+    """
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):  # JSON's true is no number
+        raise RpcError(INVALID_PARAMS, f"parameter {name!r} has the wrong type ({type(value).__name__})")
+    return value

@@ -1,0 +1,379 @@
+"""`marlin-temp serve` as a real process with the simulator, driven through its socket: by the library's
+`ServedPrinter` (`serve:NAME`), by raw JSON-RPC as a program in any language would, and by the CLI.
+
+Each test starts its own service on a socket in its own temporary folder (`$MARLIN_SERVE_SOCKET` for the
+children), waits for its "serving" line (no timer), and stops it with SIGTERM.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import signal
+import stat
+import sys
+import textwrap
+from collections.abc import AsyncIterator, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+from conftest import until
+from typer.testing import CliRunner
+
+import marlin_aio
+from marlin_aio.protocol import rpc
+from marlin_aio.service import SOCKET_ENV, service_holding
+from marlin_temp.main import app
+
+runner = CliRunner()
+
+
+@dataclass
+class Served:
+    socket: Path
+    process: asyncio.subprocess.Process
+    lines: list[str]
+
+    def url(self, name: str = "sim") -> str:
+        return f"serve:{name}@{self.socket}"
+
+    def env(self) -> dict[str, str]:
+        return {**os.environ, SOCKET_ENV: str(self.socket)}
+
+
+async def _read_lines(stream: asyncio.StreamReader, lines: list[str]) -> None:
+    while line := await stream.readline():
+        lines.append(line.decode(errors="replace").rstrip("\n"))
+
+
+@contextlib.asynccontextmanager
+async def serving(tmp_path: Path, *args: str) -> AsyncIterator[Served]:
+    """A `marlin-temp serve` process on a socket in `tmp_path`, ready (it said "serving" and its printers are
+    connected) until the block ends; then SIGTERM, and it must exit 0."""
+    path = tmp_path / "run" / "serve.sock"
+    process = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "marlin_temp",
+        "serve",
+        "--socket",
+        str(path),
+        *(args or ("--sim", "--sim-speed", "50", "--interval", "0.05")),
+        stderr=asyncio.subprocess.PIPE,
+        env={**os.environ, SOCKET_ENV: str(path)},
+    )
+    assert process.stderr is not None
+    lines: list[str] = []
+    reader = asyncio.create_task(_read_lines(process.stderr, lines))
+    served = Served(path, process, lines)
+    try:
+        await until(lambda: any("serving" in line for line in lines) or reader.done(), "the service to listen")
+        assert any("serving" in line for line in lines), lines
+        expected = sum(1 for arg in args if arg.startswith("--port")) or 1
+        await until(lambda: sum(": connected:" in line for line in lines) >= expected, "the printers to connect")
+        yield served
+    finally:
+        if process.returncode is None:
+            process.send_signal(signal.SIGTERM)
+        code = await asyncio.wait_for(process.wait(), 30)
+        await reader
+    assert code == 0, lines
+    assert not path.exists(), "the socket is removed when the service stops"
+
+
+class RawClient:
+    """JSON-RPC by hand: what a client in another language does."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.reader = reader
+        self.writer = writer
+        self.next_id = 0
+        self.notifications: list[dict[str, Any]] = []
+
+    async def call(self, method: str, **params: Any) -> dict[str, Any]:
+        self.next_id += 1
+        self.writer.write(rpc.encode_message(rpc.request(self.next_id, method, params)))
+        return await self.answer(self.next_id)
+
+    async def answer(self, request_id: object) -> dict[str, Any]:
+        while True:
+            message = json.loads(await asyncio.wait_for(self.reader.readline(), 30))
+            if "method" in message:
+                self.notifications.append(message)
+            elif message.get("id") == request_id:
+                return dict(message)
+
+    async def raw(self, data: bytes) -> dict[str, Any]:
+        self.writer.write(data)
+        return await self.answer(None)
+
+
+@contextlib.asynccontextmanager
+async def raw_client(served: Served) -> AsyncIterator[RawClient]:
+    reader, writer = await asyncio.open_unix_connection(str(served.socket), limit=4 << 20)
+    try:
+        yield RawClient(reader, writer)
+    finally:
+        writer.close()
+        with contextlib.suppress(OSError):
+            await writer.wait_closed()
+
+
+PRINT_CLIENT = textwrap.dedent(
+    """
+    import asyncio, sys
+    import marlin_aio
+
+    async def main():
+        async with marlin_aio.connect(sys.argv[1]) as printer:
+            handle = await printer.start_print(sys.argv[2])
+            print("started", handle.progress.state.value, flush=True)
+        # The client is gone from here on: the print must go on in the service.
+
+    asyncio.run(main())
+    """
+)
+
+
+def _gcode(path: Path, lines: int) -> Path:
+    path.write_text("".join(f"G1 X{i % 100} F6000 ; move {i}\nG4 P5\n" for i in range(lines // 2)))
+    return path
+
+
+async def test_a_print_outlives_the_client_that_started_it_while_another_client_follows_readings(
+    tmp_path: Path,
+) -> None:
+    gcode = _gcode(tmp_path / "part.gcode", 400)
+    async with serving(tmp_path) as served, marlin_aio.connect(served.url()) as watcher:
+        assert type(watcher).__name__ == "ServedPrinter"
+        assert isinstance(watcher, marlin_aio.Printer)
+        starter = await asyncio.create_subprocess_exec(
+            sys.executable, "-c", PRINT_CLIENT, served.url(), str(gcode), stdout=asyncio.subprocess.PIPE
+        )
+        out, _ = await starter.communicate()
+        assert starter.returncode == 0
+        assert out.decode().startswith("started running")
+        # The starter has exited; the print runs on, and the watcher's readings keep coming meanwhile.
+        readings: list[marlin_aio.TemperatureReading] = []
+        async with raw_client(served) as control:
+            async for reading in watcher.temperature_readings():
+                readings.append(reading)
+                status = (await control.call("status", printer="sim"))["result"]
+                if status["print"]["state"] != "running":
+                    break
+            assert status["print"]["state"] == "done", status
+            assert status["print"]["lines_acked"] == 400
+            assert status["print"]["file"] == "part.gcode"
+        assert len(readings) >= 5
+        assert all(r.hotend is not None for r in readings)
+
+
+async def test_two_clients_starting_prints_the_second_is_refused(tmp_path: Path) -> None:
+    gcode = _gcode(tmp_path / "long.gcode", 2000)
+    async with (
+        serving(tmp_path) as served,
+        marlin_aio.connect(served.url()) as first,
+        marlin_aio.connect(served.url()) as second,
+    ):
+        handle = await first.start_print(gcode)
+        with pytest.raises(RuntimeError, match="a print is already running"):
+            await second.start_print(gcode)
+        # The second client may still pause and cancel the print it did not start (one printer, shared).
+        progress = await handle.cancel()
+        assert progress.state is marlin_aio.PrintState.CANCELLED
+        assert progress.lines_acked < 2000
+
+
+async def test_each_reply_reaches_its_own_caller_across_clients(tmp_path: Path) -> None:
+    async with (
+        serving(tmp_path) as served,
+        marlin_aio.connect(served.url()) as a,
+        marlin_aio.connect(served.url()) as b,
+    ):
+
+        async def echo(printer: marlin_aio.Printer, tag: str, n: int) -> list[str]:
+            # Not `M118 A1...`: M118 reads a leading A1 as "prefix with //".
+            replies = [await printer.send(f"M118 reply-{tag}-{i}") for i in range(n)]
+            return [reply.lines[0] for reply in replies]
+
+        got_a, got_b = await asyncio.gather(echo(a, "a", 30), echo(b, "b", 30))
+        assert got_a == [f"reply-a-{i}" for i in range(30)]
+        assert got_b == [f"reply-b-{i}" for i in range(30)]
+
+
+async def test_errors_are_the_librarys_own(tmp_path: Path) -> None:
+    async with serving(tmp_path) as served, marlin_aio.connect(served.url()) as printer:
+        with pytest.raises(ValueError, match="above the limit"):
+            await printer.set_temperatures(hotend=900)  # refused before it leaves this process
+        with pytest.raises(marlin_aio.PortNotFoundError, match=r"no printer named 'nope'.*it has: sim"):
+            async with marlin_aio.connect(served.url("nope")):
+                pass
+    with pytest.raises(marlin_aio.PortNotFoundError, match="no marlin-temp serve is listening"):
+        async with marlin_aio.connect(f"serve:sim@{tmp_path / 'none.sock'}"):
+            pass
+
+
+async def test_an_emergency_stop_through_the_service_halts_the_printer_for_every_client(tmp_path: Path) -> None:
+    async with (
+        serving(tmp_path) as served,
+        marlin_aio.connect(served.url()) as stopper,
+        marlin_aio.connect(served.url()) as other,
+    ):
+        events: list[marlin_aio.LinkEvent] = []
+        other.on_link_event(events.append)
+        stopper.emergency_stop()
+        error = await asyncio.wait_for(other.wait_for_failure(), 30)
+        assert isinstance(error, marlin_aio.PrinterHaltedError)
+        with pytest.raises(marlin_aio.PrinterHaltedError):
+            await other.send("M105")
+        assert not other.is_connected
+        await until(lambda: [e.kind for e in events] == ["halted"], "the halted event")
+        # A halted board needs a reset (its button, or a USB bridge's DTR on the next open): until then the service
+        # keeps trying, and a client that opens is told why in one line.
+        with pytest.raises(marlin_aio.ConnectError, match=r"not connected now \(emergency stop"):
+            async with marlin_aio.connect(served.url()):
+                pass
+
+
+async def test_garbage_and_misbehaving_clients_get_one_error_and_nobody_else_notices(tmp_path: Path) -> None:
+    async with serving(tmp_path) as served, raw_client(served) as bad, marlin_aio.connect(served.url()) as good:
+        cases: list[tuple[bytes, int]] = [
+            (b"\xff\xfe not json\n", rpc.PARSE_ERROR),
+            (b"[1, 2, 3]\n", rpc.INVALID_REQUEST),
+            (b'{"jsonrpc": "2.0", "id": null, "method": 5}\n', rpc.INVALID_REQUEST),
+            (b"[" * 50_000 + b"\n", rpc.PARSE_ERROR),
+        ]
+        for data, code in cases:
+            answer = await bad.raw(data)
+            assert answer["error"]["code"] == code, (data[:40], answer)
+        answer = await bad.call("no_such_method")
+        assert answer["error"]["code"] == rpc.METHOD_NOT_FOUND
+        answer = await bad.call("send", printer="sim", command=5)
+        assert answer["error"]["code"] == rpc.INVALID_PARAMS
+        answer = await bad.call("send", printer="sim", command="M104 S1\nM140 S100")
+        assert answer["error"]["data"]["type"] == "ValueError"  # a newline inside a command: nothing written
+        answer = await bad.call("start_print", printer="sim", path="relative.gcode")
+        assert "absolute path" in answer["error"]["message"]
+        # The well-behaved client never noticed.
+        reply = await good.send("M118 still here")
+        assert reply.lines == ("still here",)
+        # A line past the size limit: one error, then that client is let go; the other goes on.
+        bad.writer.write(b"x" * (rpc.MAX_MESSAGE_BYTES + 10) + b"\n")
+        answer = await bad.answer(None)
+        assert "at most" in answer["error"]["message"]
+        assert await bad.reader.read() == b""  # closed by the service
+        assert (await good.send("M118 and still")).lines == ("and still",)
+
+
+async def test_a_client_that_leaves_mid_request_costs_nothing(tmp_path: Path) -> None:
+    async with serving(tmp_path) as served, marlin_aio.connect(served.url()) as good:
+        async with raw_client(served) as leaver:
+            leaver.writer.write(rpc.encode_message(rpc.request(1, "send", {"printer": "sim", "command": "G4 S1"})))
+            await leaver.writer.drain()
+        reply = await good.send("M118 after")
+        assert reply.lines == ("after",)
+
+
+async def test_late_joiners_get_history_and_the_socket_is_the_owners_alone(tmp_path: Path) -> None:
+    async with serving(tmp_path) as served:
+        mode = served.socket.stat().st_mode
+        assert stat.S_ISSOCK(mode) and stat.S_IMODE(mode) == 0o600
+        assert stat.S_IMODE(served.socket.parent.stat().st_mode) == 0o700
+        async with marlin_aio.connect(served.url()) as printer:
+            await printer.send("M118 for the record")
+            await until(lambda: printer.latest is not None, "a reading")
+        async with raw_client(served) as late:
+            history = (await late.call("history", printer="sim", seconds=60))["result"]
+            assert history["readings"], "readings kept for clients that join later"
+            texts = [line["text"] for line in history["console"]]
+            assert "M118 for the record" in texts and "for the record" in texts
+            assert any(text.startswith("connected:") for text in texts)
+
+
+async def test_a_second_service_on_the_same_socket_is_refused(tmp_path: Path) -> None:
+    async with serving(tmp_path) as served:
+        second = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "marlin_temp",
+            "serve",
+            "--sim",
+            "--socket",
+            str(served.socket),
+            stderr=asyncio.subprocess.PIPE,
+        )
+        _, err = await asyncio.wait_for(second.communicate(), 60)
+        assert second.returncode == 2
+        assert "already running" in err.decode()
+        assert served.process.returncode is None
+
+
+async def test_cli_commands_use_a_served_printer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    async with serving(tmp_path) as served:
+        url = served.url()
+        result = await asyncio.to_thread(runner.invoke, app, ["send", "--port", url, "M118 hello"])
+        assert result.exit_code == 0, result.output
+        assert "hello" in result.output
+        result = await asyncio.to_thread(runner.invoke, app, ["set", "--port", url, "--hotend", "abc"])
+        assert result.exit_code == 2
+        result = await asyncio.to_thread(
+            runner.invoke, app, ["set", "--port", url, "--hotend", "40", "--wait", "--timeout", "30"]
+        )
+        assert result.exit_code == 0, result.output
+        assert "reached" in result.output
+        log = tmp_path / "served.csv"
+        result = await asyncio.to_thread(
+            runner.invoke, app, ["log", "--port", url, "--duration", "1.5", "--interval", "0.1", "-o", str(log)]
+        )
+        assert result.exit_code == 0, result.output
+        assert len(log.read_text().splitlines()) > 3
+
+
+@pytest.fixture
+def pty_sim_path() -> Iterator[str]:
+    """A simulated printer on a pty of its own process (`marlin-sim`), for a service to hold."""
+    import subprocess
+
+    process = subprocess.Popen(
+        [sys.executable, "-m", "marlin_aio.simulator", "--sim-speed", "50"], stdout=subprocess.PIPE, text=True
+    )
+    assert process.stdout is not None
+    line = process.stdout.readline()
+    path = line.strip()
+    try:
+        yield path
+    finally:
+        process.terminate()
+        process.wait(10)
+
+
+async def test_a_command_asked_for_a_port_the_service_holds_goes_through_the_service(
+    tmp_path: Path, pty_sim_path: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    async with serving(tmp_path, "--port", f"bench={pty_sim_path}", "--interval", "0.05") as served:
+        monkeypatch.setenv(SOCKET_ENV, str(served.socket))
+        assert service_holding(pty_sim_path) == "serve:bench"
+        result = await asyncio.to_thread(runner.invoke, app, ["send", "--port", pty_sim_path, "M118 via service"])
+        assert result.exit_code == 0, result.output
+        assert "held by marlin-temp serve" in result.output
+        assert "via service" in result.output
+
+
+def test_served_ports_parse() -> None:
+    from marlin_aio.aio.servicepaths import default_socket_path, parse_served_port
+
+    assert parse_served_port("serve:a@/x/y.sock") == ("a", Path("/x/y.sock"))
+    assert parse_served_port("serve:") == (None, default_socket_path())
+    with pytest.raises(ValueError, match="serve:NAME"):
+        parse_served_port("/dev/ttyUSB0")
+
+
+def test_a_socket_path_nobody_listens_at_is_one_error_line(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["send", "--port", f"serve:sim@{tmp_path / 'x.sock'}", "M105"])
+    assert result.exit_code != 0
+    assert "no marlin-temp serve is listening" in result.output
+    assert len(result.output.strip().splitlines()) == 1
