@@ -25,7 +25,7 @@ import asyncio
 import contextlib
 import logging
 import os
-from collections.abc import AsyncGenerator, AsyncIterator, Iterable, Sequence
+from collections.abc import AsyncGenerator, AsyncIterator, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -55,7 +55,10 @@ from marlin_aio.protocol.rpc import (
 )
 from marlin_aio.protocol.temperatures import TemperatureReading
 
-__all__ = ["ServedPrinter"]
+__all__ = ["UPLOAD_PIECE_BYTES", "ServedPrinter"]
+
+#: How much of a print sent as lines goes in one request (well inside the message limit).
+UPLOAD_PIECE_BYTES = 256 * 1024
 
 _log = logging.getLogger("marlin_aio")
 
@@ -313,15 +316,37 @@ class ServedPrinter(Printer):
             params["timeout_s"] = timeout_s
         if isinstance(source, str | Path):
             params["path"] = _absolute(source)  # the service's working folder is not this one
-        elif isinstance(source, Sequence):
-            params["lines"] = [str(line) for line in source]
         else:
-            raise ValueError("a served printer prints a file or a list of lines, not an iterator")
+            params["path"] = await self._upload(source)
         value = await self._call("start_print", **params)
         assert self._loop is not None
         handle = ServedPrintHandle(self, progress_from_json(value.get("progress")), str(value.get("file", "")))
         self._served_print = handle
         return handle
+
+    async def _upload(self, lines: Iterable[str]) -> str:
+        """Send `lines` to the service in pieces of at most `UPLOAD_PIECE_BYTES`; return the file it made of them.
+        (A list or an iterator of any length: the service keeps the print, so it must have all of it.)"""
+        upload_id: str | None = None
+        piece: list[str] = []
+        size = 0
+
+        async def send(done: bool) -> Any:
+            nonlocal upload_id, piece, size
+            params: dict[str, Any] = {"lines": piece, "done": done, "name": "upload.gcode"}
+            if upload_id is not None:
+                params["upload_id"] = upload_id
+            result = await self._call("upload", **params)
+            piece, size = [], 0
+            upload_id = result.get("upload_id", upload_id)
+            return result
+
+        for line in lines:
+            piece.append(str(line))
+            size += len(line) + 8
+            if size >= UPLOAD_PIECE_BYTES:
+                await send(False)
+        return str((await send(True))["path"])
 
     # ------------------------------------------------------------------------------------------- state
 

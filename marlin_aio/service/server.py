@@ -47,6 +47,7 @@ from marlin_aio.protocol.rpc import (
 )
 from marlin_aio.service.history import History
 from marlin_aio.service.session import Handler, Session, param
+from marlin_aio.service.uploads import Uploads
 
 __all__ = ["TOPICS", "Service", "ServiceRunningError"]
 
@@ -56,8 +57,6 @@ _log = logging.getLogger("marlin_aio.service")
 TOPICS = frozenset({"readings", "console", "progress", "link"})
 #: How often a running print's progress is told to its subscribers.
 PROGRESS_INTERVAL_S = 0.5
-#: The longest print a client may send as lines (a file travels as its path).
-MAX_UPLOAD_LINES = 20_000
 
 
 class ServiceRunningError(RuntimeError):
@@ -98,7 +97,7 @@ class Service:
         history_long_s: float = 6 * 3600.0,
     ) -> None:
         self.socket_path = socket_path or default_socket_path()
-        self.uploads_dir = uploads_dir or self.socket_path.parent / "uploads"
+        self.uploads = Uploads(uploads_dir or self.socket_path.parent / "uploads")
         self.farm = Farm(specs, self._on_farm_event)
         self._on_event = on_event
         self.histories = {
@@ -120,6 +119,7 @@ class Service:
             "send": self._send,
             "read_temperatures": self._read_temperatures,
             "set_temperatures": self._set_temperatures,
+            "upload": self._upload,
             "start_print": self._start_print,
             "pause": self._pause,
             "resume": self._resume,
@@ -189,6 +189,8 @@ class Service:
             await session.run()
         finally:
             self.sessions.discard(session)
+            for upload_id in session.uploads:
+                self.uploads.discard(upload_id)  # abandoned half-way: nobody can finish it now
 
     # ------------------------------------------------------------------------------------------- notifications
 
@@ -361,35 +363,34 @@ class Service:
         await printer.set_temperatures(**targets, tool=param(params, "tool", int, None))
         return None
 
+    async def _upload(self, session: Session, params: dict[str, Any]) -> object:
+        upload_id = param(params, "upload_id", str, None)
+        lines = param(params, "lines", list, [])
+        if not all(isinstance(line, str) for line in lines):
+            raise RpcError(INVALID_PARAMS, "lines are strings, one line of the file each")
+        if upload_id is None:
+            upload_id = self.uploads.begin()
+            session.uploads.add(upload_id)
+        self.uploads.append(upload_id, lines)
+        if not params.get("done"):
+            return {"upload_id": upload_id}
+        session.uploads.discard(upload_id)
+        name = param(params, "name", str, "upload.gcode")
+        return {"path": str(self.uploads.finish(upload_id, name))}
+
     async def _start_print(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
         self._connected(farm_printer)
-        path_text = param(params, "path", str, None)
-        lines = param(params, "lines", list, None)
-        if (path_text is None) == (lines is None):
-            raise RpcError(INVALID_PARAMS, "give a print either a path or lines")
-        if lines is not None:
-            if len(lines) > MAX_UPLOAD_LINES or not all(isinstance(line, str) for line in lines):
-                raise RpcError(INVALID_PARAMS, f"lines are at most {MAX_UPLOAD_LINES} strings (a file goes by path)")
-            path = self._upload(farm_printer.name, lines)
-        else:
-            assert path_text is not None
-            path = Path(path_text)
-            if not path.is_absolute():
-                raise RpcError(INVALID_PARAMS, f"the service needs an absolute path, got {path_text[:200]!r}")
+        path_text = param(params, "path", str)
+        path = Path(path_text)
+        if not path.is_absolute():
+            raise RpcError(INVALID_PARAMS, f"the service needs an absolute path, got {path_text[:200]!r}")
         options = {
             "send_ahead": bool(params.get("send_ahead", False)),
             "timeout_s": param(params, "timeout_s", (int, float), None),
         }
         handle = await self.farm.start_print(farm_printer, path, **options)
         return {"file": farm_printer.print_file, "progress": progress_to_json(handle.progress)}
-
-    def _upload(self, name: str, lines: list[str]) -> Path:
-        self.uploads_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
-        fd, temporary = tempfile.mkstemp(dir=self.uploads_dir, prefix=f"{name}-", suffix=".gcode")
-        with os.fdopen(fd, "w", encoding="ascii", errors="strict") as handle:
-            handle.writelines(line.rstrip("\r\n") + "\n" for line in lines)
-        return Path(temporary)
 
     def _running(self, farm_printer: FarmPrinter) -> marlin_aio.PrintHandle:
         handle = farm_printer.print_handle

@@ -59,6 +59,7 @@ class Session:
         self.dropped = 0
         self.subscriptions: dict[str, set[str]] = {}
         self.requests: set[asyncio.Task[None]] = set()
+        self.uploads: set[str] = set()  # uploads this client began and has not finished
         self.closing = False
 
     def subscribed(self, printer: str, topic: str) -> bool:
