@@ -53,7 +53,7 @@ LAYERS: dict[str, tuple[set[str], set[str]]] = {
             "marlin_aio.service",
             "marlin_aio.simulator",
         },
-        set(),
+        {"aiohttp"},
     ),
 }
 

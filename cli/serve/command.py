@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
+import secrets
 import signal
 import time
 from pathlib import Path
@@ -13,26 +15,74 @@ from rich.console import Console
 from rich.markup import escape
 
 from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
-from marlin_aio.service import Service, ServiceRunningError
+from marlin_aio.service import OctoPrintSettings, Service, ServiceRunningError, default_socket_path
 
 from ..common.connect import Exit, UsageProblem
 
 __all__ = ["run_serve"]
 
 
-async def run_serve(specs: list[PrinterSpec], socket: Path | None, duration_s: float | None, errors: Console) -> None:
-    """Serve `specs` at `socket` until `duration_s` passed, SIGTERM, or the task is cancelled.
+#: Where the OctoPrint API key can come from when no file is named.
+API_KEY_ENV = "MARLIN_SERVE_API_KEY"
+
+
+def api_key(key_file: Path | None, beside: Path) -> tuple[str, str]:
+    """The OctoPrint API key and where it came from: `key_file`, `$MARLIN_SERVE_API_KEY`, or the `api-key` file
+    beside the socket (made with a random key, owner-only, the first time).
 
     Raises:
-        UsageProblem: another service already listens at the socket (exit 2: it is the user's to stop).
-        OSError: the socket cannot be made.
+        UsageProblem: the key named is shorter than 16 characters.
+        OSError: the file cannot be read or made.
+    """
+    if key_file is not None:
+        key, source = key_file.read_text().strip(), str(key_file)
+    elif os.environ.get(API_KEY_ENV):
+        key, source = os.environ[API_KEY_ENV].strip(), f"${API_KEY_ENV}"
+    else:
+        path = beside / "api-key"
+        beside.mkdir(mode=0o700, parents=True, exist_ok=True)
+        if not path.exists():
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            with os.fdopen(fd, "w") as handle:
+                handle.write(secrets.token_hex(16) + "\n")
+        key, source = path.read_text().strip(), str(path)
+    if len(key) < 16:
+        raise UsageProblem(f"the OctoPrint API key from {source} is shorter than 16 characters")
+    return key, source
+
+
+async def run_serve(
+    specs: list[PrinterSpec],
+    socket: Path | None,
+    duration_s: float | None,
+    errors: Console,
+    *,
+    http: tuple[str, int] | None = None,
+    http_printer: str | None = None,
+    key_file: Path | None = None,
+) -> None:
+    """Serve `specs` at `socket` until `duration_s` passed, SIGTERM, or the task is cancelled; with `http`, the
+    OctoPrint API on that host and port too.
+
+    Raises:
+        UsageProblem: another service already listens at the socket (exit 2: it is the user's to stop), or the
+            OctoPrint options do not fit.
+        OSError: the socket cannot be made, or the HTTP port is in use.
     """
 
     def show(event: FarmEvent) -> None:
         stamp = time.strftime("%H:%M:%S", time.localtime(event.time_s))
         errors.print(f"{stamp} {escape(event.printer)}: {escape(event.kind)}: {escape(event.message)}")
 
-    service = Service(specs, socket, on_event=show)
+    octoprint = None
+    socket_path = socket or default_socket_path()
+    if http is not None:
+        key, key_source = api_key(key_file, socket_path.parent)
+        octoprint = OctoPrintSettings(port=http[1], api_key=key, host=http[0], printer=http_printer)
+    try:
+        service = Service(specs, socket_path, on_event=show, octoprint=octoprint)
+    except ValueError as exc:
+        raise UsageProblem(str(exc)) from None
     stopped = asyncio.Event()
     loop = asyncio.get_running_loop()
     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):  # not the main thread, or no signals
@@ -47,6 +97,11 @@ async def run_serve(specs: list[PrinterSpec], socket: Path | None, duration_s: f
             "Ctrl-C stops",
             style="dim",
         )
+        if octoprint is not None:
+            errors.print(
+                f"OctoPrint API on http://{escape(octoprint.host)}:{octoprint.port} (API key in {escape(key_source)})",
+                style="dim",
+            )
 
     running = asyncio.create_task(service.run(), name="service")
     waiters = [asyncio.create_task(stopped.wait(), name="SIGTERM"), asyncio.create_task(announce(), name="announce")]
@@ -65,6 +120,8 @@ async def run_serve(specs: list[PrinterSpec], socket: Path | None, duration_s: f
             loop.remove_signal_handler(signal.SIGTERM)
     if isinstance(outcome, ServiceRunningError):
         raise UsageProblem(str(outcome), Exit.USAGE)
+    if isinstance(outcome, OSError) and octoprint is not None and outcome.errno in (98, 13):  # EADDRINUSE, EACCES
+        raise UsageProblem(f"--octoprint {octoprint.host}:{octoprint.port}: {outcome.strerror}", Exit.USAGE)
     if isinstance(outcome, Exception):
         raise outcome
     errors.print(f"serve: stopped after {time.monotonic() - started:.0f} s", style="dim")

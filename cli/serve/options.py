@@ -50,6 +50,27 @@ def serve(
     socket: Annotated[
         Path | None, typer.Option("--socket", help="Listen here instead of the default (see above).")
     ] = None,
+    octoprint: Annotated[
+        str | None,
+        typer.Option(
+            "--octoprint",
+            metavar="[HOST:]PORT",
+            help="Also serve OctoPrint's REST API here (127.0.0.1 unless HOST is given), so slicers and Home "
+            "Assistant can upload and start prints and read the state. Needs pip install 'marlin-aio[serve]'.",
+        ),
+    ] = None,
+    octoprint_printer: Annotated[
+        str | None,
+        typer.Option("--octoprint-printer", help="The printer the OctoPrint API is for (default: the first)."),
+    ] = None,
+    api_key_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--api-key-file",
+            help="File holding the OctoPrint API key (else $MARLIN_SERVE_API_KEY, else one is made and kept in "
+            "api-key beside the socket).",
+        ),
+    ] = None,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
 ) -> None:
     """Own the printers and share them on a local socket (the help text is `SERVE_HELP`)."""
@@ -83,4 +104,20 @@ def serve(
         fail(str(exc), Exit.USAGE)
     except OSError as exc:
         fail(f"{config}: {exc.strerror or exc}", Exit.USAGE)
-    run(run_serve(specs, socket, duration, error_console()))
+    http = None
+    if octoprint is not None:
+        import importlib.util
+
+        if importlib.util.find_spec("aiohttp") is None:
+            fail("--octoprint needs aiohttp, which is not installed: pip install 'marlin-aio[serve]'")
+        host, _, port_text = octoprint.rpartition(":")
+        if not port_text.isdigit() or not 0 < int(port_text) < 65536:
+            fail(f"--octoprint {octoprint!r}: give [HOST:]PORT, a port from 1 to 65535", Exit.USAGE)
+        http = (host.strip("[]") or "127.0.0.1", int(port_text))
+    elif octoprint_printer is not None or api_key_file is not None:
+        fail("--octoprint-printer and --api-key-file go with --octoprint", Exit.USAGE)
+    run(
+        run_serve(
+            specs, socket, duration, error_console(), http=http, http_printer=octoprint_printer, key_file=api_key_file
+        )
+    )

@@ -6,13 +6,14 @@ from __future__ import annotations
 
 from marlin_aio.aio.servicepaths import SOCKET_ENV, default_socket_path, service_holding
 from marlin_aio.service.history import ConsoleLine, History
-from marlin_aio.service.server import TOPICS, Service, ServiceRunningError
+from marlin_aio.service.server import TOPICS, OctoPrintSettings, Service, ServiceRunningError
 
 __all__ = [
     "SOCKET_ENV",
     "TOPICS",
     "ConsoleLine",
     "History",
+    "OctoPrintSettings",
     "Service",
     "ServiceRunningError",
     "default_socket_path",

@@ -27,6 +27,7 @@ import logging
 import os
 import tempfile
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +50,7 @@ from marlin_aio.service.history import History
 from marlin_aio.service.session import Handler, Session, param
 from marlin_aio.service.uploads import Uploads
 
-__all__ = ["TOPICS", "Service", "ServiceRunningError"]
+__all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError"]
 
 _log = logging.getLogger("marlin_aio.service")
 
@@ -57,6 +58,17 @@ _log = logging.getLogger("marlin_aio.service")
 TOPICS = frozenset({"readings", "console", "progress", "link"})
 #: How often a running print's progress is told to its subscribers.
 PROGRESS_INTERVAL_S = 0.5
+
+
+@dataclass(frozen=True)
+class OctoPrintSettings:
+    """Where the OctoPrint-shaped HTTP API listens, for which printer, and the key it wants."""
+
+    port: int
+    api_key: str = field(repr=False)
+    host: str = "127.0.0.1"
+    printer: str | None = None
+    """The printer it speaks for (OctoPrint has one); None: the service's first."""
 
 
 class ServiceRunningError(RuntimeError):
@@ -84,6 +96,10 @@ class Service:
         on_event: also called with every `FarmEvent` (the serve command prints them).
         history_recent_s: how far back every reading is kept for late joiners.
         history_long_s: how far back one reading a second is kept.
+        octoprint: serve the OctoPrint API too (needs aiohttp: the `[serve]` extra).
+
+    Raises:
+        ValueError: printer names not unique, or `octoprint` names a printer the service does not have.
     """
 
     def __init__(
@@ -95,6 +111,7 @@ class Service:
         on_event: Callable[[FarmEvent], None] | None = None,
         history_recent_s: float = 300.0,
         history_long_s: float = 6 * 3600.0,
+        octoprint: OctoPrintSettings | None = None,
     ) -> None:
         self.socket_path = socket_path or default_socket_path()
         self.uploads = Uploads(uploads_dir or self.socket_path.parent / "uploads")
@@ -105,6 +122,9 @@ class Service:
         }
         for name, farm_printer in self.farm.printers.items():
             farm_printer.reading_listeners.append(self._reader_of(name))
+        self.octoprint = octoprint
+        if octoprint is not None and octoprint.printer is not None and octoprint.printer not in self.farm.printers:
+            raise ValueError(f"--octoprint-printer {octoprint.printer!r}: no such printer here")
         self.sessions: set[Session] = set()
         self._numbers = 0
         self.ready = asyncio.Event()
@@ -140,8 +160,11 @@ class Service:
         path = self.socket_path
         await self._claim(path)
         server = await asyncio.start_unix_server(self._client, str(path), limit=MAX_MESSAGE_BYTES)
+        http = None
         try:
             os.chmod(path, 0o600)
+            if self.octoprint is not None:
+                http = await self._serve_octoprint(self.octoprint)
             self._write_registry()
             self.ready.set()
             _log.info("serving %s at %s", ", ".join(self.farm.printers), path)
@@ -150,12 +173,23 @@ class Service:
                 group.create_task(self._tell_progress(), name="progress")
         finally:
             server.close()
+            if http is not None:
+                await http.cleanup()
             for session in list(self.sessions):
                 session.close()
             with contextlib.suppress(OSError):
                 path.unlink()
             with contextlib.suppress(OSError):
                 self.registry_path.unlink()
+
+    async def _serve_octoprint(self, settings: OctoPrintSettings) -> Any:
+        from marlin_aio.service.octoprint import OctoPrintApi  # aiohttp only when asked for
+
+        name = settings.printer or next(iter(self.farm.printers))
+        api = OctoPrintApi(self.farm.printers[name], self.farm.start_print, self.uploads, settings.api_key)
+        runner = await api.serve(settings.host, settings.port)
+        _log.info("OctoPrint API for %s on http://%s:%d", name, settings.host, settings.port)
+        return runner
 
     @property
     def registry_path(self) -> Path:

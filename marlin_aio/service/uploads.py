@@ -8,6 +8,7 @@ upload lives as a hidden `.part` file until its last piece, and one its client a
 
 from __future__ import annotations
 
+import codecs
 import contextlib
 import os
 import re
@@ -35,6 +36,15 @@ def safe_name(name: str) -> str:
     return base if base.lower().endswith(_GCODE_SUFFIXES) else f"{base}.gcode"
 
 
+class _Part:
+    """An upload under way: its hidden file, its size so far, and the check that it is UTF-8 across pieces."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.size = 0
+        self.decoder = codecs.getincrementaldecoder("utf-8")()
+
+
 class Uploads:
     """The uploads folder: pieces in, finished files out.
 
@@ -46,18 +56,18 @@ class Uploads:
     def __init__(self, folder: Path, max_bytes: int = MAX_UPLOAD_BYTES) -> None:
         self.folder = folder
         self.max_bytes = max_bytes
-        self._parts: dict[str, tuple[Path, int]] = {}
+        self._parts: dict[str, _Part] = {}
 
     def _folder(self) -> Path:
         self.folder.mkdir(mode=0o700, parents=True, exist_ok=True)
         return self.folder
 
     def begin(self) -> str:
-        """Start a piece-by-piece upload; return its id."""
+        """Start an upload in pieces; return its id."""
         upload_id = secrets.token_hex(8)
         path = self._folder() / f".{upload_id}.part"
         path.touch(mode=0o600)
-        self._parts[upload_id] = (path, 0)
+        self._parts[upload_id] = _Part(path)
         return upload_id
 
     def append(self, upload_id: str, lines: list[str]) -> None:
@@ -66,59 +76,72 @@ class Uploads:
         Raises:
             UploadError: no such upload, a line holds a line break inside it, or the upload grew past the bound.
         """
-        if upload_id not in self._parts:
-            raise UploadError(f"no upload {upload_id[:40]!r} in progress")
-        path, size = self._parts[upload_id]
         text = "".join(line.removesuffix("\n").removesuffix("\r") + "\n" for line in lines)
         if text.count("\n") != len(lines) or "\r" in text:
-            raise UploadError("a line of an upload holds a line break inside it")
-        data = text.encode("utf-8", errors="strict")
-        if size + len(data) > self.max_bytes:
             self.discard(upload_id)
-            raise UploadError(f"the upload is over the limit of {self.max_bytes // (1024 * 1024)} MiB")
-        with path.open("ab") as handle:
+            raise UploadError("a line of an upload holds a line break inside it")
+        self.append_bytes(upload_id, text.encode("utf-8", errors="surrogateescape"))
+
+    def append_bytes(self, upload_id: str, data: bytes) -> None:
+        """Add `data` (any piece of the file's bytes) to the upload `upload_id`, checking it is text as it comes.
+
+        Raises:
+            UploadError: no such upload, not text (a NUL byte, not UTF-8), or past the bound; the upload is dropped.
+        """
+        part = self._parts.get(upload_id)
+        if part is None:
+            raise UploadError(f"no upload {upload_id[:40]!r} in progress")
+        try:
+            if part.size + len(data) > self.max_bytes:
+                raise UploadError(f"the upload is over the limit of {self.max_bytes // (1024 * 1024)} MiB")
+            if b"\0" in data:
+                raise UploadError(f"not a text G-code file (a NUL byte near byte {part.size + data.index(0)})")
+            try:
+                part.decoder.decode(data)
+            except UnicodeDecodeError:
+                raise UploadError(f"not a text G-code file (not UTF-8 near byte {part.size})") from None
+        except UploadError:
+            self.discard(upload_id)
+            raise
+        with part.path.open("ab") as handle:
             handle.write(data)
-        self._parts[upload_id] = (path, size + len(data))
+        part.size += len(data)
 
     def finish(self, upload_id: str, name: str) -> Path:
         """End the upload `upload_id` as a file named after `name` (made safe, never over another); return its path.
 
         Raises:
-            UploadError: no such upload.
+            UploadError: no such upload, or it ends inside a UTF-8 character.
         """
-        if upload_id not in self._parts:
+        part = self._parts.get(upload_id)
+        if part is None:
             raise UploadError(f"no upload {upload_id[:40]!r} in progress")
-        path, _ = self._parts.pop(upload_id)
+        try:
+            part.decoder.decode(b"", final=True)
+        except UnicodeDecodeError:
+            self.discard(upload_id)
+            raise UploadError("not a text G-code file (it ends inside a UTF-8 character)") from None
+        del self._parts[upload_id]
         final = self._free(safe_name(name))
-        os.replace(path, final)
+        os.replace(part.path, final)
         return final
 
     def store(self, name: str, data: bytes) -> Path:
-        """Keep `data` whole as a file named after `name` (made safe, never over another); return its path.
+        """Keep `data` whole as a file named after `name` (see `append_bytes` and `finish`); return its path.
 
         Raises:
-            UploadError: it is over the bound, or not text (a NUL byte, or not UTF-8).
+            UploadError: over the bound, or not text.
         """
-        if len(data) > self.max_bytes:
-            raise UploadError(f"the upload is over the limit of {self.max_bytes // (1024 * 1024)} MiB")
-        if b"\0" in data:
-            raise UploadError("not a text G-code file (a NUL byte)")
-        try:
-            data.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise UploadError(f"not a text G-code file (not UTF-8 at byte {exc.start})") from None
-        final = self._free(safe_name(name))
-        fd = os.open(final, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        return final
+        upload_id = self.begin()
+        self.append_bytes(upload_id, data)
+        return self.finish(upload_id, name)
 
     def discard(self, upload_id: str) -> None:
         """Drop an unfinished upload (its client left, or it failed)."""
-        entry = self._parts.pop(upload_id, None)
-        if entry is not None:
+        part = self._parts.pop(upload_id, None)
+        if part is not None:
             with contextlib.suppress(FileNotFoundError):
-                entry[0].unlink()
+                part.path.unlink()
 
     def _free(self, name: str) -> Path:
         folder = self._folder()

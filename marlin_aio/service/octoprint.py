@@ -1,0 +1,387 @@
+"""The part of OctoPrint's REST API that slicers and Home Assistant use, served by `marlin-temp serve --octoprint`.
+
+PrusaSlicer, OrcaSlicer and Cura's "OctoPrint" host type upload a file and start it (`GET /api/version`, then
+`POST /api/files/local` with `print=true`); Home Assistant's OctoPrint integration reads `/api/printer` and
+`/api/job` and sends `POST /api/job` (pause, resume, cancel) and heater targets. Each request is answered from the
+service's own state (its farm's printer: the latest reading, the print running) and acts through the same calls as
+the socket's clients, so a print started here is the same print `marlin-temp serve` shows everywhere.
+
+Served by aiohttp (a well-kept server, not a hand-written one), on 127.0.0.1 unless told otherwise. Every request
+but `GET /api/version` needs the API key (`X-Api-Key` header, or `apikey` in the query), compared in constant time;
+without it the answer is 403, as OctoPrint's. Uploads go through the service's `Uploads` (a size bound, text only, a
+safe file name, never over another file), streamed to disk as they arrive.
+"""
+
+from __future__ import annotations
+
+import hmac
+import logging
+from pathlib import Path
+from typing import Any
+from urllib.parse import unquote
+
+from aiohttp import BodyPartReader, web
+
+import marlin_aio
+from marlin_aio.farm.supervisor import FarmPrinter
+from marlin_aio.service.uploads import UploadError, Uploads
+
+__all__ = ["OCTOPRINT_VERSION", "OctoPrintApi"]
+
+_log = logging.getLogger("marlin_aio.service.octoprint")
+
+#: The OctoPrint release whose API this imitates (clients check it is at least 1.x).
+OCTOPRINT_VERSION = "1.10.0"
+_API_VERSION = "0.1"
+
+_STATES = {
+    marlin_aio.PrintState.RUNNING: "Printing",
+    marlin_aio.PrintState.PAUSED: "Paused",
+}
+
+
+class OctoPrintApi:
+    """The OctoPrint-shaped HTTP API of one printer of a service.
+
+    Args:
+        farm_printer: the printer it speaks for.
+        start_print: starts a print of a path on that printer (the service's own, so the print is everyone's).
+        uploads: where uploaded files are kept.
+        api_key: the key every request but `/api/version` must carry.
+    """
+
+    def __init__(self, farm_printer: FarmPrinter, start_print: Any, uploads: Uploads, api_key: str) -> None:
+        if len(api_key) < 16:
+            raise ValueError("the API key must be at least 16 characters")
+        self.farm_printer = farm_printer
+        self._start_print = start_print
+        self.uploads = uploads
+        self._key = api_key.encode()
+        self.selected: Path | None = None
+        # `//api/...` (a base URL with a trailing slash, as pyoctoprintapi builds some) is redirected, method kept.
+        slashes = web.normalize_path_middleware(
+            append_slash=False, merge_slashes=True, redirect_class=web.HTTPPermanentRedirect
+        )
+        self.app = web.Application(middlewares=[slashes, self._auth], client_max_size=uploads.max_bytes + 65536)
+        self.app.add_routes(
+            [
+                web.get("/api/version", self.version),
+                web.get("/api/server", self.server),
+                web.get("/api/connection", self.connection),
+                web.get("/api/settings", self.settings),
+                web.get("/api/printerprofiles", self.profiles),
+                web.get("/api/printer", self.printer),
+                web.post("/api/printer/tool", self.tool),
+                web.post("/api/printer/bed", self.bed),
+                web.get("/api/job", self.job),
+                web.post("/api/job", self.job_command),
+                web.get("/api/files", self.files),
+                web.get("/api/files/local", self.files),
+                web.post("/api/files/local", self.upload),
+                web.post("/api/files/local/{name}", self.file_command),
+            ]
+        )
+
+    # ------------------------------------------------------------------------------------------- plumbing
+
+    @web.middleware
+    async def _auth(self, request: web.Request, handler: Any) -> web.StreamResponse:
+        if request.path != "/api/version" or request.method != "GET":
+            given = request.headers.get("X-Api-Key") or request.query.get("apikey") or ""
+            if not hmac.compare_digest(given.encode(), self._key):
+                return _error(403, "Invalid API key")
+        try:
+            response: web.StreamResponse = await handler(request)
+        except marlin_aio.MarlinError as exc:
+            return _error(409, str(exc))
+        return response
+
+    async def serve(self, host: str, port: int) -> web.AppRunner:
+        """Start listening on `host`:`port`; return the runner (its `cleanup()` stops it).
+
+        Raises:
+            OSError: the address is in use or not allowed.
+        """
+        runner = web.AppRunner(self.app, access_log=None)
+        await runner.setup()
+        site = web.TCPSite(runner, host, port)
+        try:
+            await site.start()
+        except BaseException:
+            await runner.cleanup()
+            raise
+        return runner
+
+    def _operational(self) -> marlin_aio.Printer:
+        printer = self.farm_printer.printer
+        if printer is None or not self.farm_printer.link_up:
+            raise web.HTTPConflict(text="Printer is not operational")
+        return printer
+
+    def _handle(self) -> marlin_aio.PrintHandle | None:
+        return self.farm_printer.print_handle
+
+    def _state_text(self) -> str:
+        if not self.farm_printer.link_up:
+            return "Offline" if self.farm_printer.last_error is None else "Offline after error"
+        handle = self._handle()
+        if handle is not None and not handle.finished:
+            return _STATES.get(handle.progress.state, "Printing")
+        return "Operational"
+
+    # ------------------------------------------------------------------------------------------- read
+
+    async def version(self, request: web.Request) -> web.Response:
+        """`GET /api/version`: who answers (the one request that needs no key)."""
+        return web.json_response(
+            {
+                "api": _API_VERSION,
+                "server": OCTOPRINT_VERSION,
+                "text": f"OctoPrint (marlin_aio {marlin_aio.__version__})",
+            }
+        )
+
+    async def server(self, request: web.Request) -> web.Response:
+        """`GET /api/server`."""
+        return web.json_response({"version": OCTOPRINT_VERSION, "safemode": None})
+
+    async def connection(self, request: web.Request) -> web.Response:
+        """`GET /api/connection`: the port the service holds, and whether it is up."""
+        spec = self.farm_printer.spec
+        current = {
+            "state": self._state_text(),
+            "port": spec.port or "sim",
+            "baudrate": spec.baud,
+            "printerProfile": "_default",
+        }
+        options = {"ports": [current["port"]], "baudrates": [spec.baud], "printerProfiles": [{"id": "_default"}]}
+        return web.json_response({"current": current, "options": options})
+
+    async def settings(self, request: web.Request) -> web.Response:
+        """`GET /api/settings`: nothing a slicer needs beyond that it answers."""
+        return web.json_response({"api": {"enabled": True}, "feature": {"sdSupport": False}, "webcam": {}})
+
+    async def profiles(self, request: web.Request) -> web.Response:
+        """`GET /api/printerprofiles`: one profile, with a heated bed if the printer reports one."""
+        latest = self.farm_printer.latest
+        bed = latest is not None and latest.bed is not None
+        profile = {"id": "_default", "name": self.farm_printer.name, "current": True, "default": True, "heatedBed": bed}
+        return web.json_response({"profiles": {"_default": profile}})
+
+    async def printer(self, request: web.Request) -> web.Response:
+        """`GET /api/printer`: temperatures and state flags (409 while the printer is not connected)."""
+        self._operational()
+        temperature: dict[str, dict[str, float | None]] = {}
+        latest = self.farm_printer.latest
+        if latest is not None:
+            for key, heater in latest.temperatures.heaters.items():
+                name = {"T": "tool0", "B": "bed", "C": "chamber"}.get(key)
+                if name is None and key.startswith("T") and key[1:].isdigit():
+                    name = f"tool{key[1:]}"
+                if name is not None and name not in temperature:
+                    temperature[name] = {"actual": heater.actual, "target": heater.target, "offset": 0}
+        handle = self._handle()
+        running = handle is not None and not handle.finished
+        paused = running and handle is not None and handle.progress.state is marlin_aio.PrintState.PAUSED
+        flags = {
+            "operational": True,
+            "printing": running and not paused,
+            "paused": paused,
+            "pausing": False,
+            "resuming": False,
+            "cancelling": False,
+            "finishing": False,
+            "closedOrError": False,
+            "error": False,
+            "ready": not running,
+            "sdReady": False,
+        }
+        return web.json_response({"temperature": temperature, "state": {"text": self._state_text(), "flags": flags}})
+
+    async def job(self, request: web.Request) -> web.Response:
+        """`GET /api/job`: the print running or last run (or the file selected), and its progress."""
+        handle = self._handle()
+        name = self.farm_printer.print_file if handle is not None else (self.selected.name if self.selected else None)
+        file: dict[str, Any] = {"name": name, "path": name, "origin": "local" if name else None}
+        progress: dict[str, Any] = {"completion": None, "filepos": None, "printTime": None, "printTimeLeft": None}
+        if handle is not None:
+            snapshot = handle.progress
+            file["size"] = snapshot.source_bytes_total
+            fraction = snapshot.fraction
+            progress = {
+                "completion": None if fraction is None else round(100 * fraction, 2),
+                "filepos": snapshot.source_bytes_acked,
+                "printTime": round(snapshot.elapsed_s),
+                "printTimeLeft": None if snapshot.eta_s is None else round(snapshot.eta_s),
+            }
+        job = {"file": file, "estimatedPrintTime": None, "lastPrintTime": None, "filament": None}
+        return web.json_response({"job": job, "progress": progress, "state": self._state_text()})
+
+    async def files(self, request: web.Request) -> web.Response:
+        """`GET /api/files`: the uploaded files."""
+        folder = self.uploads.folder
+        entries = sorted(folder.glob("*.gcode")) if folder.is_dir() else []
+        files = [
+            {
+                "name": path.name,
+                "path": path.name,
+                "origin": "local",
+                "type": "machinecode",
+                "size": path.stat().st_size,
+            }
+            for path in entries
+        ]
+        return web.json_response({"files": files, "free": None})
+
+    # ------------------------------------------------------------------------------------------- act
+
+    async def tool(self, request: web.Request) -> web.Response:
+        """`POST /api/printer/tool` `{"command": "target", "targets": {"tool0": 200}}`."""
+        body = await _json(request)
+        if body.get("command") != "target" or not isinstance(body.get("targets"), dict):
+            raise web.HTTPBadRequest(text="only the target command is supported")
+        printer = self._operational()
+        for name, target in body["targets"].items():
+            if not (isinstance(name, str) and name.startswith("tool") and name[4:].isdigit()):
+                raise web.HTTPBadRequest(text=f"unknown tool {str(name)[:20]!r}")
+            try:
+                await printer.set_temperatures(hotend=target, tool=int(name[4:]))
+            except ValueError as exc:
+                raise web.HTTPBadRequest(text=str(exc)) from None
+        return web.Response(status=204)
+
+    async def bed(self, request: web.Request) -> web.Response:
+        """`POST /api/printer/bed` `{"command": "target", "target": 60}`."""
+        body = await _json(request)
+        if body.get("command") != "target":
+            raise web.HTTPBadRequest(text="only the target command is supported")
+        try:
+            await self._operational().set_temperatures(bed=body.get("target"))
+        except ValueError as exc:
+            raise web.HTTPBadRequest(text=str(exc)) from None
+        return web.Response(status=204)
+
+    async def job_command(self, request: web.Request) -> web.Response:
+        """`POST /api/job`: start (the selected file), cancel, pause (`action` pause, resume or toggle), restart."""
+        body = await _json(request)
+        command = body.get("command")
+        handle = self._handle()
+        running = handle is not None and not handle.finished
+        if command in ("start", "restart"):
+            if running:
+                raise web.HTTPConflict(text="a print is already running: cancel it first")
+            if self.selected is None:
+                raise web.HTTPConflict(text="no file is selected")
+            await self._start(self.selected)
+        elif command == "cancel":
+            if not running or handle is None:
+                raise web.HTTPConflict(text="no print is running")
+            await handle.cancel()
+        elif command == "pause":
+            if not running or handle is None:
+                raise web.HTTPConflict(text="no print is running")
+            action = body.get("action", "toggle")
+            paused = handle.progress.state is marlin_aio.PrintState.PAUSED
+            if action == "pause" or (action == "toggle" and not paused):
+                handle.pause()
+            elif action in ("resume", "toggle"):
+                handle.resume()
+            else:
+                raise web.HTTPBadRequest(text=f"unknown pause action {str(action)[:20]!r}")
+        else:
+            raise web.HTTPBadRequest(text=f"unknown job command {str(command)[:20]!r}")
+        return web.Response(status=204)
+
+    async def _start(self, path: Path) -> None:
+        try:
+            await self._start_print(self.farm_printer, path)
+        except (ValueError, OSError) as exc:
+            raise web.HTTPBadRequest(text=str(exc)) from None
+        except RuntimeError as exc:
+            raise web.HTTPConflict(text=str(exc)) from None
+
+    async def upload(self, request: web.Request) -> web.Response:
+        """`POST /api/files/local` (multipart: `file`, and `select`/`print` as `true`): keep the file and, with
+        print, start it at once, as slicers' "upload and print" does."""
+        if not request.content_type.startswith("multipart/"):
+            raise web.HTTPBadRequest(text="upload a file as multipart/form-data")
+        reader = await request.multipart()
+        fields: dict[str, str] = {}
+        stored: Path | None = None
+        while (part := await reader.next()) is not None:
+            if not isinstance(part, BodyPartReader):
+                continue
+            if part.name == "file":
+                if stored is not None:
+                    raise web.HTTPBadRequest(text="one file per upload")
+                stored = await self._receive(part)
+            elif part.name:
+                fields[part.name] = (await part.text())[:200]
+        if stored is None:
+            raise web.HTTPBadRequest(text="no file in the upload")
+        select = fields.get("select", "false").lower() == "true"
+        start = fields.get("print", "false").lower() == "true"
+        if select or start:
+            self.selected = stored
+        if start:
+            self._operational()
+            await self._start(stored)
+        ref = {
+            "name": stored.name,
+            "path": stored.name,
+            "origin": "local",
+            "refs": {"resource": f"/api/files/local/{stored.name}"},
+        }
+        return web.json_response(
+            {"files": {"local": ref}, "done": True, "effectiveSelect": select, "effectivePrint": start}, status=201
+        )
+
+    async def _receive(self, part: BodyPartReader) -> Path:
+        upload_id = self.uploads.begin()
+        try:
+            while chunk := await part.read_chunk(65536):
+                self.uploads.append_bytes(upload_id, chunk)
+            # Some clients percent-encode the name (RFC 5987 style): decoded, then made safe all the same.
+            return self.uploads.finish(upload_id, unquote(part.filename or "upload.gcode"))
+        except UploadError as exc:
+            raise web.HTTPBadRequest(text=str(exc)) from None
+        finally:
+            self.uploads.discard(upload_id)  # nothing if finished
+
+    async def file_command(self, request: web.Request) -> web.Response:
+        """`POST /api/files/local/NAME` `{"command": "select", "print": true}`: select an uploaded file, and print."""
+        body = await _json(request)
+        if body.get("command") != "select":
+            raise web.HTTPBadRequest(text="only the select command is supported")
+        name = request.match_info["name"]
+        path = self.uploads.folder / name
+        if "/" in name or name.startswith(".") or not path.is_file():
+            raise web.HTTPNotFound(text=f"no uploaded file {name[:100]!r}")
+        self.selected = path
+        if body.get("print"):
+            self._operational()
+            await self._start(path)
+        return web.Response(status=204)
+
+
+async def _json(request: web.Request) -> dict[str, Any]:
+    try:
+        body = await request.json()
+    except ValueError:
+        raise web.HTTPBadRequest(text="the body is not JSON") from None
+    if not isinstance(body, dict):
+        raise web.HTTPBadRequest(text="the body is a JSON object")
+    return body
+
+
+def _file_ref(path: Path) -> dict[str, Any]:
+    return {
+        "name": path.name,
+        "path": path.name,
+        "origin": "local",
+        "refs": {"resource": f"/api/files/local/{path.name}"},
+    }
+
+
+def _error(status: int, message: str) -> web.Response:
+    return web.json_response({"error": message}, status=status)
