@@ -62,6 +62,8 @@ async def serving(tmp_path: Path, *args: str) -> AsyncIterator[Served]:
         "serve",
         "--socket",
         str(path),
+        "--log-dir",
+        str(tmp_path / "logs"),
         *(args or ("--sim", "--sim-speed", "50", "--interval", "0.05")),
         stderr=asyncio.subprocess.PIPE,
         env={**os.environ, SOCKET_ENV: str(path)},
@@ -377,3 +379,27 @@ def test_a_socket_path_nobody_listens_at_is_one_error_line(tmp_path: Path) -> No
     assert result.exit_code != 0
     assert "no marlin-temp serve is listening" in result.output
     assert len(result.output.strip().splitlines()) == 1
+
+
+async def test_the_service_logs_every_printer_with_the_prints_file_and_line(tmp_path: Path) -> None:
+    gcode = _gcode(tmp_path / "logged.gcode", 600)
+    args = ("--sim", "--sim-speed", "50", "--interval", "0.05", "--log-interval", "0.05")
+    async with serving(tmp_path, *args) as served, marlin_aio.connect(served.url()) as printer:
+        handle = await printer.start_print(gcode)
+        await handle.wait()
+        logs = tmp_path / "logs"
+
+        def rows() -> list[dict[str, Any]]:
+            files = list(logs.glob("sim-*.jsonl"))
+            return [json.loads(line) for f in files for line in f.read_text().splitlines()]
+
+        await until(lambda: any("print" in row for row in rows()), "a logged row with the print")
+        printing = [row["print"] for row in rows() if "print" in row]
+        assert {p["file"] for p in printing} == {"logged.gcode"}
+        lines = [p["line"] for p in printing]
+        assert lines == sorted(lines) and 0 <= lines[0] <= lines[-1] <= 600
+        assert all(row["heaters"]["hotend"]["actual_c"] > 0 for row in rows())
+    # The file is the `log --format jsonl` format: `plot` reads it.
+    log_file = next((tmp_path / "logs").glob("sim-*.jsonl"))
+    result = runner.invoke(app, ["plot", str(log_file), "--show"])
+    assert result.exit_code == 0, result.output

@@ -363,8 +363,9 @@ class TemperatureLog:
             self.sampler.restart()
         return self.session
 
-    def add(self, reading: TemperatureReading) -> bool:
-        """Queue one row, unless the sampler skips this reading; return whether a row was queued.
+    def add(self, reading: TemperatureReading, extra: dict[str, Any] | None = None) -> bool:
+        """Queue one row, unless the sampler skips this reading; return whether a row was queued. `extra` (JSON
+        lines only) adds fields to the row: `marlin-temp serve` puts the print's file and line there.
 
         A row reaches the file within `flush_interval_s`, even if no other row follows. Once logging stopped
         (`failure`), nothing is queued.
@@ -423,6 +424,8 @@ class TemperatureLog:
                     for key, heater in heaters.items()
                 },
             }
+            if extra:
+                record.update(extra)
             self._pending.append(_Entry(json.dumps(record) + "\n", reading, self.session))
         if self._flush_timer is None:
             # The oldest row in the buffer sets the deadline; rows after it go out with it, sooner than theirs.

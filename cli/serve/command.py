@@ -9,6 +9,7 @@ import os
 import secrets
 import signal
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
@@ -18,8 +19,9 @@ from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
 from marlin_aio.service import OctoPrintSettings, Service, ServiceRunningError, default_socket_path
 
 from ..common.connect import Exit, UsageProblem
+from .logs import ServeLogs
 
-__all__ = ["run_serve"]
+__all__ = ["API_KEY_ENV", "ServeOptions", "api_key", "default_log_dir", "run_serve"]
 
 
 #: Where the OctoPrint API key can come from when no file is named.
@@ -51,15 +53,29 @@ def api_key(key_file: Path | None, beside: Path) -> tuple[str, str]:
     return key, source
 
 
+@dataclass(frozen=True)
+class ServeOptions:
+    """What `marlin-temp serve` does besides the socket: the OctoPrint API (`http`: host and port), the logs."""
+
+    http: tuple[str, int] | None = None
+    http_printer: str | None = None
+    key_file: Path | None = None
+    log_dir: Path | None = None
+    log_interval_s: float = 1.0
+
+
+def default_log_dir() -> Path:
+    """`$XDG_STATE_HOME/marlin-temp/logs`, else `~/.local/state/marlin-temp/logs`."""
+    state = os.environ.get("XDG_STATE_HOME")
+    return (Path(state) if state else Path.home() / ".local" / "state") / "marlin-temp" / "logs"
+
+
 async def run_serve(
     specs: list[PrinterSpec],
     socket: Path | None,
     duration_s: float | None,
     errors: Console,
-    *,
-    http: tuple[str, int] | None = None,
-    http_printer: str | None = None,
-    key_file: Path | None = None,
+    options: ServeOptions | None = None,
 ) -> None:
     """Serve `specs` at `socket` until `duration_s` passed, SIGTERM, or the task is cancelled; with `http`, the
     OctoPrint API on that host and port too.
@@ -74,11 +90,14 @@ async def run_serve(
         stamp = time.strftime("%H:%M:%S", time.localtime(event.time_s))
         errors.print(f"{stamp} {escape(event.printer)}: {escape(event.kind)}: {escape(event.message)}")
 
+    options = options or ServeOptions()
     octoprint = None
     socket_path = socket or default_socket_path()
-    if http is not None:
-        key, key_source = api_key(key_file, socket_path.parent)
-        octoprint = OctoPrintSettings(port=http[1], api_key=key, host=http[0], printer=http_printer)
+    if options.http is not None:
+        key, key_source = api_key(options.key_file, socket_path.parent)
+        octoprint = OctoPrintSettings(
+            port=options.http[1], api_key=key, host=options.http[0], printer=options.http_printer
+        )
     try:
         service = Service(specs, socket_path, on_event=show, octoprint=octoprint)
     except ValueError as exc:
@@ -97,6 +116,8 @@ async def run_serve(
             "Ctrl-C stops",
             style="dim",
         )
+        if options.log_dir is not None:
+            errors.print(f"logging temperatures to {escape(str(options.log_dir))}", style="dim")
         if octoprint is not None:
             errors.print(
                 f"OctoPrint API on http://{escape(octoprint.host)}:{octoprint.port} (API key in {escape(key_source)})",
@@ -105,6 +126,9 @@ async def run_serve(
 
     running = asyncio.create_task(service.run(), name="service")
     waiters = [asyncio.create_task(stopped.wait(), name="SIGTERM"), asyncio.create_task(announce(), name="announce")]
+    if options.log_dir is not None:
+        logs = ServeLogs(service, options.log_dir, options.log_interval_s, errors)
+        waiters.append(asyncio.create_task(logs.run(), name="logs"))
     try:
         async with asyncio.timeout(duration_s):
             await asyncio.wait([running, waiters[0]], return_when=asyncio.FIRST_COMPLETED)

@@ -26,8 +26,9 @@ SERVE_HELP = (
     "\n\n"
     "Where things live: the socket is $MARLIN_SERVE_SOCKET, else $XDG_RUNTIME_DIR/marlin-temp/serve.sock, else "
     "/tmp/marlin-temp-UID/serve.sock (--socket overrides), in a folder only you can enter; beside it serve.json "
-    "names the ports held, and uploads/ the prints sent as lines. Clients speak JSON-RPC 2.0 on it, one message "
-    "per line (see the README)."
+    "names the ports held, uploads/ the prints sent as content, and api-key the OctoPrint API's key if one was "
+    "made. Clients speak JSON-RPC 2.0 on it, one message per line (see the README). The temperature logs go to "
+    "--log-dir, one file per printer and day."
     "\n\n"
     "Try it: marlin-temp serve --sim, then in another terminal marlin-temp watch --port serve:sim"
 )
@@ -71,6 +72,19 @@ def serve(
             "api-key beside the socket).",
         ),
     ] = None,
+    log_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--log-dir",
+            help="Where the temperature logs go: one JSON-lines file per printer and day, each row with the print's "
+            "file and line while one runs (default: $XDG_STATE_HOME/marlin-temp/logs, else "
+            "~/.local/state/marlin-temp/logs).",
+        ),
+    ] = None,
+    log_interval: Annotated[
+        float, typer.Option("--log-interval", help="Seconds between logged rows of each printer.", min=0.01)
+    ] = 1.0,
+    no_log: Annotated[bool, typer.Option("--no-log", help="Write no temperature log.")] = False,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
 ) -> None:
     """Own the printers and share them on a local socket (the help text is `SERVE_HELP`)."""
@@ -116,8 +130,15 @@ def serve(
         http = (host.strip("[]") or "127.0.0.1", int(port_text))
     elif octoprint_printer is not None or api_key_file is not None:
         fail("--octoprint-printer and --api-key-file go with --octoprint", Exit.USAGE)
-    run(
-        run_serve(
-            specs, socket, duration, error_console(), http=http, http_printer=octoprint_printer, key_file=api_key_file
-        )
+    if no_log and log_dir is not None:
+        fail("--no-log and --log-dir do not go together", Exit.USAGE)
+    from .command import ServeOptions, default_log_dir
+
+    options = ServeOptions(
+        http=http,
+        http_printer=octoprint_printer,
+        key_file=api_key_file,
+        log_dir=None if no_log else (log_dir or default_log_dir()),
+        log_interval_s=log_interval,
     )
+    run(run_serve(specs, socket, duration, error_console(), options))
