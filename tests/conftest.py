@@ -31,6 +31,13 @@ TIME_SCALE = 20.0
 _CAMPAIGN_REPORT = pytest.StashKey[list[str]]()
 
 
+@pytest.fixture(autouse=True)
+def _own_service_socket(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test has a `marlin-temp serve` socket of its own (`$MARLIN_SERVE_SOCKET`): a farm or a service one
+    test starts never meets another test's, nor a service the developer runs on this machine."""
+    monkeypatch.setenv("MARLIN_SERVE_SOCKET", str(tmp_path_factory.mktemp("serve") / "serve.sock"))
+
+
 @pytest.fixture
 def campaign_report(pytestconfig: pytest.Config) -> list[str]:
     """Lines the fault campaign reports (run counts, failing seeds); printed at the end of the test session."""

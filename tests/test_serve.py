@@ -22,6 +22,7 @@ from typing import Any
 
 import pytest
 from conftest import until
+from test_farm import Broker
 from typer.testing import CliRunner
 
 import marlin_aio
@@ -51,7 +52,7 @@ async def _read_lines(stream: asyncio.StreamReader, lines: list[str]) -> None:
 
 
 @contextlib.asynccontextmanager
-async def serving(tmp_path: Path, *args: str) -> AsyncIterator[Served]:
+async def serving(tmp_path: Path, *args: str, command: str = "serve") -> AsyncIterator[Served]:
     """A `marlin-temp serve` process on a socket in `tmp_path`, ready (it said "serving" and its printers are
     connected) until the block ends; then SIGTERM, and it must exit 0."""
     path = tmp_path / "run" / "serve.sock"
@@ -59,11 +60,10 @@ async def serving(tmp_path: Path, *args: str) -> AsyncIterator[Served]:
         sys.executable,
         "-m",
         "marlin_temp",
-        "serve",
+        command,
         "--socket",
         str(path),
-        "--log-dir",
-        str(tmp_path / "logs"),
+        *(("--log-dir", str(tmp_path / "logs")) if command == "serve" else ()),
         *(args or ("--sim", "--sim-speed", "50", "--interval", "0.05")),
         stderr=asyncio.subprocess.PIPE,
         env={**os.environ, SOCKET_ENV: str(path)},
@@ -73,8 +73,9 @@ async def serving(tmp_path: Path, *args: str) -> AsyncIterator[Served]:
     reader = asyncio.create_task(_read_lines(process.stderr, lines))
     served = Served(path, process, lines)
     try:
-        await until(lambda: any("serving" in line for line in lines) or reader.done(), "the service to listen")
-        assert any("serving" in line for line in lines), lines
+        ready = "serving" if command == "serve" else "shared at"
+        await until(lambda: any(ready in line for line in lines) or reader.done(), "the service to listen")
+        assert any(ready in line for line in lines), lines
         expected = sum(1 for arg in args if arg.startswith("--port")) or 1
         await until(lambda: sum(": connected:" in line for line in lines) >= expected, "the printers to connect")
         yield served
@@ -403,3 +404,11 @@ async def test_the_service_logs_every_printer_with_the_prints_file_and_line(tmp_
     log_file = next((tmp_path / "logs").glob("sim-*.jsonl"))
     result = runner.invoke(app, ["plot", str(log_file), "--show"])
     assert result.exit_code == 0, result.output
+
+
+async def test_the_farm_is_the_service_plus_its_bridge(tmp_path: Path, broker: Broker) -> None:
+    # One supervisor: while the farm publishes to MQTT, its printers are reached through its socket as well.
+    args = ("--sims", "1", "--sim-speed", "50", "--broker", f"127.0.0.1:{broker.port}", "--interval", "0.05")
+    async with serving(tmp_path, *args, command="farm") as served, marlin_aio.connect(served.url("sim1")) as printer:
+        assert (await printer.send("M118 through the farm")).lines == ("through the farm",)
+        await until(lambda: printer.latest is not None, "a reading from the farm's poller")

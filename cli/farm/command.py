@@ -20,7 +20,8 @@ from rich.console import Console
 from rich.markup import escape
 
 from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
-from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
+from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
+from marlin_aio.service import Service, ServiceRunningError
 
 from ..common.connect import UsageProblem
 
@@ -36,6 +37,8 @@ class FarmOptions:
 
     duration_s: float | None = None
     quiet: bool = False
+    socket: Path | None = None
+    """Where the farm's printers are shared (`marlin-temp serve`'s socket; None: the default)."""
 
 
 def broker_settings(
@@ -105,13 +108,21 @@ async def run_farm(
             stamp = time.strftime("%H:%M:%S", time.localtime(event.time_s))
             errors.print(f"{stamp} {escape(event.printer)}: {escape(event.kind)}: {escape(event.message)}")
 
-    farm = Farm(specs, show)
+    # One supervisor: the farm is `marlin-temp serve` plus the bridge, so every command and program reaches its
+    # printers through the socket too (`--port serve:NAME`), and a print is one print whoever started it.
+    service = Service(specs, options.socket, on_event=show)
+    farm = service.farm
     bridge = Bridge(farm, broker, settings)
+    try:
+        await service.check_socket()
+    except ServiceRunningError as exc:
+        raise UsageProblem(f"{exc}: the farm is a service itself; stop that one, or give --socket") from None
     names = ", ".join(spec.name for spec in specs)
     if not options.quiet:
         errors.print(
             f"farm: {len(specs)} printer{'s' if len(specs) != 1 else ''} ({escape(names)}); publishing to "
-            f"{escape(broker.address)} under {escape(settings.prefix)}/ at {settings.rate_hz:g} Hz; Ctrl-C stops",
+            f"{escape(broker.address)} under {escape(settings.prefix)}/ at {settings.rate_hz:g} Hz; shared at "
+            f"{escape(str(service.socket_path))} (--port serve:NAME); Ctrl-C stops",
             style="dim",
         )
     started = time.monotonic()
@@ -123,7 +134,10 @@ async def run_farm(
         loop.add_signal_handler(signal.SIGTERM, stopped.set)
     try:
         async with asyncio.timeout(options.duration_s), asyncio.TaskGroup() as group:
-            running = [group.create_task(farm.run(), name="farm"), group.create_task(bridge.run(), name="bridge")]
+            running = [
+                group.create_task(service.run(), name="farm"),
+                group.create_task(bridge.run(), name="bridge"),
+            ]
             await stopped.wait()
             for task in running:
                 task.cancel()

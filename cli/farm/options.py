@@ -26,7 +26,8 @@ FARM_HELP = (
     "Give the printers as --port NAME=PORT (repeatable), --config FILE (TOML: a \\[defaults] table and "
     "\\[\\[printer]] tables with name, port, baud, poll_interval_s, max_hotend_celsius, ...), or --sims N for N "
     "simulated printers. Each printer reconnects on its own, with backoff, when it is unplugged, halts or does not "
-    "answer; the others go on."
+    "answer; the others go on. The farm is marlin-temp serve plus the bridge: its printers are shared on serve's "
+    "socket too (--socket), so every other command reaches them as --port serve:NAME."
     "\n\n"
     "Per printer NAME it publishes PREFIX/NAME/telemetry (each heater's actual, target and power in percent, at "
     "--rate), PREFIX/NAME/state (retained JSON), PREFIX/NAME/events (QoS 1, queued while the broker is away) and "
@@ -99,6 +100,14 @@ def farm(
         Path | None,
         typer.Option("--allowed-dir", help="With --allow-commands: prints may be started from files in this folder."),
     ] = None,
+    socket: Annotated[
+        Path | None,
+        typer.Option(
+            "--socket",
+            help="Share the printers here as marlin-temp serve does (default: serve's), so every other command "
+            "reaches them as --port serve:NAME.",
+        ),
+    ] = None,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
 ) -> None:
     """Bridge many printers to an MQTT broker (the help text is `FARM_HELP`)."""
@@ -161,6 +170,6 @@ def farm(
         allow_commands=allow_commands,
         allowed_dir=allowed_dir,
     )
-    bridge = run(run_farm(specs, broker_at, settings, FarmOptions(duration_s=duration), error_console()))
+    bridge = run(run_farm(specs, broker_at, settings, FarmOptions(duration_s=duration, socket=socket), error_console()))
     if bridge.connections == 0:
         fail(f"never reached the MQTT broker at {broker_at.address}: is it running (and the address right)?")

@@ -197,6 +197,14 @@ class Service:
         service holds uses the service instead (`marlin_aio.aio.served.service_holding`)."""
         return self.socket_path.with_name("serve.json")
 
+    async def check_socket(self) -> None:
+        """Make sure the socket can be this service's: its folder made, a socket left by a dead service removed.
+
+        Raises:
+            ServiceRunningError: another service listens there.
+        """
+        await self._claim(self.socket_path)
+
     async def _claim(self, path: Path) -> None:
         if _prepare_folder(path):
             try:
