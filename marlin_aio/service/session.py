@@ -163,15 +163,14 @@ class Session:
         except RpcError as exc:
             self.answer(request_id, error=error_to_json(exc))
             return
-        task = asyncio.create_task(
-            self._handle(request_id, handler(self, params)), name=f"client {self.number} {method}"
-        )
+        task = asyncio.create_task(self._handle(request_id, handler, params), name=f"client {self.number} {method}")
         self.requests.add(task)
         task.add_done_callback(self.requests.discard)
 
-    async def _handle(self, request_id: object, call: Awaitable[object]) -> None:
+    async def _handle(self, request_id: object, handler: Handler, params: dict[str, Any]) -> None:
+        # The handler's coroutine is made here, inside the task: a task cancelled before it ran leaves none behind.
         try:
-            result = await call
+            result = await handler(self, params)
         except asyncio.CancelledError:
             raise
         except (RpcError, marlin_aio.MarlinError, ValueError, RuntimeError, OSError) as exc:
