@@ -42,7 +42,9 @@ async def silent_client(
     """A client that writes `request` and then never reads; its session's socket buffer made small, so what it
     does not read backs up into the service's queue within a few messages instead of after a kernel's worth."""
     before = set(service.sessions)
-    _, writer = await asyncio.open_unix_connection(str(path))
+    reader, writer = await asyncio.open_unix_connection(str(path))
+    writer.transport.pause_reading()  # type: ignore[attr-defined]  # reads nothing from here on (its kernel buffer fills, then the service's)
+    writer.reader = reader  # type: ignore[attr-defined]  # held with the writer: a reader nobody holds discards
     writer.write(request)
     await until(lambda: bool(service.sessions - before), "the service to take the client")
     (session,) = service.sessions - before
@@ -83,9 +85,20 @@ async def test_a_client_piling_up_unread_answers_is_let_go(tmp_path: Path, monke
         # is let go once twice the queue's worth of them wait, not kept at the service's expense.
         history = rpc.encode_message(rpc.request(0, "history", {"printer": "sim", "seconds": 60}))
         flooder, held = await silent_client(service, path, history)
-        flood = b"".join(rpc.encode_message(rpc.request(n, "history", {"printer": "sim"})) for n in range(1, 4 * QUEUE))
-        held.write(flood)
-        await until(lambda: flooder.closing, "the flooding client let go")
+        # Each answer is a full history (tens of kilobytes). The kernel takes a few megabytes before the service's
+        # writes back up: ask in rounds until they do, bounded.
+        flood = b"".join(rpc.encode_message(rpc.request(n, "history", {"printer": "sim"})) for n in range(1, 100))
+        for round_number in range(1, 100):
+            held.write(flood)
+            expected = 1 + 99 * round_number
+            await until(
+                lambda n=expected: flooder.answered >= n or flooder.closing,  # type: ignore[misc]
+                "the round answered",
+                limit_s=30,
+            )
+            if flooder.closing:
+                break
+        assert flooder.closing, "a client that reads nothing is let go"
         assert flooder not in service.sessions or flooder.closing
         assert (await good.send("M118 unbothered")).lines == ("unbothered",)
         held.close()

@@ -32,7 +32,7 @@ from marlin_aio.protocol.temperatures import (
     ReadingSource,
     TemperatureReading,
     Temperatures,
-    parse_temperatures,
+    looks_like_temperatures,
 )
 
 __all__ = [
@@ -251,7 +251,10 @@ def reply_from_json(value: object) -> Reply:
     try:
         assert isinstance(value, dict)
         payload = str(value["ok"])
-        ok = Ok(payload=payload, temperatures=parse_temperatures(payload) if payload else None)
+        # Parsed when first read, as the link's own oks are: a reply nobody looks into costs no parsing.
+        ok = Ok(
+            payload=payload, temperatures=Temperatures.from_text(payload) if looks_like_temperatures(payload) else None
+        )
         return Reply(
             command=str(value["command"]),
             lines=tuple(str(line) for line in value["lines"]),

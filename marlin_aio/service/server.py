@@ -56,6 +56,8 @@ _log = logging.getLogger("marlin_aio.service")
 
 #: What a client can subscribe to.
 TOPICS = frozenset({"readings", "console", "progress", "link"})
+#: The most readings one `history` answer carries (evenly thinned past this): well inside a message's limit.
+MAX_HISTORY_READINGS = 3_000
 #: How often a running print's progress is told to its subscribers.
 PROGRESS_INTERVAL_S = 0.5
 
@@ -378,8 +380,13 @@ class Service:
         farm_printer = self._printer_of(params)
         seconds = float(param(params, "seconds", (int, float), 300.0))
         history = self.histories[farm_printer.name]
+        readings = history.readings(seconds)
+        if len(readings) > MAX_HISTORY_READINGS:
+            # Evenly thinned, so any span fits one message (an hour at 10 Hz would not).
+            step = len(readings) / MAX_HISTORY_READINGS
+            readings = [readings[int(index * step)] for index in range(MAX_HISTORY_READINGS)]
         return {
-            "readings": [reading_to_json(r) for r in history.readings(seconds)],
+            "readings": [reading_to_json(r) for r in readings],
             "console": [{"direction": c.direction, "text": c.text, "time_s": c.time_s} for c in history.console],
         }
 

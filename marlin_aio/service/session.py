@@ -33,6 +33,8 @@ _log = logging.getLogger("marlin_aio.service")
 
 #: Messages a client may have waiting to be read before notifications to it are dropped.
 CLIENT_QUEUE_MESSAGES = 1_000
+#: Bytes a client may have unsent in its transport before messages wait in the queue (where the bound applies).
+WRITE_AHEAD_BYTES = 64 * 1024
 #: Requests one client may have under way at once (a long M109 among them); more are refused as busy.
 MAX_REQUESTS_IN_FLIGHT = 32
 
@@ -57,6 +59,7 @@ class Session:
         self.wakeup = asyncio.Event()
         self.drained = asyncio.Event()  # set by the writer each time it has written all that was queued
         self.dropped = 0
+        self.answered = 0  # responses given (errors included)
         self.subscriptions: dict[str, set[str]] = {}
         self.requests: set[asyncio.Task[None]] = set()
         self.uploads: set[str] = set()  # uploads this client began and has not finished
@@ -75,15 +78,25 @@ class Session:
                 return
             if len(self.queue) >= 2 * CLIENT_QUEUE_MESSAGES:
                 _log.warning("client %d reads nothing: disconnected", self.number)
-                self.close()
+                self.close(abort=True)
                 return
+        if not self.queue and self.writer.transport.get_write_buffer_size() < WRITE_AHEAD_BYTES:
+            # The client keeps up: straight to the transport (no writer task to wake per message, which is most
+            # of a served round trip's cost). Past this much unsent, messages queue and the bound applies.
+            self.writer.write(data)
+            return
         self.queue.append(data)
         self.wakeup.set()
 
-    def close(self) -> None:
+    def close(self, *, abort: bool = False) -> None:
+        """Stop taking messages and close the connection: after what was written has gone out, or with `abort` at
+        once (a client that reads nothing would hold a closing connection open for ever)."""
         self.closing = True
         self.wakeup.set()
-        self.writer.close()
+        if abort:
+            self.writer.transport.abort()
+        else:
+            self.writer.close()
 
     async def write_loop(self) -> None:
         with contextlib.suppress(OSError):
@@ -133,8 +146,10 @@ class Session:
             writer_task.cancel()
             with contextlib.suppress(asyncio.CancelledError, OSError):
                 await writer_task
-            with contextlib.suppress(OSError):
-                await self.writer.wait_closed()
+            try:
+                await asyncio.wait_for(self.writer.wait_closed(), 1.0)
+            except (TimeoutError, OSError):
+                self.writer.transport.abort()  # what it did not read in a second it will not read
 
     async def _flushed(self) -> None:
         while self.queue:
@@ -188,6 +203,7 @@ class Session:
             data = encode_message(response(request_id, result, error))
         except (TypeError, ValueError) as exc:
             data = encode_message(response(request_id, error=error_to_json(RuntimeError(f"unanswerable: {exc}"))))
+        self.answered += 1
         self.push(data, droppable=False)
 
 
