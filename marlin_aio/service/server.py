@@ -238,12 +238,17 @@ class Service:
 
     # ------------------------------------------------------------------------------------------- notifications
 
-    def _broadcast(self, printer: str, topic: str, method: str, params: dict[str, Any]) -> None:
+    def _broadcast(
+        self, printer: str, topic: str, method: str, params: dict[str, Any] | Callable[[], dict[str, Any]]
+    ) -> None:
+        """Tell every client subscribed to `topic` of `printer`; the message is made once for all of them, and
+        only if one is subscribed (`params` may be a function, for what costs to make: a reading)."""
         data: bytes | None = None
         for session in self.sessions:
             if session.subscribed(printer, topic):
                 if data is None:
-                    data = encode_message(notification(method, {"printer": printer, **params}))  # once for all
+                    made = params() if callable(params) else params
+                    data = encode_message(notification(method, {"printer": printer, **made}))
                 session.push(data)
 
     def _reader_of(self, name: str) -> Callable[[marlin_aio.TemperatureReading], None]:
@@ -251,7 +256,7 @@ class Service:
 
         def on_reading(reading: marlin_aio.TemperatureReading) -> None:
             history.add(reading)
-            self._broadcast(name, "readings", "reading", {"reading": reading_to_json(reading)})
+            self._broadcast(name, "readings", "reading", lambda: {"reading": reading_to_json(reading)})
 
         return on_reading
 
