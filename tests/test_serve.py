@@ -369,8 +369,9 @@ async def test_a_command_asked_for_a_port_the_service_holds_goes_through_the_ser
 def test_served_ports_parse() -> None:
     from marlin_aio.aio.servicepaths import default_socket_path, parse_served_port
 
-    assert parse_served_port("serve:a@/x/y.sock") == ("a", Path("/x/y.sock"))
-    assert parse_served_port("serve:") == (None, default_socket_path())
+    assert parse_served_port("serve:a@/x/y.sock") == ("a", "/x/y.sock")
+    assert parse_served_port("serve:") == (None, str(default_socket_path()))
+    assert parse_served_port("serve:a@tcp://127.0.0.1:7125") == ("a", "tcp://127.0.0.1:7125")
     with pytest.raises(ValueError, match="serve:NAME"):
         parse_served_port("/dev/ttyUSB0")
 
@@ -412,3 +413,35 @@ async def test_the_farm_is_the_service_plus_its_bridge(tmp_path: Path, broker: B
     async with serving(tmp_path, *args, command="farm") as served, marlin_aio.connect(served.url("sim1")) as printer:
         assert (await printer.send("M118 through the farm")).lines == ("through the farm",)
         await until(lambda: printer.latest is not None, "a reading from the farm's poller")
+
+
+async def test_the_tcp_listener_takes_only_clients_with_the_token(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import socket as sockets
+
+    with sockets.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    token = "a-token-of-twenty-chars"
+    monkeypatch.setenv("MARLIN_SERVE_TOKEN", token)
+    args = ("--sim", "--sim-speed", "50", "--interval", "0.05", "--tcp", str(port))
+    async with serving(tmp_path, *args) as served:
+        url = f"serve:sim@tcp://127.0.0.1:{port}"
+        async with marlin_aio.connect(url) as printer:
+            assert (await printer.send("M118 over tcp")).lines == ("over tcp",)
+        # Without the token, or with a wrong one: one error line, then the connection closes; nothing ran.
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(rpc.encode_message(rpc.request(1, "send", {"printer": "sim", "command": "M118 sneaky"})))
+        answer = json.loads(await asyncio.wait_for(reader.readline(), 30))
+        assert "auth" in answer["error"]["message"]
+        assert await asyncio.wait_for(reader.read(), 30) == b""
+        writer.close()
+        monkeypatch.setenv("MARLIN_SERVE_TOKEN", "not-the-token-at-all")
+        with pytest.raises(marlin_aio.PortPermissionError, match="wrong token"):
+            async with marlin_aio.connect(url):
+                pass
+        async with raw_client(served) as local:  # the owner-only socket needs no token
+            history = (await local.call("history", printer="sim", seconds=60))["result"]
+            texts = [line["text"] for line in history["console"]]
+            assert "over tcp" in texts and not any("sneaky" in text for text in texts)

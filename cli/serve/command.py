@@ -16,41 +16,47 @@ from rich.console import Console
 from rich.markup import escape
 
 from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
-from marlin_aio.service import OctoPrintSettings, Service, ServiceRunningError, default_socket_path
+from marlin_aio.service import (
+    TOKEN_ENV,
+    OctoPrintSettings,
+    Service,
+    ServiceRunningError,
+    TcpSettings,
+    default_socket_path,
+)
 
 from ..common.connect import Exit, UsageProblem
 from .logs import ServeLogs
 
-__all__ = ["API_KEY_ENV", "ServeOptions", "api_key", "default_log_dir", "run_serve"]
+__all__ = ["API_KEY_ENV", "ServeOptions", "default_log_dir", "run_serve", "secret"]
 
 
 #: Where the OctoPrint API key can come from when no file is named.
 API_KEY_ENV = "MARLIN_SERVE_API_KEY"
 
 
-def api_key(key_file: Path | None, beside: Path) -> tuple[str, str]:
-    """The OctoPrint API key and where it came from: `key_file`, `$MARLIN_SERVE_API_KEY`, or the `api-key` file
-    beside the socket (made with a random key, owner-only, the first time).
+def secret(named: Path | None, env: str, made: Path, what: str) -> tuple[str, str]:
+    """A secret (the OctoPrint API key, the TCP token) and where it came from: the file `named`, else `$env`, else
+    the file `made` (beside the socket; a random one written owner-only the first time).
 
     Raises:
-        UsageProblem: the key named is shorter than 16 characters.
+        UsageProblem: the secret is shorter than 16 characters.
         OSError: the file cannot be read or made.
     """
-    if key_file is not None:
-        key, source = key_file.read_text().strip(), str(key_file)
-    elif os.environ.get(API_KEY_ENV):
-        key, source = os.environ[API_KEY_ENV].strip(), f"${API_KEY_ENV}"
+    if named is not None:
+        value, source = named.read_text().strip(), str(named)
+    elif os.environ.get(env):
+        value, source = os.environ[env].strip(), f"${env}"
     else:
-        path = beside / "api-key"
-        beside.mkdir(mode=0o700, parents=True, exist_ok=True)
-        if not path.exists():
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        made.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        if not made.exists():
+            fd = os.open(made, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
             with os.fdopen(fd, "w") as handle:
                 handle.write(secrets.token_hex(16) + "\n")
-        key, source = path.read_text().strip(), str(path)
-    if len(key) < 16:
-        raise UsageProblem(f"the OctoPrint API key from {source} is shorter than 16 characters")
-    return key, source
+        value, source = made.read_text().strip(), str(made)
+    if len(value) < 16:
+        raise UsageProblem(f"the {what} from {source} is shorter than 16 characters")
+    return value, source
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,8 @@ class ServeOptions:
     http: tuple[str, int] | None = None
     http_printer: str | None = None
     key_file: Path | None = None
+    tcp: tuple[str, int] | None = None
+    token_file: Path | None = None
     log_dir: Path | None = None
     log_interval_s: float = 1.0
 
@@ -94,12 +102,16 @@ async def run_serve(
     octoprint = None
     socket_path = socket or default_socket_path()
     if options.http is not None:
-        key, key_source = api_key(options.key_file, socket_path.parent)
+        key, key_source = secret(options.key_file, API_KEY_ENV, socket_path.parent / "api-key", "OctoPrint API key")
         octoprint = OctoPrintSettings(
             port=options.http[1], api_key=key, host=options.http[0], printer=options.http_printer
         )
+    tcp = None
+    if options.tcp is not None:
+        token, token_source = secret(options.token_file, TOKEN_ENV, socket_path.parent / "token", "TCP token")
+        tcp = TcpSettings(port=options.tcp[1], token=token, host=options.tcp[0])
     try:
-        service = Service(specs, socket_path, on_event=show, octoprint=octoprint)
+        service = Service(specs, socket_path, on_event=show, octoprint=octoprint, tcp=tcp)
     except ValueError as exc:
         raise UsageProblem(str(exc)) from None
     stopped = asyncio.Event()
@@ -118,6 +130,12 @@ async def run_serve(
         )
         if options.log_dir is not None:
             errors.print(f"logging temperatures to {escape(str(options.log_dir))}", style="dim")
+        if tcp is not None:
+            errors.print(
+                f"also on tcp://{escape(tcp.host)}:{tcp.port} (clients give the token in {escape(token_source)} as "
+                "$MARLIN_SERVE_TOKEN)",
+                style="dim",
+            )
         if octoprint is not None:
             errors.print(
                 f"OctoPrint API on http://{escape(octoprint.host)}:{octoprint.port} (API key in {escape(key_source)})",
@@ -144,8 +162,10 @@ async def run_serve(
             loop.remove_signal_handler(signal.SIGTERM)
     if isinstance(outcome, ServiceRunningError):
         raise UsageProblem(str(outcome), Exit.USAGE)
-    if isinstance(outcome, OSError) and octoprint is not None and outcome.errno in (98, 13):  # EADDRINUSE, EACCES
-        raise UsageProblem(f"--octoprint {octoprint.host}:{octoprint.port}: {outcome.strerror}", Exit.USAGE)
+    if isinstance(outcome, OSError) and outcome.errno in (98, 13) and (octoprint or tcp):  # EADDRINUSE, EACCES
+        listeners = [f"{octoprint.host}:{octoprint.port}" for octoprint in [octoprint] if octoprint]
+        listeners += [f"tcp {tcp.host}:{tcp.port}" for tcp in [tcp] if tcp]
+        raise UsageProblem(f"cannot listen on {' or '.join(listeners)}: {outcome.strerror}", Exit.USAGE)
     if isinstance(outcome, Exception):
         raise outcome
     errors.print(f"serve: stopped after {time.monotonic() - started:.0f} s", style="dim")

@@ -72,6 +72,16 @@ def serve(
             "api-key beside the socket).",
         ),
     ] = None,
+    tcp: Annotated[
+        str | None,
+        typer.Option(
+            "--tcp",
+            metavar="[HOST:]PORT",
+            help="Also take clients on TCP (127.0.0.1 unless HOST is given), each first giving the token (from "
+            "--token-file, $MARLIN_SERVE_TOKEN, or made and kept in token beside the socket). Off by default.",
+        ),
+    ] = None,
+    token_file: Annotated[Path | None, typer.Option("--token-file", help="File holding the TCP token.")] = None,
     log_dir: Annotated[
         Path | None,
         typer.Option(
@@ -118,16 +128,18 @@ def serve(
         fail(str(exc), Exit.USAGE)
     except OSError as exc:
         fail(f"{config}: {exc.strerror or exc}", Exit.USAGE)
+    listen = None
+    if tcp is not None:
+        listen = _address(tcp, "--tcp")
+    elif token_file is not None:
+        fail("--token-file goes with --tcp", Exit.USAGE)
     http = None
     if octoprint is not None:
         import importlib.util
 
         if importlib.util.find_spec("aiohttp") is None:
             fail("--octoprint needs aiohttp, which is not installed: pip install 'marlin-aio[serve]'")
-        host, _, port_text = octoprint.rpartition(":")
-        if not port_text.isdigit() or not 0 < int(port_text) < 65536:
-            fail(f"--octoprint {octoprint!r}: give [HOST:]PORT, a port from 1 to 65535", Exit.USAGE)
-        http = (host.strip("[]") or "127.0.0.1", int(port_text))
+        http = _address(octoprint, "--octoprint")
     elif octoprint_printer is not None or api_key_file is not None:
         fail("--octoprint-printer and --api-key-file go with --octoprint", Exit.USAGE)
     if no_log and log_dir is not None:
@@ -138,7 +150,17 @@ def serve(
         http=http,
         http_printer=octoprint_printer,
         key_file=api_key_file,
+        tcp=listen,
+        token_file=token_file,
         log_dir=None if no_log else (log_dir or default_log_dir()),
         log_interval_s=log_interval,
     )
     run(run_serve(specs, socket, duration, error_console(), options))
+
+
+def _address(text: str, option: str) -> tuple[str, int]:
+    """`[HOST:]PORT` as (host, port), 127.0.0.1 when no host is given; a bad one exits 2 with one line."""
+    host, _, port_text = text.rpartition(":")
+    if not port_text.isdigit() or not 0 < int(port_text) < 65536:
+        fail(f"{option} {text!r}: give [HOST:]PORT, a port from 1 to 65535", Exit.USAGE)
+    return host.strip("[]") or "127.0.0.1", int(port_text)

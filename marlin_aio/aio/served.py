@@ -15,7 +15,8 @@ printer unchanged: `send`, `set_temperatures`, `wait_for_temperatures`, `tempera
   readers of temperatures end, commands fail with the service's error); open it again once the service has
   reconnected (`keep_connected` does that).
 
-Where: `serve:NAME` is printer NAME at the default socket (`default_socket_path()`), `serve:NAME@/path/to.sock`
+Where: `serve:NAME@tcp://HOST:PORT` reaches a service's TCP listener (its token in `$MARLIN_SERVE_TOKEN`);
+`serve:NAME` is printer NAME at the default socket (`default_socket_path()`), `serve:NAME@/path/to.sock`
 at that socket, and `serve:` alone the service's only printer.
 """
 
@@ -33,7 +34,7 @@ from marlin_aio.aio.printer import LinkEvent, Printer
 from marlin_aio.aio.printhandle import PrintHandle
 from marlin_aio.aio.rpcclient import RpcClient
 from marlin_aio.aio.servedprint import ServedPrintHandle
-from marlin_aio.aio.servicepaths import parse_served_port
+from marlin_aio.aio.servicepaths import TCP_PREFIX, TOKEN_ENV, parse_served_port
 from marlin_aio.errors import (
     ConnectError,
     ConnectionLostError,
@@ -95,8 +96,18 @@ class ServedPrinter(Printer):
         if self._rpc is not None and self._rpc.closed is None:
             raise RuntimeError(f"the printer {self.port} is already open")
         where = str(self.socket_path)
+        tcp = where.startswith(TCP_PREFIX)
+        token = os.environ.get(TOKEN_ENV, "")
+        if tcp and not token:
+            raise ConnectError(f"the service at {where} wants its token: set ${TOKEN_ENV}")
         try:
-            reader, writer = await asyncio.open_unix_connection(where, limit=MAX_MESSAGE_BYTES)
+            if tcp:
+                host, _, port_text = where[len(TCP_PREFIX) :].rpartition(":")
+                reader, writer = await asyncio.open_connection(
+                    host.strip("[]"), int(port_text), limit=MAX_MESSAGE_BYTES
+                )
+            else:
+                reader, writer = await asyncio.open_unix_connection(where, limit=MAX_MESSAGE_BYTES)
         except (FileNotFoundError, ConnectionRefusedError):
             raise PortNotFoundError(
                 f"no marlin-temp serve is listening at {where} (start one with `marlin-temp serve`)"
@@ -105,14 +116,21 @@ class ServedPrinter(Printer):
             raise PortPermissionError(
                 f"not allowed to reach the service at {where}: it belongs to another user"
             ) from None
-        except OSError as exc:
-            raise ConnectError(f"cannot reach the service at {where}: {exc.strerror or exc}") from None
+        except (OSError, ValueError) as exc:
+            raise ConnectError(
+                f"cannot reach the service at {where}: {getattr(exc, 'strerror', None) or exc}"
+            ) from None
         self._loop = asyncio.get_running_loop()
         self._lost = None
         self._served_print = None
         self._feed = type(self._feed)()  # readings of an earlier connection are not this one's
         self._rpc = RpcClient(reader, writer, self._notified, self._service_closed, where)
         try:
+            if tcp:
+                try:
+                    await self._rpc.call("auth", {"token": token})
+                except ValueError as exc:  # refused: said once, then the service closes the connection
+                    raise PortPermissionError(f"the service at {where} refused: {exc}") from None
             hello = await self._rpc.call("hello", {"printer": self.name, "subscribe": ["readings", "link", "progress"]})
             self._take_hello(hello)
         except BaseException:

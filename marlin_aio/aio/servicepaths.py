@@ -9,7 +9,12 @@ from pathlib import Path
 
 from marlin_aio.aio.printer import SERVE_PREFIX
 
-__all__ = ["SOCKET_ENV", "default_socket_path", "parse_served_port", "service_holding"]
+__all__ = ["SOCKET_ENV", "TCP_PREFIX", "TOKEN_ENV", "default_socket_path", "parse_served_port", "service_holding"]
+
+#: `serve:NAME@tcp://HOST:PORT` names a service's TCP listener instead of its socket.
+TCP_PREFIX = "tcp://"
+#: The token a TCP client gives the service first (`marlin-temp serve --tcp` says where its token is).
+TOKEN_ENV = "MARLIN_SERVE_TOKEN"
 
 #: Names the service's socket instead of the default (`marlin-temp serve --socket` sets it for its children too).
 SOCKET_ENV = "MARLIN_SERVE_SOCKET"
@@ -27,8 +32,9 @@ def default_socket_path() -> Path:
     return folder / "serve.sock"
 
 
-def parse_served_port(port: str) -> tuple[str | None, Path]:
-    """(printer name or None for the only one, socket path) of `serve:NAME`, `serve:NAME@/path.sock` or `serve:`.
+def parse_served_port(port: str) -> tuple[str | None, str]:
+    """(printer name or None for the only one, where) of `serve:NAME`, `serve:NAME@/path.sock`,
+    `serve:NAME@tcp://HOST:PORT` or `serve:`: where is a socket's path or a `tcp://` URL.
 
     Raises:
         ValueError: `port` does not start with `serve:`.
@@ -37,7 +43,7 @@ def parse_served_port(port: str) -> tuple[str | None, Path]:
         raise ValueError(f"not a served printer: {port!r} (expected serve:NAME)")
     rest = port[len(SERVE_PREFIX) :]
     name, at, path = rest.partition("@")
-    return (name or None), (Path(path) if at else default_socket_path())
+    return (name or None), (path if at else str(default_socket_path()))
 
 
 def service_holding(port: str, socket_path: Path | None = None) -> str | None:

@@ -4,18 +4,20 @@ with `Printer`'s API. `server` is the service, `history` what it keeps for clien
 
 from __future__ import annotations
 
-from marlin_aio.aio.servicepaths import SOCKET_ENV, default_socket_path, service_holding
+from marlin_aio.aio.servicepaths import SOCKET_ENV, TOKEN_ENV, default_socket_path, service_holding
 from marlin_aio.service.history import ConsoleLine, History
-from marlin_aio.service.server import TOPICS, OctoPrintSettings, Service, ServiceRunningError
+from marlin_aio.service.server import TOPICS, OctoPrintSettings, Service, ServiceRunningError, TcpSettings
 
 __all__ = [
     "SOCKET_ENV",
+    "TOKEN_ENV",
     "TOPICS",
     "ConsoleLine",
     "History",
     "OctoPrintSettings",
     "Service",
     "ServiceRunningError",
+    "TcpSettings",
     "default_socket_path",
     "service_holding",
 ]

@@ -50,7 +50,7 @@ from marlin_aio.service.history import History
 from marlin_aio.service.session import Handler, Session, param
 from marlin_aio.service.uploads import Uploads
 
-__all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError"]
+__all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError", "TcpSettings"]
 
 _log = logging.getLogger("marlin_aio.service")
 
@@ -71,6 +71,15 @@ class OctoPrintSettings:
     host: str = "127.0.0.1"
     printer: str | None = None
     """The printer it speaks for (OctoPrint has one); None: the service's first."""
+
+
+@dataclass(frozen=True)
+class TcpSettings:
+    """The socket's API on TCP too, for clients on other machines: where, and the token each must give first."""
+
+    port: int
+    token: str = field(repr=False)
+    host: str = "127.0.0.1"
 
 
 class ServiceRunningError(RuntimeError):
@@ -99,6 +108,7 @@ class Service:
         history_recent_s: how far back every reading is kept for late joiners.
         history_long_s: how far back one reading a second is kept.
         octoprint: serve the OctoPrint API too (needs aiohttp: the `[serve]` extra).
+        tcp: listen on TCP too; each client there must first send `auth` with the token.
 
     Raises:
         ValueError: printer names not unique, or `octoprint` names a printer the service does not have.
@@ -114,6 +124,7 @@ class Service:
         history_recent_s: float = 300.0,
         history_long_s: float = 6 * 3600.0,
         octoprint: OctoPrintSettings | None = None,
+        tcp: TcpSettings | None = None,
     ) -> None:
         self.socket_path = socket_path or default_socket_path()
         self.uploads = Uploads(uploads_dir or self.socket_path.parent / "uploads")
@@ -125,6 +136,9 @@ class Service:
         for name, farm_printer in self.farm.printers.items():
             farm_printer.reading_listeners.append(self._reader_of(name))
         self.octoprint = octoprint
+        if tcp is not None and len(tcp.token) < 16:
+            raise ValueError("the TCP token must be at least 16 characters")
+        self.tcp = tcp
         if octoprint is not None and octoprint.printer is not None and octoprint.printer not in self.farm.printers:
             raise ValueError(f"--octoprint-printer {octoprint.printer!r}: no such printer here")
         self.sessions: set[Session] = set()
@@ -163,10 +177,16 @@ class Service:
         await self._claim(path)
         server = await asyncio.start_unix_server(self._client, str(path), limit=MAX_MESSAGE_BYTES)
         http = None
+        tcp = None
         try:
             os.chmod(path, 0o600)
             if self.octoprint is not None:
                 http = await self._serve_octoprint(self.octoprint)
+            if self.tcp is not None:
+                token = self.tcp.token
+                tcp = await asyncio.start_server(
+                    lambda r, w: self._client(r, w, token), self.tcp.host, self.tcp.port, limit=MAX_MESSAGE_BYTES
+                )
             self._write_registry()
             self.ready.set()
             _log.info("serving %s at %s", ", ".join(self.farm.printers), path)
@@ -175,6 +195,8 @@ class Service:
                 group.create_task(self._tell_progress(), name="progress")
         finally:
             server.close()
+            if tcp is not None:
+                tcp.close()
             if http is not None:
                 await http.cleanup()
             for session in list(self.sessions):
@@ -225,9 +247,11 @@ class Service:
             handle.write(data)
         os.replace(temporary, self.registry_path)
 
-    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    async def _client(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, token: str | None = None
+    ) -> None:
         self._numbers += 1
-        session = Session(self, reader, writer, self._numbers)
+        session = Session(self, reader, writer, self._numbers, token)
         self.sessions.add(session)
         try:
             await session.run()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hmac
 import logging
 from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
@@ -50,7 +51,14 @@ class ServiceLike(Protocol):
 class Session:
     """One client: its reader, its writer task and its bounded outgoing queue, its subscriptions."""
 
-    def __init__(self, service: ServiceLike, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, number: int):
+    def __init__(
+        self,
+        service: ServiceLike,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        number: int,
+        token: str | None = None,
+    ):
         self.service = service
         self.reader = reader
         self.writer = writer
@@ -64,6 +72,8 @@ class Session:
         self.requests: set[asyncio.Task[None]] = set()
         self.uploads: set[str] = set()  # uploads this client began and has not finished
         self.closing = False
+        # A client over TCP proves itself first (`auth` with the token); one on the owner-only socket already has.
+        self._token = token
 
     def subscribed(self, printer: str, topic: str) -> bool:
         return topic in self.subscriptions.get(printer, ())
@@ -168,6 +178,12 @@ class Session:
                 raise RpcError(INVALID_REQUEST, 'a request has "jsonrpc": "2.0" and a "method"')
             if not isinstance(params, dict):
                 raise RpcError(INVALID_PARAMS, "params are an object: by name, not by position")
+            if self._token is not None:
+                refused = self._refused(method, params)
+                self.answer(request_id, {"authenticated": True} if refused is None else None, error=refused)
+                if refused is not None:
+                    self.close()  # after the one error line: nothing more is taken from it
+                return
             handler = self.service.methods.get(method)
             if handler is None:
                 raise RpcError(
@@ -181,6 +197,18 @@ class Session:
         task = asyncio.create_task(self._handle(request_id, handler, params), name=f"client {self.number} {method}")
         self.requests.add(task)
         task.add_done_callback(self.requests.discard)
+
+    def _refused(self, method: str, params: dict[str, Any]) -> dict[str, Any] | None:
+        """Check a TCP client's first request; the error to answer it with, or None once it is let in."""
+        given = params.get("token")
+        if method != "auth" or not isinstance(given, str):
+            return error_to_json(RpcError(INVALID_REQUEST, 'over TCP the first request is "auth" with the token'))
+        assert self._token is not None
+        if not hmac.compare_digest(given.encode(), self._token.encode()):
+            _log.warning("client %d gave a wrong token: disconnected", self.number)
+            return error_to_json(RpcError(INVALID_REQUEST, "wrong token"))
+        self._token = None
+        return None
 
     async def _handle(self, request_id: object, handler: Handler, params: dict[str, Any]) -> None:
         # The handler's coroutine is made here, inside the task: a task cancelled before it ran leaves none behind.
