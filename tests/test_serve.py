@@ -334,6 +334,11 @@ async def test_cli_commands_use_a_served_printer(tmp_path: Path, monkeypatch: py
         )
         assert result.exit_code == 0, result.output
         assert len(log.read_text().splitlines()) > 3
+        # A print from the CLI: its plan of the file is sent to the service, which prints it.
+        gcode = _gcode(tmp_path / "cli.gcode", 100)
+        result = await asyncio.to_thread(runner.invoke, app, ["print", "--port", url, str(gcode)])
+        assert result.exit_code == 0, result.output
+        assert "done: 100 commands" in result.output
 
 
 @pytest.fixture

@@ -184,6 +184,14 @@ def _farm_specs(ports: list[str], sims: int, options: ConnectOptions, interval_s
     except ValueError as exc:
         fail(str(exc), Exit.USAGE)
     limits = options.limits
+    from marlin_aio.service import service_holding
+
+    for index, spec in enumerate(specs):
+        served = service_holding(spec.port) if spec.port and not spec.port.startswith("serve:") else None
+        if served is not None:
+            # The service owns that port: watch it through the service (a `serve:` port is a served printer).
+            error_console().print(f"{spec.port} is held by marlin-temp serve: using it ({served})", style="dim")
+            specs[index] = replace(spec, port=served)
     return [
         replace(
             spec,

@@ -33,7 +33,7 @@ from typing import Any
 from marlin_aio.aio.printer import LinkEvent, Printer
 from marlin_aio.aio.printhandle import PrintHandle
 from marlin_aio.aio.rpcclient import RpcClient
-from marlin_aio.aio.servedprint import ServedPrintHandle
+from marlin_aio.aio.servedprint import ServedPrintHandle, upload
 from marlin_aio.aio.servicepaths import TCP_PREFIX, TOKEN_ENV, parse_served_port
 from marlin_aio.errors import (
     ConnectError,
@@ -56,10 +56,7 @@ from marlin_aio.protocol.rpc import (
 )
 from marlin_aio.protocol.temperatures import TemperatureReading
 
-__all__ = ["UPLOAD_PIECE_BYTES", "ServedPrinter"]
-
-#: How much of a print sent as lines goes in one request (well inside the message limit).
-UPLOAD_PIECE_BYTES = 256 * 1024
+__all__ = ["ServedPrinter"]
 
 _log = logging.getLogger("marlin_aio")
 
@@ -335,36 +332,12 @@ class ServedPrinter(Printer):
         if isinstance(source, str | Path):
             params["path"] = _absolute(source)  # the service's working folder is not this one
         else:
-            params["path"] = await self._upload(source)
+            params["path"] = await upload(self, source)
         value = await self._call("start_print", **params)
         assert self._loop is not None
         handle = ServedPrintHandle(self, progress_from_json(value.get("progress")), str(value.get("file", "")))
         self._served_print = handle
         return handle
-
-    async def _upload(self, lines: Iterable[str]) -> str:
-        """Send `lines` to the service in pieces of at most `UPLOAD_PIECE_BYTES`; return the file it made of them.
-        (A list or an iterator of any length: the service keeps the print, so it must have all of it.)"""
-        upload_id: str | None = None
-        piece: list[str] = []
-        size = 0
-
-        async def send(done: bool) -> Any:
-            nonlocal upload_id, piece, size
-            params: dict[str, Any] = {"lines": piece, "done": done, "name": "upload.gcode"}
-            if upload_id is not None:
-                params["upload_id"] = upload_id
-            result = await self._call("upload", **params)
-            piece, size = [], 0
-            upload_id = result.get("upload_id", upload_id)
-            return result
-
-        for line in lines:
-            piece.append(str(line))
-            size += len(line) + 8
-            if size >= UPLOAD_PIECE_BYTES:
-                await send(False)
-        return str((await send(True))["path"])
 
     # ------------------------------------------------------------------------------------------- state
 

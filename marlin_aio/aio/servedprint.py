@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Generator
+from collections.abc import Generator, Iterable
 from typing import Any, Protocol
 
 from marlin_aio.aio.printhandle import PrintHandle
@@ -12,7 +12,10 @@ from marlin_aio.errors import ConnectionLostError, MarlinError
 from marlin_aio.protocol.printjob import PrintProgress, PrintState
 from marlin_aio.protocol.rpc import RpcError, error_from_json, progress_from_json
 
-__all__ = ["ServedPrintHandle", "ServedPrinterLike"]
+__all__ = ["UPLOAD_PIECE_BYTES", "ServedPrintHandle", "ServedPrinterLike", "upload"]
+
+#: How much of a print sent as lines goes in one request (well inside the message limit).
+UPLOAD_PIECE_BYTES = 256 * 1024
 
 
 class ServedPrinterLike(Protocol):
@@ -101,3 +104,28 @@ class ServedPrintHandle(PrintHandle):
 
     def check(self) -> None:
         """Nothing to do: the service tells when the print ends."""
+
+
+async def upload(printer: ServedPrinterLike, lines: Iterable[str]) -> str:
+    """Send `lines` to the service in pieces of at most `UPLOAD_PIECE_BYTES`; return the file it made of them.
+    (A list or an iterator of any length: the service keeps the print, so it must have all of it.)"""
+    upload_id: str | None = None
+    piece: list[str] = []
+    size = 0
+
+    async def send(done: bool) -> Any:
+        nonlocal upload_id, piece, size
+        params: dict[str, Any] = {"lines": piece, "done": done, "name": "upload.gcode"}
+        if upload_id is not None:
+            params["upload_id"] = upload_id
+        result = await printer.call("upload", **params)
+        piece, size = [], 0
+        upload_id = result.get("upload_id", upload_id)
+        return result
+
+    for line in lines:
+        piece.append(str(line))
+        size += len(line) + 8
+        if size >= UPLOAD_PIECE_BYTES:
+            await send(False)
+    return str((await send(True))["path"])
