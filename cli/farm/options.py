@@ -13,10 +13,9 @@ from typing import Annotated
 
 import typer
 
-import marlin_aio
-
 from ..common.connect import Exit, UsageProblem
 from ..common.options import BaudOption, SimSpeedOption, error_console, fail, run
+from ..common.printers import ConfigOption, IntervalOption, PortsOption, SimsOption, printer_specs
 
 __all__ = ["FARM_HELP", "farm"]
 
@@ -41,18 +40,12 @@ FARM_HELP = (
 
 
 def farm(
-    ports: Annotated[
-        list[str] | None, typer.Option("--port", "-p", help="A printer as NAME=PORT (or just PORT); repeatable.")
-    ] = None,
-    config: Annotated[Path | None, typer.Option("--config", help="TOML file listing the printers.")] = None,
-    sims: Annotated[
-        int, typer.Option("--sims", help="Add N simulated printers (sim1, sim2, ...).", min=0, metavar="N")
-    ] = 0,
+    ports: PortsOption = None,
+    config: ConfigOption = None,
+    sims: SimsOption = 0,
     sim_speed: SimSpeedOption = 1.0,
     baud: BaudOption = None,
-    interval: Annotated[
-        float, typer.Option("--interval", help="Seconds between M105 polls of each printer.", min=0.005)
-    ] = 0.1,
+    interval: IntervalOption = 0.1,
     broker: Annotated[str, typer.Option("--broker", help="MQTT broker as HOST[:PORT].")] = "127.0.0.1:1883",
     username: Annotated[str | None, typer.Option("--username", help="Broker user name.")] = None,
     password_file: Annotated[
@@ -114,7 +107,6 @@ def farm(
     if importlib.util.find_spec("aiomqtt") is None:
         fail("marlin-temp farm needs aiomqtt, which is not installed: pip install 'marlin-aio[farm]'")
     from marlin_aio.farm.bridge import BridgeSettings
-    from marlin_aio.farm.config import check_unique, load_config, specs_from_options
 
     from .command import FarmOptions, broker_settings, run_farm
 
@@ -129,17 +121,8 @@ def farm(
 
     if not NAME_PATTERN.fullmatch(bridge_name):
         fail(f"--bridge-name {bridge_name!r} must be {NAME_RULE}", Exit.USAGE)
+    specs = printer_specs(ports, config, sims, baud=baud, interval_s=interval, sim_speed=sim_speed)
     try:
-        specs = load_config(config) if config is not None else []
-        if ports or sims or not specs:
-            options_specs = specs_from_options(
-                ports or [],
-                sims,
-                baud=baud or marlin_aio.DEFAULT_BAUDRATE,
-                poll_interval_s=interval,
-                sim_speed=sim_speed,
-            )
-            specs = check_unique(specs + options_specs)
         broker_at = broker_settings(
             broker,
             username=username,
@@ -154,7 +137,7 @@ def farm(
     except ValueError as exc:
         fail(str(exc), Exit.USAGE)
     except OSError as exc:
-        fail(f"{config}: {exc.strerror or exc}", Exit.USAGE)
+        fail(f"{exc.filename or 'the password file'}: {exc.strerror or exc}", Exit.USAGE)
     if any(spec.name == bridge_name for spec in specs):
         fail(f"printer name {bridge_name!r} is the bridge's own (--bridge-name); choose another", Exit.USAGE)
     if allowed_dir is not None and not allow_commands:

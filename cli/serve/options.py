@@ -7,10 +7,9 @@ from typing import Annotated
 
 import typer
 
-import marlin_aio
-
-from ..common.connect import Exit, UsageProblem
+from ..common.connect import Exit
 from ..common.options import BaudOption, SimSpeedOption, error_console, fail, run
+from ..common.printers import ConfigOption, IntervalOption, PortsOption, SimsOption, printer_specs
 
 __all__ = ["SERVE_HELP", "serve"]
 
@@ -35,19 +34,13 @@ SERVE_HELP = (
 
 
 def serve(
-    ports: Annotated[
-        list[str] | None, typer.Option("--port", "-p", help="A printer as NAME=PORT (or just PORT); repeatable.")
-    ] = None,
-    config: Annotated[Path | None, typer.Option("--config", help="TOML file listing the printers.")] = None,
+    ports: PortsOption = None,
+    config: ConfigOption = None,
     sim: Annotated[bool, typer.Option("--sim", help="Serve one simulated printer, named sim.")] = False,
-    sims: Annotated[
-        int, typer.Option("--sims", help="Serve N simulated printers (sim1, sim2, ...).", min=0, metavar="N")
-    ] = 0,
+    sims: SimsOption = 0,
     sim_speed: SimSpeedOption = 1.0,
     baud: BaudOption = None,
-    interval: Annotated[
-        float, typer.Option("--interval", help="Seconds between M105 polls of each printer.", min=0.005)
-    ] = 0.1,
+    interval: IntervalOption = 0.1,
     socket: Annotated[
         Path | None, typer.Option("--socket", help="Listen here instead of the default (see above).")
     ] = None,
@@ -98,7 +91,6 @@ def serve(
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
 ) -> None:
     """Own the printers and share them on a local socket (the help text is `SERVE_HELP`)."""
-    from marlin_aio.farm.config import check_unique, load_config, specs_from_options
     from marlin_aio.farm.supervisor import PrinterSpec
 
     from .command import run_serve
@@ -107,27 +99,8 @@ def serve(
         fail(f"--duration must be a positive number of seconds, got {duration:g}", Exit.USAGE)
     if sim and sims:
         fail("--sim is one simulated printer and --sims N several: give one of them", Exit.USAGE)
-    try:
-        specs = load_config(config) if config is not None else []
-        if sim:
-            specs.append(PrinterSpec("sim", None, poll_interval_s=interval, sim=True, sim_speed=sim_speed))
-        if ports or sims or not specs:
-            options_specs = specs_from_options(
-                ports or [],
-                sims,
-                baud=baud or marlin_aio.DEFAULT_BAUDRATE,
-                poll_interval_s=interval,
-                sim_speed=sim_speed,
-            )
-            specs = check_unique(specs + options_specs)
-        else:
-            specs = check_unique(specs)
-    except UsageProblem as exc:
-        fail(str(exc), exc.code)
-    except ValueError as exc:
-        fail(str(exc), Exit.USAGE)
-    except OSError as exc:
-        fail(f"{config}: {exc.strerror or exc}", Exit.USAGE)
+    simulated = [PrinterSpec("sim", None, poll_interval_s=interval, sim=True, sim_speed=sim_speed)] if sim else []
+    specs = printer_specs(ports, config, sims, baud=baud, interval_s=interval, sim_speed=sim_speed, more=simulated)
     listen = None
     if tcp is not None:
         listen = _address(tcp, "--tcp")
