@@ -450,3 +450,108 @@ async def test_the_tcp_listener_takes_only_clients_with_the_token(
             history = (await local.call("history", printer="sim", seconds=60))["result"]
             texts = [line["text"] for line in history["console"]]
             assert "over tcp" in texts and not any("sneaky" in text for text in texts)
+
+
+async def test_an_emergency_stop_gets_through_a_client_with_every_request_slot_taken(tmp_path: Path) -> None:
+    async with serving(tmp_path) as served, raw_client(served) as busy, marlin_aio.connect(served.url()) as other:
+        halted = asyncio.Event()
+        other.on_link_event(lambda event: halted.set() if event.kind == "halted" else None)
+        for number in range(40):  # more than a client may have under way: the last ones are refused as busy
+            params = {"printer": "sim", "command": "G4 S5"}
+            busy.writer.write(rpc.encode_message(rpc.request(100 + number, "send", params)))
+        busy.writer.write(rpc.encode_message(rpc.request(1, "emergency_stop", {"printer": "sim"})))
+        answer = await busy.answer(1)
+        assert answer.get("result", "refused") is None, answer
+        await asyncio.wait_for(halted.wait(), 30)
+
+
+async def test_two_cancels_run_the_script_once_and_a_client_leaving_mid_cancel_does_not_stop_it(
+    tmp_path: Path,
+) -> None:
+    gcode = _gcode(tmp_path / "long.gcode", 4000)
+    script = ["G91", "G1 Z5", "G90"]
+    async with (
+        serving(tmp_path) as served,
+        marlin_aio.connect(served.url()) as a,
+        marlin_aio.connect(served.url()) as b,
+    ):
+        start = (await a.position())["Z"]
+        handle = await a.start_print(gcode)
+        # One client asks and leaves at once; another asks too: the script runs once, to its end.
+        async with raw_client(served) as leaver:
+            leaver.writer.write(rpc.encode_message(rpc.request(1, "cancel", {"printer": "sim", "script": script})))
+            await leaver.writer.drain()
+        await b.call("cancel", script=script)  # type: ignore[attr-defined]
+        assert (await handle.wait()).state is marlin_aio.PrintState.CANCELLED
+        assert (await a.position())["Z"] == pytest.approx(start + 5)
+
+
+async def test_a_send_given_up_by_its_caller_never_runs(tmp_path: Path) -> None:
+    async with serving(tmp_path) as served, marlin_aio.connect(served.url()) as printer:
+        dwell = asyncio.create_task(printer.send("G4 S2"))  # 40 ms at 50x: holds the queue for a moment
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(printer.send("M118 given up"), 0.01)
+        await dwell
+        assert (await printer.send("M118 after")).lines == ("after",)
+        async with raw_client(served) as reader:
+            history = (await reader.call("history", printer="sim", seconds=60))["result"]
+        texts = [line["text"] for line in history["console"]]
+        assert "after" in texts and "given up" not in texts
+
+
+async def test_bad_timeouts_and_passwords_in_the_console(tmp_path: Path) -> None:
+    async with serving(tmp_path) as served, raw_client(served) as client:
+        for timeout in ("NaN", "Infinity", "1e308", "-1"):
+            params = f'{{"printer":"sim","command":"M105","timeout_s":{timeout}}}'
+            line = f'{{"jsonrpc":"2.0","id":7,"method":"send","params":{params}}}\n'
+            answer = await client.raw(line.encode()) if timeout in ("NaN", "Infinity") else None
+            if answer is not None:
+                assert answer["error"]["code"] == rpc.PARSE_ERROR
+            else:
+                client.writer.write(line.encode())
+                answer = await client.answer(7)
+                assert answer["error"]["code"] == rpc.INVALID_PARAMS, answer
+        await client.call("send", printer="sim", command="M512 P1234 S9999")
+        history = (await client.call("history", printer="sim", seconds=60))["result"]
+        assert not any("9999" in line["text"] or "1234" in line["text"] for line in history["console"])
+
+
+async def test_a_stopped_service_fails_its_clients_waits_within_the_silence_bound(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import marlin_aio.aio.rpcclient as rpcclient
+
+    monkeypatch.setattr(rpcclient, "SILENCE_S", 2.0)
+    async with serving(tmp_path) as served, marlin_aio.connect(served.url()) as printer:
+        served.process.send_signal(signal.SIGSTOP)
+        try:
+            with pytest.raises(marlin_aio.ConnectionLostError, match="has said nothing for"):
+                await asyncio.wait_for(printer.send("M105"), 30)
+        finally:
+            served.process.send_signal(signal.SIGCONT)
+
+
+async def test_a_socket_folder_others_may_enter_or_a_file_in_the_way_is_refused(tmp_path: Path) -> None:
+    shared = tmp_path / "shared"
+    shared.mkdir(mode=0o755)
+    shared.chmod(0o755)
+    victim = tmp_path / "mine" / "notes.txt"
+    victim.parent.mkdir(mode=0o700)
+    victim.write_text("keep me")
+    for socket_path, words in ((shared / "s.sock", "others may enter it"), (victim, "is not a socket")):
+        result = await asyncio.to_thread(
+            runner.invoke, app, ["serve", "--sim", "--socket", str(socket_path), "--no-log", "--duration", "5"]
+        )
+        assert result.exit_code != 0
+        assert words in result.output
+    assert victim.read_text() == "keep me"
+
+
+def test_a_registry_left_by_a_killed_service_is_not_believed(tmp_path: Path) -> None:
+    socket_path = tmp_path / "serve.sock"
+    registry = {"pid": 2**22 + 12345, "socket": str(socket_path), "printers": {"a": "/dev/ttyUSB7"}}
+    (tmp_path / "serve.json").write_text(json.dumps(registry))
+    assert service_holding("/dev/ttyUSB7", socket_path) is None
+    registry["pid"] = os.getpid()
+    (tmp_path / "serve.json").write_text(json.dumps(registry))
+    assert service_holding("/dev/ttyUSB7", socket_path) == f"serve:a@{socket_path}"

@@ -143,6 +143,13 @@ async def run_farm(
                 task.cancel()
     except TimeoutError:
         pass  # --duration is up: every printer and the broker connection were closed on the way out
+    except BaseExceptionGroup as group_error:
+        # The service or the bridge failed (a socket path too long, a folder not the user's): its one error, not
+        # the task group's traceback.
+        first = group_error.exceptions[0]
+        while isinstance(first, BaseExceptionGroup):
+            first = first.exceptions[0]
+        raise first from None
     finally:
         with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
             loop.remove_signal_handler(signal.SIGTERM)

@@ -22,6 +22,7 @@ from marlin_aio.service import (
     Service,
     ServiceRunningError,
     TcpSettings,
+    check_private_folder,
     default_socket_path,
 )
 
@@ -48,7 +49,7 @@ def secret(named: Path | None, env: str, made: Path, what: str) -> tuple[str, st
     elif os.environ.get(env):
         value, source = os.environ[env].strip(), f"${env}"
     else:
-        made.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        check_private_folder(made.parent)  # a folder someone else made could hand us their secret
         if not made.exists():
             fd = os.open(made, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
             with os.fdopen(fd, "w") as handle:

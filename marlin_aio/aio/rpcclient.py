@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import logging
 from collections.abc import Callable
 from typing import Any
 
@@ -19,14 +20,21 @@ from marlin_aio.protocol.rpc import (
     request,
 )
 
-__all__ = ["RpcClient"]
+__all__ = ["SILENCE_S", "RpcClient"]
+
+_log = logging.getLogger("marlin_aio")
+
+#: How long the service may say nothing before its connection is taken as lost (it speaks once a second).
+SILENCE_S = 10.0
 
 
 class RpcClient:
     """One connection to the service: requests matched to their responses by id, notifications to a handler.
 
     The read loop only resolves futures and hands notifications on (no user code runs in it); it ends when the
-    service closes the socket, failing every request still waiting.
+    service closes the socket, failing every request still waiting. The service says something at least once a
+    second (an `alive` notification when it has nothing else to say): after `SILENCE_S` of nothing the connection
+    is given up as lost, so no wait on a stopped or stuck service lasts for ever.
     """
 
     def __init__(
@@ -45,7 +53,20 @@ class RpcClient:
         self._ids = itertools.count(1)
         self._waiting: dict[int, asyncio.Future[Any]] = {}
         self.closed: MarlinError | None = None
-        self._task = asyncio.get_running_loop().create_task(self._read(), name=f"served printer reader {where}")
+        self._steering: dict[int, str] = {}  # requests written with call_soon, by id: their refusals are logged
+        loop = asyncio.get_running_loop()
+        self._heard_s = loop.time()
+        self._task = loop.create_task(self._read(), name=f"served printer reader {where}")
+        self._watchdog = loop.call_later(SILENCE_S / 2, self._check_silence)
+
+    def _check_silence(self) -> None:
+        loop = asyncio.get_running_loop()
+        silent_s = loop.time() - self._heard_s
+        if silent_s >= SILENCE_S:
+            self._close(ConnectionLostError(f"the service at {self._where} has said nothing for {silent_s:.0f} s"))
+            self._task.cancel()
+            return
+        self._watchdog = loop.call_later(SILENCE_S / 2, self._check_silence)
 
     def call_soon(self, method: str, params: dict[str, Any]) -> None:
         """Write a request now and ignore its answer (an emergency stop, which must not wait for a turn).
@@ -55,7 +76,9 @@ class RpcClient:
         """
         if self.closed is not None:
             raise ConnectionLostError(str(self.closed))
-        self._writer.write(encode_message(request(next(self._ids), method, params)))
+        request_id = next(self._ids)
+        self._steering[request_id] = method
+        self._writer.write(encode_message(request(request_id, method, params)))
 
     async def call(self, method: str, params: dict[str, Any]) -> Any:
         """Send a request and return its result, or raise the error the service answered with.
@@ -72,6 +95,13 @@ class RpcClient:
         try:
             self._writer.write(encode_message(request(request_id, method, params)))
             return await future
+        except asyncio.CancelledError:
+            # The caller gave up: have the service give up too, so a command not yet written to the printer never
+            # is (a caller that then retries must not get it run twice).
+            # (The task's cancel cancelled the future too: cancelled, not answered.)
+            if self.closed is None and (future.cancelled() or not future.done()):
+                self._writer.write(encode_message(request(next(self._ids), "cancel_request", {"id": request_id})))
+            raise
         finally:
             # Given up (cancelled) or answered: either way nobody waits for this id any more.
             self._waiting.pop(request_id, None)
@@ -87,6 +117,7 @@ class RpcClient:
                     break
                 if not line.endswith(b"\n"):
                     break
+                self._heard_s = asyncio.get_running_loop().time()
                 try:
                     message = decode_message(line)
                 except RpcError as exc:
@@ -104,7 +135,11 @@ class RpcClient:
             if isinstance(params, dict):
                 self._on_notification(str(message["method"]), params)
             return
-        future = self._waiting.get(message.get("id"))  # type: ignore[arg-type]
+        request_id = message.get("id")
+        steering = self._steering.pop(request_id, None) if isinstance(request_id, int) else None
+        if steering is not None and "error" in message:
+            _log.warning("the service at %s refused %s: %s", self._where, steering, error_from_json(message["error"]))
+        future = self._waiting.get(request_id)  # type: ignore[arg-type]
         if future is None or future.done():
             return  # the answer to a request given up, or to one written with call_soon
         if "error" in message:
@@ -116,6 +151,7 @@ class RpcClient:
         if self.closed is not None:
             return
         self.closed = error
+        self._watchdog.cancel()
         for future in self._waiting.values():
             if not future.done():
                 future.set_exception(error)

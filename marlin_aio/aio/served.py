@@ -26,14 +26,14 @@ import asyncio
 import contextlib
 import logging
 import os
-from collections.abc import AsyncGenerator, AsyncIterator, Iterable
+from collections.abc import AsyncGenerator, AsyncIterator, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 from marlin_aio.aio.printer import LinkEvent, Printer
 from marlin_aio.aio.printhandle import PrintHandle
 from marlin_aio.aio.rpcclient import RpcClient
-from marlin_aio.aio.servedprint import ServedPrintHandle, upload
+from marlin_aio.aio.servedprint import ServedPrintHandle, absolute, check_file, file_lines, upload
 from marlin_aio.aio.servicepaths import TCP_PREFIX, TOKEN_ENV, parse_served_port
 from marlin_aio.errors import (
     ConnectError,
@@ -46,6 +46,7 @@ from marlin_aio.errors import (
 from marlin_aio.protocol.events import FirmwareInfo
 from marlin_aio.protocol.heaters import HeaterLimits
 from marlin_aio.protocol.linkstate import LinkState
+from marlin_aio.protocol.printjob import gcode_commands
 from marlin_aio.protocol.replies import Reply
 from marlin_aio.protocol.rpc import (
     MAX_MESSAGE_BYTES,
@@ -74,6 +75,7 @@ class ServedPrinter(Printer):
     def __init__(self, port: str, **options: Any) -> None:
         super().__init__(port, **options)
         self.name, self.socket_path = parse_served_port(port)
+        self._remote = self.socket_path.startswith(TCP_PREFIX)
         self._lost: MarlinError | None = None
         self._served_print: ServedPrintHandle | None = None
         self._link_up = False
@@ -93,7 +95,7 @@ class ServedPrinter(Printer):
         if self._rpc is not None and self._rpc.closed is None:
             raise RuntimeError(f"the printer {self.port} is already open")
         where = str(self.socket_path)
-        tcp = where.startswith(TCP_PREFIX)
+        tcp = self._remote
         token = os.environ.get(TOKEN_ENV, "")
         if tcp and not token:
             raise ConnectError(f"the service at {where} wants its token: set ${TOKEN_ENV}")
@@ -120,7 +122,6 @@ class ServedPrinter(Printer):
         self._loop = asyncio.get_running_loop()
         self._lost = None
         self._served_print = None
-        self._feed = type(self._feed)()  # readings of an earlier connection are not this one's
         self._rpc = RpcClient(reader, writer, self._notified, self._service_closed, where)
         try:
             if tcp:
@@ -329,9 +330,19 @@ class ServedPrinter(Printer):
             params["window_bytes"] = window_bytes
         if timeout_s is not None:
             params["timeout_s"] = timeout_s
+        limits = self._heater_limits
         if isinstance(source, str | Path):
-            params["path"] = _absolute(source)  # the service's working folder is not this one
+            path = absolute(source)
+            if check:
+                # Against this client's limits (the service checks its own), before anything is sent; in a thread,
+                # as a file of millions of lines takes a while.
+                await asyncio.to_thread(check_file, path, limits)
+            # Over TCP the service is another machine: the file goes with the request, not its path.
+            params["path"] = await upload(self, file_lines(path)) if self._remote else path
         else:
+            if check and isinstance(source, Sequence):
+                for _ in gcode_commands(source, limits):  # a list over the limits is refused whole, as a file is
+                    pass
             params["path"] = await upload(self, source)
         value = await self._call("start_print", **params)
         assert self._loop is not None
@@ -368,8 +379,3 @@ class ServedPrinter(Printer):
     def heater_limits(self) -> HeaterLimits:
         """The limits this client checks targets against before the service checks its own."""
         return self._heater_limits
-
-
-def _absolute(path: str | Path) -> str:
-    """`path` made absolute against this process's working folder (no file is touched)."""
-    return os.path.abspath(path)

@@ -4,15 +4,26 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Generator, Iterable
+import os
+from collections.abc import Generator, Iterable, Iterator
+from pathlib import Path
 from typing import Any, Protocol
 
 from marlin_aio.aio.printhandle import PrintHandle
 from marlin_aio.errors import ConnectionLostError, MarlinError
-from marlin_aio.protocol.printjob import PrintProgress, PrintState
+from marlin_aio.protocol.heaters import HeaterLimits
+from marlin_aio.protocol.printjob import PrintProgress, PrintState, gcode_commands
 from marlin_aio.protocol.rpc import RpcError, error_from_json, progress_from_json
 
-__all__ = ["UPLOAD_PIECE_BYTES", "ServedPrintHandle", "ServedPrinterLike", "upload"]
+__all__ = [
+    "UPLOAD_PIECE_BYTES",
+    "ServedPrintHandle",
+    "ServedPrinterLike",
+    "absolute",
+    "check_file",
+    "file_lines",
+    "upload",
+]
 
 #: How much of a print sent as lines goes in one request (well inside the message limit).
 UPLOAD_PIECE_BYTES = 256 * 1024
@@ -129,3 +140,26 @@ async def upload(printer: ServedPrinterLike, lines: Iterable[str]) -> str:
         if size >= UPLOAD_PIECE_BYTES:
             await send(False)
     return str((await send(True))["path"])
+
+
+def check_file(path: str, limits: HeaterLimits) -> None:
+    """Check every command of the file as a print checks it.
+
+    Raises:
+        ValueError: a line is not a valid command or is over `limits` (the message names it).
+        OSError: the file cannot be read.
+    """
+    for _ in gcode_commands(file_lines(path), limits):
+        pass
+
+
+def file_lines(path: str) -> Iterator[str]:
+    """The lines of the file at `path`, read as they are asked for (so a file of any size uploads in pieces)."""
+    with open(path, encoding="utf-8", errors="surrogateescape") as handle:
+        for line in handle:
+            yield line.rstrip("\r\n")
+
+
+def absolute(path: str | Path) -> str:
+    """`path` made absolute against this process's working folder (no file is touched)."""
+    return os.path.abspath(path)

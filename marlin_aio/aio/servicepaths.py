@@ -60,9 +60,22 @@ def service_holding(port: str, socket_path: Path | None = None) -> str | None:
         return None
     if not isinstance(printers, dict):
         return None
+    pid = registry.get("pid")
+    if not isinstance(pid, int) or not _alive(pid):
+        return None  # left by a service that was killed: the port is free to open
     wanted = os.path.realpath(port) if port.startswith("/") else port
     for name, held in printers.items():
         if isinstance(held, str) and (held == port or (held.startswith("/") and os.path.realpath(held) == wanted)):
             suffix = "" if socket_path is None else f"@{socket_path}"
             return f"{SERVE_PREFIX}{name}{suffix}"
     return None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's process: alive
+    return True

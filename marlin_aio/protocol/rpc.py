@@ -112,12 +112,17 @@ def decode_message(line: bytes) -> dict[str, Any]:
         RpcError: `PARSE_ERROR` for what is not JSON (or not an object, or nested past reason).
     """
     try:
-        message = json.loads(line)
+        message = json.loads(line, parse_constant=_no_constant)
     except (ValueError, RecursionError) as exc:
         raise RpcError(PARSE_ERROR, f"not JSON: {_first_line(str(exc))}") from None
     if not isinstance(message, dict):
         raise RpcError(INVALID_REQUEST, f"a message is a JSON object, got {type(message).__name__}")
     return message
+
+
+def _no_constant(name: str) -> object:
+    # JSON has no NaN or Infinity; Python's parser takes them, and an infinite timeout would be a wait for ever.
+    raise ValueError(f"{name} is not a JSON number")
 
 
 def request(request_id: int, method: str, params: dict[str, Any]) -> dict[str, Any]:

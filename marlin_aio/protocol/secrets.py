@@ -25,7 +25,7 @@ import re
 
 __all__ = ["REDACTED", "redact"]
 
-#: What replaces the rest of a line after an M511 command word.
+#: What replaces the rest of a line after an M511 (or M512: set a new password, old and new) command word.
 REDACTED = " ****"
 
 # The command word: not glued to a letter before it (`XM511` is no command word; after the digits of a line
@@ -33,7 +33,7 @@ REDACTED = " ****"
 # another command). Marlin skips only spaces between the letter and the number; tabs are redacted as well, since
 # blanking too much is harmless here.
 _M511 = re.compile(
-    r"(?<![A-Za-z])([Mm][ \t]*0*511)(?![0-9])"
+    r"(?<![A-Za-z])([Mm][ \t]*0*51[12])(?![0-9])"
     r"(?![ \t]*(?:or LCD\)|P<password>(?=[\s,;)'\"]|$)|\*\*\*\*(?=[\r\n,;)'\"]|\Z)))"
     r"[^\r\n]*"
 )
@@ -46,7 +46,7 @@ def redact(text: str) -> str:
     unchanged (the same object). A line without `511` costs one substring test: the trace redacts every line sent
     and received, a hundred times a second on a Raspberry Pi, and almost none of them is an M511.
     """
-    if "511" not in text:
+    if "511" not in text and "512" not in text:
         return text
     return _M511.sub(_keep_word, text)
 

@@ -6,7 +6,14 @@ from __future__ import annotations
 
 from marlin_aio.aio.servicepaths import SOCKET_ENV, TOKEN_ENV, default_socket_path, service_holding
 from marlin_aio.service.history import ConsoleLine, History
-from marlin_aio.service.server import TOPICS, OctoPrintSettings, Service, ServiceRunningError, TcpSettings
+from marlin_aio.service.server import (
+    TOPICS,
+    OctoPrintSettings,
+    Service,
+    ServiceRunningError,
+    TcpSettings,
+    check_private_folder,
+)
 
 __all__ = [
     "SOCKET_ENV",
@@ -18,6 +25,7 @@ __all__ = [
     "Service",
     "ServiceRunningError",
     "TcpSettings",
+    "check_private_folder",
     "default_socket_path",
     "service_holding",
 ]

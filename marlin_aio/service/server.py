@@ -25,6 +25,7 @@ import contextlib
 import json
 import logging
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -50,7 +51,7 @@ from marlin_aio.service.history import History
 from marlin_aio.service.session import Handler, Session, param
 from marlin_aio.service.uploads import Uploads
 
-__all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError", "TcpSettings"]
+__all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError", "TcpSettings", "check_private_folder"]
 
 _log = logging.getLogger("marlin_aio.service")
 
@@ -58,6 +59,11 @@ _log = logging.getLogger("marlin_aio.service")
 TOPICS = frozenset({"readings", "console", "progress", "link"})
 #: The most readings one `history` answer carries (evenly thinned past this): well inside a message's limit.
 MAX_HISTORY_READINGS = 3_000
+#: The name of a print a client sent as lines (a number is added to keep each), and how many of them are kept.
+CLIENT_UPLOAD_NAME = "sent.gcode"
+KEEP_CLIENT_UPLOADS = 10
+#: The longest timeout a request may give a command (a G28 of a large printer takes minutes, not days).
+MAX_TIMEOUT_S = 24 * 3600.0
 #: How often a running print's progress is told to its subscribers.
 PROGRESS_INTERVAL_S = 0.5
 
@@ -86,10 +92,37 @@ class ServiceRunningError(RuntimeError):
     """Another `marlin-temp serve` already listens at the socket."""
 
 
+def check_private_folder(folder: Path) -> None:
+    """Make `folder` (owner-only) if need be, and make sure it is this user's alone: a folder someone else made
+    first (in /tmp, where anyone may) could hand the service a token or a socket of theirs.
+
+    Raises:
+        PermissionError: it is a link, not this user's, or others may enter or write it.
+    """
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    info = folder.lstat()
+    if stat.S_ISLNK(info.st_mode) or not stat.S_ISDIR(info.st_mode):
+        raise PermissionError(f"{folder} is not a folder of its own (a link?): refusing to use it")
+    if info.st_uid != os.getuid() or info.st_mode & 0o077:
+        raise PermissionError(
+            f"{folder} belongs to another user or others may enter it (mode {stat.S_IMODE(info.st_mode):o}): "
+            "refusing to use it; remove it, or give --socket in a folder of your own"
+        )
+
+
 def _prepare_folder(path: Path) -> bool:
-    """Make the socket's folder (owner-only) if need be; say whether something is at the socket's path already."""
-    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-    return path.exists() or path.is_socket()
+    """Check the socket's folder; say whether a socket is at the socket's path already.
+
+    Raises:
+        PermissionError: the folder is not this user's alone.
+        FileExistsError: something other than a socket is at the path (never removed: it is not ours).
+    """
+    check_private_folder(path.parent)
+    if not os.path.lexists(path):
+        return False
+    if not stat.S_ISSOCK(path.lstat().st_mode):
+        raise FileExistsError(f"{path} exists and is not a socket: refusing to replace it")
+    return True
 
 
 def _remove(path: Path) -> None:
@@ -145,6 +178,7 @@ class Service:
         self._numbers = 0
         self.ready = asyncio.Event()
         self._announced: dict[str, object] = {}  # the last progress told per printer, not to repeat it
+        self._cancels: dict[str, asyncio.Future[marlin_aio.PrintProgress]] = {}  # a cancel under way per printer
         self.methods: dict[str, Handler] = {
             "hello": self._hello,
             "printers": self._printers,
@@ -175,7 +209,12 @@ class Service:
         """
         path = self.socket_path
         await self._claim(path)
-        server = await asyncio.start_unix_server(self._client, str(path), limit=MAX_MESSAGE_BYTES)
+        self.uploads.sweep()
+        mask = os.umask(0o077)  # the socket is the owner's from the moment it exists, not from the chmod
+        try:
+            server = await asyncio.start_unix_server(self._client, str(path), limit=MAX_MESSAGE_BYTES)
+        finally:
+            os.umask(mask)
         http = None
         tcp = None
         try:
@@ -303,8 +342,16 @@ class Service:
                 _log.exception("event listener failed")
 
     async def _tell_progress(self) -> None:
+        alive = encode_message(notification("alive", {}))
+        ticks = 0
         while True:
             await asyncio.sleep(PROGRESS_INTERVAL_S)  # a ticker: progress is told at this rate, not synchronised
+            ticks += 1
+            if ticks % 2 == 0:
+                # Once a second to every client: a client that hears nothing for long knows the service is stuck
+                # (stopped, swapping), and fails its waits instead of waiting for ever.
+                for session in self.sessions:
+                    session.push(alive)
             for farm_printer in self.farm.printers.values():
                 handle = farm_printer.print_handle
                 if handle is not None and not handle.finished:
@@ -423,6 +470,8 @@ class Service:
         farm_printer = self._printer_of(params)
         command = param(params, "command", str)
         timeout_s = param(params, "timeout_s", (int, float), None)
+        if timeout_s is not None and not 0 < timeout_s <= MAX_TIMEOUT_S:
+            raise RpcError(INVALID_PARAMS, f"timeout_s must be above 0 and at most {MAX_TIMEOUT_S:g} s")
         printer = self._connected(farm_printer)
         reply = await printer.send(command, timeout_s=timeout_s)
         self._note(farm_printer.name, ">", command)
@@ -453,8 +502,11 @@ class Service:
         if not params.get("done"):
             return {"upload_id": upload_id}
         session.uploads.discard(upload_id)
-        name = param(params, "name", str, "upload.gcode")
-        return {"path": str(self.uploads.finish(upload_id, name))}
+        path = self.uploads.finish(upload_id, CLIENT_UPLOAD_NAME)
+        # Prints sent as lines are the service's to clean up: the newest few stay (to print again), older go.
+        printing = {fp.print_file for fp in self.farm.printers.values() if fp.print_handle and fp.print_file}
+        self.uploads.prune(CLIENT_UPLOAD_NAME.removesuffix(".gcode"), KEEP_CLIENT_UPLOADS, printing | {path.name})
+        return {"path": str(path)}
 
     async def _start_print(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
@@ -463,11 +515,17 @@ class Service:
         path = Path(path_text)
         if not path.is_absolute():
             raise RpcError(INVALID_PARAMS, f"the service needs an absolute path, got {path_text[:200]!r}")
-        options = {
-            "send_ahead": bool(params.get("send_ahead", False)),
-            "timeout_s": param(params, "timeout_s", (int, float), None),
-        }
-        handle = await self.farm.start_print(farm_printer, path, **options)
+        if session.remote and path.parent != self.uploads.folder:
+            # A path means a file on this machine: a client elsewhere prints what it uploaded, nothing else.
+            raise PermissionError("over TCP a print is a file uploaded first (the client's start_print does that)")
+        timeout_s = param(params, "timeout_s", (int, float), None)
+        if timeout_s is not None and not 0 < timeout_s <= MAX_TIMEOUT_S:
+            raise RpcError(INVALID_PARAMS, f"timeout_s must be above 0 and at most {MAX_TIMEOUT_S:g} s")
+        options = {"send_ahead": bool(params.get("send_ahead", False)), "timeout_s": timeout_s}
+        # In a task of the service's, not the client's: a client that leaves while its print is starting leaves
+        # the start to finish (or fail) whole, never half-done.
+        start = asyncio.ensure_future(self.farm.start_print(farm_printer, path, **options))
+        handle = await asyncio.shield(start)
         return {"file": farm_printer.print_file, "progress": progress_to_json(handle.progress)}
 
     def _running(self, farm_printer: FarmPrinter) -> marlin_aio.PrintHandle:
@@ -493,7 +551,15 @@ class Service:
         script = param(params, "script", list, [])
         if not all(isinstance(command, str) for command in script):
             raise RpcError(INVALID_PARAMS, "script is a list of commands")
-        progress = await self._running(farm_printer).cancel(tuple(script))
+        # One cancel per print, in a task of the service's: a second cancel (another client, a double press) waits
+        # for the first instead of running its script again, and a client that leaves mid-cancel does not stop
+        # the script (the heaters off) from running.
+        cancelling = self._cancels.get(farm_printer.name)
+        if cancelling is None or cancelling.done():
+            handle = self._running(farm_printer)
+            cancelling = asyncio.ensure_future(handle.cancel(tuple(script)))
+            self._cancels[farm_printer.name] = cancelling
+        progress = await asyncio.shield(cancelling)
         return progress_to_json(progress)
 
     async def _emergency_stop(self, session: Session, params: dict[str, Any]) -> object:

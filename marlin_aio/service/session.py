@@ -28,12 +28,27 @@ from marlin_aio.protocol.rpc import (
     response,
 )
 
-__all__ = ["CLIENT_QUEUE_MESSAGES", "MAX_REQUESTS_IN_FLIGHT", "Handler", "ServiceLike", "Session", "param"]
+__all__ = [
+    "CLIENT_QUEUE_BYTES",
+    "CLIENT_QUEUE_MESSAGES",
+    "MAX_REQUESTS_IN_FLIGHT",
+    "PRIORITY_METHODS",
+    "Handler",
+    "ServiceLike",
+    "Session",
+    "param",
+]
 
 _log = logging.getLogger("marlin_aio.service")
 
 #: Messages a client may have waiting to be read before notifications to it are dropped.
 CLIENT_QUEUE_MESSAGES = 1_000
+#: Bytes of messages a client may have waiting (whichever bound comes first: a few big answers are as many bytes
+#: as thousands of readings).
+CLIENT_QUEUE_BYTES = 16 * 1024 * 1024
+#: Methods never refused as busy, and never waiting behind a client's other requests: they stop or steer what is
+#: under way (an emergency stop must get through however many requests its client has out).
+PRIORITY_METHODS = frozenset({"emergency_stop", "interrupt_wait", "pause", "resume", "cancel_request"})
 #: Bytes a client may have unsent in its transport before messages wait in the queue (where the bound applies).
 WRITE_AHEAD_BYTES = 64 * 1024
 #: Requests one client may have under way at once (a long M109 among them); more are refused as busy.
@@ -70,10 +85,14 @@ class Session:
         self.answered = 0  # responses given (errors included)
         self.subscriptions: dict[str, set[str]] = {}
         self.requests: set[asyncio.Task[None]] = set()
+        self.by_id: dict[object, asyncio.Task[None]] = {}  # requests under way by their id, for `cancel_request`
+        self.queued_bytes = 0
         self.uploads: set[str] = set()  # uploads this client began and has not finished
         self.closing = False
         # A client over TCP proves itself first (`auth` with the token); one on the owner-only socket already has.
         self._token = token
+        self.remote = token is not None
+        """A client over TCP: it may print only what it uploaded (a path would be the service's machine's)."""
 
     def subscribed(self, printer: str, topic: str) -> bool:
         return topic in self.subscriptions.get(printer, ())
@@ -82,11 +101,11 @@ class Session:
         """Queue a message; a notification finding the queue full is dropped, a response closes the session."""
         if self.closing:
             return
-        if len(self.queue) >= CLIENT_QUEUE_MESSAGES:
+        if len(self.queue) >= CLIENT_QUEUE_MESSAGES or self.queued_bytes >= CLIENT_QUEUE_BYTES:
             if droppable:
                 self.dropped += 1
                 return
-            if len(self.queue) >= 2 * CLIENT_QUEUE_MESSAGES:
+            if len(self.queue) >= 2 * CLIENT_QUEUE_MESSAGES or self.queued_bytes >= 2 * CLIENT_QUEUE_BYTES:
                 _log.warning("client %d reads nothing: disconnected", self.number)
                 self.close(abort=True)
                 return
@@ -96,6 +115,7 @@ class Session:
             self.writer.write(data)
             return
         self.queue.append(data)
+        self.queued_bytes += len(data)
         self.wakeup.set()
 
     def close(self, *, abort: bool = False) -> None:
@@ -117,6 +137,7 @@ class Session:
                     continue
                 batch = b"".join(self.queue)
                 self.queue.clear()
+                self.queued_bytes = 0
                 self.writer.write(batch)
                 await self.writer.drain()
                 self.drained.set()
@@ -184,12 +205,20 @@ class Session:
                 if refused is not None:
                     self.close()  # after the one error line: nothing more is taken from it
                 return
+            if method == "cancel_request":
+                # The client gave up waiting for an answer: what it asked is cancelled where it stands (a command
+                # not yet written to the printer is never written), so a retry cannot make it run twice.
+                task = self.by_id.get(params.get("id"))
+                if task is not None:
+                    task.cancel()
+                self.answer(request_id, task is not None)
+                return
             handler = self.service.methods.get(method)
             if handler is None:
                 raise RpcError(
                     METHOD_NOT_FOUND, f"no method {method[:60]!r}; there are {', '.join(sorted(self.service.methods))}"
                 )
-            if len(self.requests) >= MAX_REQUESTS_IN_FLIGHT:
+            if len(self.requests) >= MAX_REQUESTS_IN_FLIGHT and method not in PRIORITY_METHODS:
                 raise RpcError(INVALID_REQUEST, f"busy: {MAX_REQUESTS_IN_FLIGHT} requests of this client are under way")
         except RpcError as exc:
             self.answer(request_id, error=error_to_json(exc))
@@ -197,6 +226,9 @@ class Session:
         task = asyncio.create_task(self._handle(request_id, handler, params), name=f"client {self.number} {method}")
         self.requests.add(task)
         task.add_done_callback(self.requests.discard)
+        if isinstance(request_id, int | str) and request_id not in self.by_id:
+            self.by_id[request_id] = task
+            task.add_done_callback(lambda _: self.by_id.pop(request_id, None))
 
     def _refused(self, method: str, params: dict[str, Any]) -> dict[str, Any] | None:
         """Check a TCP client's first request; the error to answer it with, or None once it is let in."""
@@ -204,7 +236,8 @@ class Session:
         if method != "auth" or not isinstance(given, str):
             return error_to_json(RpcError(INVALID_REQUEST, 'over TCP the first request is "auth" with the token'))
         assert self._token is not None
-        if not hmac.compare_digest(given.encode(), self._token.encode()):
+        # surrogatepass: a lone surrogate in the JSON must be a wrong token, not an encoding error.
+        if not hmac.compare_digest(given.encode("utf-8", "surrogatepass"), self._token.encode()):
             _log.warning("client %d gave a wrong token: disconnected", self.number)
             return error_to_json(RpcError(INVALID_REQUEST, "wrong token"))
         self._token = None
@@ -230,7 +263,11 @@ class Session:
         try:
             data = encode_message(response(request_id, result, error))
         except (TypeError, ValueError) as exc:
-            data = encode_message(response(request_id, error=error_to_json(RuntimeError(f"unanswerable: {exc}"))))
+            unanswerable = error_to_json(RuntimeError(f"unanswerable: {str(exc)[:200]}"))
+            try:
+                data = encode_message(response(request_id, error=unanswerable))
+            except (TypeError, ValueError):
+                data = encode_message(response(None, error=unanswerable))  # the id itself was too big to echo
         self.answered += 1
         self.push(data, droppable=False)
 
@@ -242,16 +279,16 @@ Handler = Callable[["Session", dict[str, Any]], Awaitable[object]]
 def param(
     params: dict[str, Any], name: str, kind: type | tuple[type, ...], default: Any = ..., *, optional: bool = False
 ) -> Any:
-    value = params.get(name, default)
-    if value is ...:
-        raise RpcError(INVALID_PARAMS, f"missing parameter {name!r}")
-    if value is None and (optional or default is None):
-        return None
     """The request parameter `name`, checked to be of `kind` (missing: `default`, or an error if none is given).
 
     Raises:
         RpcError: `INVALID_PARAMS`, naming the parameter.
     """
+    value = params.get(name, default)
+    if value is ...:
+        raise RpcError(INVALID_PARAMS, f"missing parameter {name!r}")
+    if value is None and (optional or default is None):
+        return None
     kinds = kind if isinstance(kind, tuple) else (kind,)
     if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):  # JSON's true is no number
         raise RpcError(INVALID_PARAMS, f"parameter {name!r} has the wrong type ({type(value).__name__})")

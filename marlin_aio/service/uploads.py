@@ -62,6 +62,22 @@ class Uploads:
         self.folder.mkdir(mode=0o700, parents=True, exist_ok=True)
         return self.folder
 
+    def sweep(self) -> None:
+        """Remove the `.part` files a service that died left behind (at start-up: none is under way yet)."""
+        if self.folder.is_dir():
+            for part in self.folder.glob(".*.part"):
+                with contextlib.suppress(FileNotFoundError):
+                    part.unlink()
+
+    def prune(self, prefix: str, keep: int, busy: set[str]) -> None:
+        """Keep the `keep` newest finished uploads whose names start with `prefix` (what clients sent as lines,
+        not what people uploaded by name), never one named in `busy` (printing)."""
+        made = sorted(self.folder.glob(f"{prefix}*.gcode"), key=lambda path: path.stat().st_mtime, reverse=True)
+        for path in made[keep:]:
+            if path.name not in busy:
+                with contextlib.suppress(FileNotFoundError):
+                    path.unlink()
+
     def begin(self) -> str:
         """Start an upload in pieces; return its id."""
         upload_id = secrets.token_hex(8)
