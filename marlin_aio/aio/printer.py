@@ -657,7 +657,12 @@ class Printer:
         if window_bytes is not None and not 16 < window_bytes <= 65536:
             raise ValueError(f"window_bytes must be between 17 and 65536, got {window_bytes}")
         link = self._link
-        job = self._print_job(source, check)
+        if isinstance(source, str | Path):
+            # A file is read whole to be checked before its first line: millions of lines take seconds, which must
+            # not stall the event loop (other printers, polls, a service's clients) meanwhile.
+            job = await asyncio.to_thread(self._print_job, source, check)
+        else:
+            job = self._print_job(source, check)
         await send_until_processed(link, "M110 N0", timeout_s=self.timeout_s)  # the print's numbering starts fresh
         job.start_s = link.now()
         saved = link.window

@@ -62,6 +62,8 @@ MAX_HISTORY_READINGS = 3_000
 #: The name of a print a client sent as lines (a number is added to keep each), and how many of them are kept.
 CLIENT_UPLOAD_NAME = "sent.gcode"
 KEEP_CLIENT_UPLOADS = 10
+#: TCP clients at once (the Unix socket's are the owner's own: not bounded).
+MAX_TCP_CLIENTS = 64
 #: The longest timeout a request may give a command (a G28 of a large printer takes minutes, not days).
 MAX_TIMEOUT_S = 24 * 3600.0
 #: How often a running print's progress is told to its subscribers.
@@ -224,7 +226,7 @@ class Service:
             if self.tcp is not None:
                 token = self.tcp.token
                 tcp = await asyncio.start_server(
-                    lambda r, w: self._client(r, w, token), self.tcp.host, self.tcp.port, limit=MAX_MESSAGE_BYTES
+                    lambda r, w: self._tcp_client(r, w, token), self.tcp.host, self.tcp.port, limit=MAX_MESSAGE_BYTES
                 )
             self._write_registry()
             self.ready.set()
@@ -285,6 +287,12 @@ class Service:
         with os.fdopen(fd, "w") as handle:
             handle.write(data)
         os.replace(temporary, self.registry_path)
+
+    async def _tcp_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, token: str) -> None:
+        if sum(session.remote for session in self.sessions) >= MAX_TCP_CLIENTS:
+            writer.transport.abort()  # a flood of connections: the ones over the bound are not even read
+            return
+        await self._client(reader, writer, token)
 
     async def _client(
         self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, token: str | None = None

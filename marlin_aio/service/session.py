@@ -49,6 +49,8 @@ CLIENT_QUEUE_BYTES = 16 * 1024 * 1024
 #: Methods never refused as busy, and never waiting behind a client's other requests: they stop or steer what is
 #: under way (an emergency stop must get through however many requests its client has out).
 PRIORITY_METHODS = frozenset({"emergency_stop", "interrupt_wait", "pause", "resume", "cancel_request"})
+#: How long a TCP client has to send its token.
+AUTH_TIMEOUT_S = 10.0
 #: Bytes a client may have unsent in its transport before messages wait in the queue (where the bound applies).
 WRITE_AHEAD_BYTES = 64 * 1024
 #: Requests one client may have under way at once (a long M109 among them); more are refused as busy.
@@ -147,7 +149,12 @@ class Session:
         try:
             while not self.closing:
                 try:
-                    line = await self.reader.readline()
+                    # A TCP client that does not prove itself soon is let go: no idle connection holds a place.
+                    bound = AUTH_TIMEOUT_S if self._token is not None else None
+                    line = await asyncio.wait_for(self.reader.readline(), bound)
+                except TimeoutError:
+                    _log.warning("client %d did not authenticate within %g s: disconnected", self.number, bound)
+                    break
                 except ValueError:  # a line past the limit: answered once, then the client is let go
                     self.push(
                         encode_message(
