@@ -377,6 +377,7 @@ def test_served_ports_parse() -> None:
     assert parse_served_port("serve:a@/x/y.sock") == ("a", "/x/y.sock")
     assert parse_served_port("serve:") == (None, str(default_socket_path()))
     assert parse_served_port("serve:a@tcp://127.0.0.1:7125") == ("a", "tcp://127.0.0.1:7125")
+    assert parse_served_port("serve:/run/x.sock") == (None, "/run/x.sock")
     with pytest.raises(ValueError, match="serve:NAME"):
         parse_served_port("/dev/ttyUSB0")
 

@@ -34,7 +34,7 @@ def default_socket_path() -> Path:
 
 def parse_served_port(port: str) -> tuple[str | None, str]:
     """(printer name or None for the only one, where) of `serve:NAME`, `serve:NAME@/path.sock`,
-    `serve:NAME@tcp://HOST:PORT` or `serve:`: where is a socket's path or a `tcp://` URL.
+    `serve:NAME@tcp://HOST:PORT`, `serve:/path.sock` or `serve:`: where is a socket's path or a `tcp://` URL.
 
     Raises:
         ValueError: `port` does not start with `serve:`.
@@ -42,6 +42,8 @@ def parse_served_port(port: str) -> tuple[str | None, str]:
     if not port.startswith(SERVE_PREFIX):
         raise ValueError(f"not a served printer: {port!r} (expected serve:NAME)")
     rest = port[len(SERVE_PREFIX) :]
+    if rest.startswith(("/", "tcp://")):
+        return None, rest  # `serve:/path/to.sock`: the only printer of the service there
     name, at, path = rest.partition("@")
     return (name or None), (path if at else str(default_socket_path()))
 
