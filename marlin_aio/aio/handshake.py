@@ -8,7 +8,6 @@ and a firmware that runs only numbered lines is synchronised with the one number
 from __future__ import annotations
 
 import asyncio
-import contextlib
 
 from marlin_aio.aio.link import Link
 from marlin_aio.errors import (
@@ -92,6 +91,10 @@ async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, passwo
     return link.stats().resets > 0
 
 
+#: How many times the M110 that starts a print (or the handshake) is sent while the printer keeps talking.
+M110_ATTEMPTS = 3
+
+
 async def send_until_processed(link: Link, command: str, *, timeout_s: float) -> None:
     """Send a command that is harmless to run twice and whose reply lines nobody needs (M110 N0, M115), and return
     once the printer has shown that it processed it: a lost ok costs a probe, not the connection or the print.
@@ -105,10 +108,21 @@ async def send_until_processed(link: Link, command: str, *, timeout_s: float) ->
     """
     if command.startswith("M110"):
         # The connection itself writes an unanswered M110 again, then asks with a probe numbered as if it took
-        # effect (nothing else may go behind an M110): one wait covers it, and its reply says whether it ran.
-        with contextlib.suppress(LostReplyError):
-            await link.send(command, timeout_s=timeout_s)
-        return
+        # effect (nothing else may go behind an M110), and its reply says whether it ran. On a noisy link that
+        # recovery can outlast one timeout (a damaged M110, a probe delay, a damaged probe): M110 N0 is harmless to
+        # run twice, so it is sent again while the printer has not been silent for `timeout_s` on end, up to
+        # M110_ATTEMPTS times.
+        for attempt in range(1, M110_ATTEMPTS + 1):
+            try:
+                await link.send(command, timeout_s=timeout_s)
+            except LostReplyError:
+                return
+            except CommandTimeoutError:
+                heard = link.trace.last_received
+                if attempt == M110_ATTEMPTS or heard is None or link.now() - heard.time_s >= timeout_s:
+                    raise  # silent all along: a printer that is gone, not a noisy link
+                continue
+            return
     deadline = link.now() + timeout_s
     while True:
         step = max(min(2.0, timeout_s / 4, deadline - link.now()), 0.05)
