@@ -96,17 +96,18 @@ SLICES = 10
 # DONE or ending for another reason, instead of stopping as `resends.py` promises. Seed 1215: the held line is the
 # poller's M105, whose ok carries temperatures, so a plain ok cannot be its own, and is still taken for it.
 _HELD_LINE = "core: a cut line's tail that ran is taken for the held line's unnumbered run; a line is skipped"
-# The pile of probes (core: deadlines.py): the board falls silent while the poller's M105 is the oldest command of
-# a print. A probe (an M105, which may not go behind another) is queued every probe delay, 40 in the 2 s timeout;
-# they go out and in doubt one after another, and a user's command queued behind them waits about one timeout per
-# probe (28 s with timeout_s=2): `_waiting_bound` counts from when the current head began, so it restarts with each.
-_PROBE_PILE = "core: probes pile up behind a poll a silent board never answers; a 2 s send waits 28 s"
+# Fixed: probes piled up behind a poll a silent board never answered; a 2 s send waited 28 s (core: deadlines.py,
+# seed 249). The board fell silent while the poller's M105 was the oldest command of a print. A probe (an M105,
+# which may not go behind another) was queued every probe delay, 40 in the 2 s timeout; once the poll was let go,
+# ten went out together, stalled the print and were let go one timeout after another, and a user's command queued
+# behind them waited about one timeout each: the next line in doubt started its bound again. Now no probe is
+# queued while one waits at the front of the queue, and a line in doubt behind an M105 let go keeps the time since
+# when lines have been in doubt there (an M105 among them goes at once too).
 # Fixed: the print's M110 (aio: Printer.start_print -> handshake.send_until_processed) got one timeout_s, but the
 # core's own recovery of a damaged M110 (written again after a probe delay, then probed) can take longer on a noisy
 # link (3 s in seed 1116), so start_print raised CommandTimeoutError on a link that carries the print. It is now
 # sent again while the printer keeps talking (`handshake.M110_ATTEMPTS`).
 KNOWN_FAILURES: dict[int, str] = {
-    249: _PROBE_PILE,
     290: _HELD_LINE,
     441: _HELD_LINE,
     455: _HELD_LINE,
@@ -491,7 +492,8 @@ def _assert_covered(runs: list[ClientRun]) -> None:
         # The line held is the poller's M105, whose ok carries temperatures: a plain ok cannot be its own, and is
         # still taken for it. The tail that ran was file line 2, which then ran again: 301 lines of 300, DONE.
         pytest.param(1215, marks=pytest.mark.xfail(strict=True, reason=_HELD_LINE), id="held-m105"),
-        pytest.param(249, marks=pytest.mark.xfail(strict=True, reason=_PROBE_PILE), id="probe-pile"),
+        # Fixed: one probe waits behind the poll, and the probes in doubt are let go together.
+        pytest.param(249, id="probe-pile"),
         # Fixed: start_print's M110 is sent again (up to three times) while the printer keeps talking.
         pytest.param(1116, id="start-m110"),
     ],

@@ -1339,3 +1339,59 @@ def test_a_command_waiting_behind_one_in_doubt_ends_within_its_own_timeout() -> 
     assert text == "M119" and isinstance(error, CommandTimeoutError) and "waited behind 'G28'" in str(error)
     receive(conn, "ok", M105_OK, now=9.0)  # the G28 and the probe, late: they complete nothing
     assert conn.take_results() == [] and conn.in_flight == 0
+
+
+def test_one_probe_waits_behind_a_poll_that_no_probe_may_follow() -> None:
+    # The client campaign's seed 249: the poller's M105 was the oldest command of a print when the board fell
+    # silent. No M105 may follow it, so the probe waited; before, another was queued every probe delay (40 in the
+    # 2 s timeout), and once the poll was let go they all went out together, each then let go one timeout after
+    # another.
+    conn = Connection()
+    conn.attach(PrintJob(["G1 X1"]), timeout_s=5.0)
+    conn.submit("M105", timeout_s=5.0, now=0.0)
+    assert sent(conn.data_to_send(0.0)) == [wire("M105", 1)]
+    for now in (1.0, 2.0, 3.0, 4.0):
+        assert conn.next_deadline() == now
+        conn.check_timeouts(now)
+        assert conn.data_to_send(now) == b"\n"  # a line end, in case the poll's own was damaged; no more probes
+    assert conn.stats().probes == 1 and conn.queued == 1
+    conn.check_timeouts(5.0)  # the poll times out, in doubt: it is let go after one more timeout
+    assert sent(conn.data_to_send(5.0)) == []
+    conn.check_timeouts(10.0)
+    assert sent(conn.data_to_send(10.0)) == [wire("M105", 2)]  # the one probe
+    receive(conn, M105_OK, now=10.01)
+    assert sent(conn.data_to_send(10.01)) == [wire("G1 X1", 3)]  # and the print goes on
+
+
+def test_a_caller_behind_lines_in_doubt_ends_at_its_own_bound_when_an_m105_among_them_is_let_go() -> None:
+    # Seed 249 again: a caller waited behind the probes of a stalled print, each an M105 in doubt, let go one
+    # timeout after another; each time the next line in doubt started the caller's bound again (28 s for a 2 s
+    # send). The line in doubt behind the M105 let go has been in doubt as long: the bound counts from then.
+    conn = Connection(max_in_flight=2)
+    job = PrintJob(["G1 X1", "G1 X2", "G1 X3"])
+    conn.attach(job, timeout_s=2.0)
+    assert sent(conn.data_to_send(0.0)) == [wire("G1 X1", 1), wire("G1 X2", 2)]
+    conn.check_timeouts(1.0)  # the oks are late: a probe
+    assert sent(conn.data_to_send(1.0)) == [wire("M105", 3)]
+    receive(conn, "ok", "ok", now=1.05)
+    assert sent(conn.data_to_send(1.05)) == [wire("G1 X3", 4)]  # behind the probe, which is not answered
+    conn.submit("M118 U1", timeout_s=2.0, now=1.5)  # waits: a plain ok could be the print line's
+    assert sent(conn.data_to_send(1.5)) == []
+    conn.check_timeouts(2.05)
+    assert sent(conn.data_to_send(2.05)) == [wire("M105", 5)]  # another probe
+    conn.check_timeouts(3.05)  # the first probe times out: the print stalls, its lines on the wire in doubt
+    assert job.state is PrintState.FAILED and conn.take_results() == []
+    # M118 U1 waits behind lines in doubt from 3.05: at 5.05 the probe is let go, and its own timeout is over.
+    assert conn.next_deadline() == 5.05
+    conn.check_timeouts(5.05)
+    [(text, error)] = outcomes(conn)
+    assert text == "M118 U1" and isinstance(error, CommandTimeoutError) and "waited behind 'G1 X3'" in str(error)
+    assert conn.in_flight == 2 and conn.queued == 0
+    # The late answers land on their own lines, in doubt; the next caller gets its own reply.
+    receive(conn, "ok", M105_OK, now=6.0)
+    assert conn.take_results() == [] and conn.in_flight == 0
+    conn.submit("M119", timeout_s=2.0, now=6.0)
+    assert sent(conn.data_to_send(6.0)) == [wire("M119", 6)]
+    receive(conn, "Reporting endstop status", "x_min: open", "ok", now=6.1)
+    [(text, reply)] = replies(conn)
+    assert text == "M119" and reply.lines == ("Reporting endstop status", "x_min: open")

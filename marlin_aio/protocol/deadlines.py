@@ -146,7 +146,8 @@ class Deadlines:
                 core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
                 return
             if head.state is LineState.IN_DOUBT:
-                self._settle_doubt(head, now, timeout_at, probe_at)
+                if self._settle_doubt(head, now, timeout_at, probe_at):
+                    continue
                 return
             if now >= resend_at and head.line_number is not None and talking:
                 # A resent line went unanswered while the printer talked: its rejection was probably taken for a
@@ -190,13 +191,20 @@ class Deadlines:
                 self._give_up_behind(head, summary)
             return
 
-    def _settle_doubt(self, head: Command, now: float, timeout_at: float, probe_at: float) -> None:
+    def _settle_doubt(self, head: Command, now: float, timeout_at: float, probe_at: float) -> bool:
         """The oldest command is in doubt: probe behind it, let an M105 go, fail callers past their bound, stall a
-        print the printer has been silent for."""
+        print the printer has been silent for. True if it was let go (the next one is looked at now)."""
         core = self._core
         if now >= timeout_at:
-            core.in_flight.popleft(now)  # an M105 in doubt (see `_deadlines`)
-            return
+            # An M105 in doubt (see `_deadlines`). A line in doubt behind it has been in doubt at least as long (a
+            # line behind the oldest goes in doubt only when a print stalls, which restarts the oldest's time): it
+            # keeps that time, so the callers behind both end at their own bound from when they began waiting
+            # behind lines in doubt, not one more timeout for each; an M105 there is let go now too.
+            core.in_flight.popleft(now)
+            after = core.in_flight.head
+            if after is not None and after.state is LineState.IN_DOUBT:
+                after.head_since_s = head.head_since_s
+            return True
         if now >= self._silence_bound():
             self._stall_job(head, now)
         if now >= probe_at:
@@ -221,6 +229,7 @@ class Deadlines:
                         command.orphan = True  # it keeps its place: its late ok must land on it
                     core.timeouts += 1
                     core.finish(command, error)
+        return False
 
     def _probe(self, now: float) -> None:
         core = self._core
@@ -241,6 +250,10 @@ class Deadlines:
         # A probe follows several round trips of silence: no rejection of a line written before the last resend
         # can still be on its way, so whatever the printer asks for next is a fresh request, acted on at once.
         core.resends.forget_stale()
+        if core.queue and core.queue[0].probe:
+            # One already waits to go out (behind a poll's M105, say, which no M105 may follow): another would go
+            # out no sooner, and one a probe delay would pile up and then go out together. The line end goes.
+            return
         core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
 
     def _give_up_behind(self, dead: Command, summary: str) -> None:
