@@ -50,7 +50,7 @@ def serve(
             "--octoprint",
             metavar="[HOST:]PORT",
             help="Also serve OctoPrint's REST API here (127.0.0.1 unless HOST is given), so slicers and Home "
-            "Assistant can upload and start prints and read the state. Needs pip install 'marlin-aio[serve]'.",
+            "Assistant can upload and start prints and read the state. Needs pip install 'marlin-aio\\[serve]'.",
         ),
     ] = None,
     octoprint_printer: Annotated[
