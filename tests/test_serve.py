@@ -556,3 +556,10 @@ def test_a_registry_left_by_a_killed_service_is_not_believed(tmp_path: Path) -> 
     registry["pid"] = os.getpid()
     (tmp_path / "serve.json").write_text(json.dumps(registry))
     assert service_holding("/dev/ttyUSB7", socket_path) == f"serve:a@{socket_path}"
+
+
+def test_serve_help_says_where_things_live_and_which_extra_to_install() -> None:
+    result = runner.invoke(app, ["serve", "--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0
+    for words in ("$MARLIN_SERVE_SOCKET", "serve.json", "uploads/", "--log-dir", "pip install 'marlin-aio[serve]'"):
+        assert words in result.output, words
