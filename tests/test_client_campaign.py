@@ -87,15 +87,15 @@ SLICES = 10
 # The bugs the campaign found in the library, and the seeds of 0..RUNS-1 that hit them. A slice fails on any other
 # failing seed, and on a seed listed here that no longer fails (the bug is fixed: remove the seed here).
 #
-# The held line (core: resends.Resends.resend, receiving.Receiving._taken_unnumbered and _settle): after
-# `Line Number is not Last Line Number+1` the line asked for again is held, as the printer may have taken it
-# unnumbered (its `N` damaged), and the first unnumbered ok that comes is taken for its own; a placeholder then
-# takes its number. But the same error comes when the line's own number digits were damaged (it did not run), and
-# with send-ahead the flush then cuts a line behind it, whose tail runs: that tail's ok is taken for the held line.
-# The held line never runs, the tail's line runs out of place (and again in its turn), and the print goes on,
-# DONE or ending for another reason, instead of stopping as `resends.py` promises. Seed 1215: the held line is the
-# poller's M105, whose ok carries temperatures, so a plain ok cannot be its own, and is still taken for it.
-_HELD_LINE = "core: a cut line's tail that ran is taken for the held line's unnumbered run; a line is skipped"
+# Fixed: a cut line's tail that ran was taken for the held line's unnumbered run; a line was skipped (core:
+# resends.Resends.resend, receiving.Receiving._on_ok; seeds 290, 441, 455, 721, 821 and 1215). After `Line Number
+# is not Last Line Number+1` the line asked for again is held, as the printer may have taken it unnumbered (its `N`
+# damaged), and the first unnumbered ok that came was taken for its own, a placeholder then taking its number. But
+# the same error comes when the line's own number digits were damaged (it did not run), and with send-ahead the
+# flush then cuts a line behind it, whose tail runs: that tail's ok was taken for the held line, which never ran,
+# and the print went on. Now such an ok is the held line's only if no line behind it answers that way (an M105's
+# ok carries temperatures, so a plain ok is never the poller's M105's); otherwise the print stops saying why, and
+# the held line is never written again.
 # Fixed: probes piled up behind a poll a silent board never answered; a 2 s send waited 28 s (core: deadlines.py,
 # seed 249). The board fell silent while the poller's M105 was the oldest command of a print. A probe (an M105,
 # which may not go behind another) was queued every probe delay, 40 in the 2 s timeout; once the poll was let go,
@@ -107,13 +107,7 @@ _HELD_LINE = "core: a cut line's tail that ran is taken for the held line's unnu
 # core's own recovery of a damaged M110 (written again after a probe delay, then probed) can take longer on a noisy
 # link (3 s in seed 1116), so start_print raised CommandTimeoutError on a link that carries the print. It is now
 # sent again while the printer keeps talking (`handshake.M110_ATTEMPTS`).
-KNOWN_FAILURES: dict[int, str] = {
-    290: _HELD_LINE,
-    441: _HELD_LINE,
-    455: _HELD_LINE,
-    721: _HELD_LINE,
-    821: _HELD_LINE,
-}
+KNOWN_FAILURES: dict[int, str] = {}
 
 
 @dataclass
@@ -487,11 +481,12 @@ def _assert_covered(runs: list[ClientRun]) -> None:
 @pytest.mark.parametrize(
     "seed",
     [
-        pytest.param(441, marks=pytest.mark.xfail(strict=True, reason=_HELD_LINE), id="held-line-advanced-ok"),
-        pytest.param(821, marks=pytest.mark.xfail(strict=True, reason=_HELD_LINE), id="held-line-plain-ok"),
-        # The line held is the poller's M105, whose ok carries temperatures: a plain ok cannot be its own, and is
+        # Fixed: an ok that the held line or a cut line's tail may have earned stops the print, saying why.
+        pytest.param(441, id="held-line-advanced-ok"),
+        pytest.param(821, id="held-line-plain-ok"),
+        # The line held is the poller's M105, whose ok carries temperatures: a plain ok cannot be its own, and was
         # still taken for it. The tail that ran was file line 2, which then ran again: 301 lines of 300, DONE.
-        pytest.param(1215, marks=pytest.mark.xfail(strict=True, reason=_HELD_LINE), id="held-m105"),
+        pytest.param(1215, id="held-m105"),
         # Fixed: one probe waits behind the poll, and the probes in doubt are let go together.
         pytest.param(249, id="probe-pile"),
         # Fixed: start_print's M110 is sent again (up to three times) while the printer keeps talking.

@@ -1395,3 +1395,56 @@ def test_a_caller_behind_lines_in_doubt_ends_at_its_own_bound_when_an_m105_among
     receive(conn, "Reporting endstop status", "x_min: open", "ok", now=6.1)
     [(text, reply)] = replies(conn)
     assert text == "M119" and reply.lines == ("Reporting endstop status", "x_min: open")
+
+
+def test_an_ok_that_a_held_line_or_a_cut_tail_may_have_earned_stops_the_print() -> None:
+    # `Line Number is not Last Line Number+1` for line 1 comes when line 2 met the check after line 1 ran unnumbered
+    # (its `N` damaged into `n`), and also when line 1's own digits were damaged (it did not run) and the flush cut
+    # line 3, whose tail ran. The first ok no command earned is line 1's in the one case, the tail's in the other.
+    # Before: it was taken for line 1's, a placeholder took its number, and the print went on with line 1 unrun.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    job = PrintJob(["G1 X1", "G1 X2", "G1 X3"], name="part.gcode")
+    conn.attach(job, timeout_s=10.0)
+    assert len(sent(conn.data_to_send(0.0))) == 3
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok", now=0.01)
+    assert job.active  # line 1 is held: it may have run unnumbered
+    receive(conn, "ok", now=0.02)
+    assert job.state is PrintState.FAILED and conn.stats().fragments_run == 1
+    message = str(job.error)
+    assert "ran out of place" in message and "'G1 X1'" in message and "send_ahead=False" in message
+    # Once the printer is quiet, line 1 is never written again: a placeholder takes its number.
+    now = conn.next_deadline() or 1.0
+    assert sent(conn.data_to_send(now)) == [wire("M110 N1", 1)]
+
+
+def test_with_advanced_ok_a_plain_ok_while_an_m105_is_held_is_a_cut_tail_s() -> None:
+    # The held line is an M105, whose own ok carries temperatures: a plain ok is the tail's of the cut line 3.
+    # Before: it was taken for the M105's, and the print went on with line 2 run out of place.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
+    job = PrintJob(["G1 X1", "G1 X2"], name="part.gcode")
+    conn.attach(job, timeout_s=10.0)
+    poll = conn.submit("M105", timeout_s=5.0, now=0.0)
+    assert sent(conn.data_to_send(0.0)) == [wire("M105", 1), wire("G1 X1", 2), wire("G1 X2", 3)]
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok", now=0.01)
+    receive(conn, "ok P15 B3", now=0.02)
+    assert job.state is PrintState.FAILED and "ran out of place" in str(job.error)
+    assert poll.line_number == 1 and conn.take_results() == []  # the M105 did not run: it goes again
+    now = conn.next_deadline() or 1.0
+    assert sent(conn.data_to_send(now)) == [wire("M105", 1)]
+
+
+def test_an_ok_only_the_held_line_can_have_earned_is_its_own() -> None:
+    # Only an M105 is behind the held line: a tail of it answers `ok T:...`, so a plain ok is the held line's own
+    # (it ran unnumbered), and a placeholder takes its number; the print goes on.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
+    job = PrintJob(["G1 X1", "G1 X2"], name="part.gcode")
+    conn.attach(job, timeout_s=10.0)
+    assert sent(conn.data_to_send(0.0)) == [wire("G1 X1", 1), wire("G1 X2", 2)]
+    receive(conn, "ok N1 P15 B3", now=0.01)
+    conn.submit("M105", timeout_s=5.0, now=0.01)
+    assert sent(conn.data_to_send(0.01)) == [wire("M105", 3)]
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 1", "Resend: 2", "ok", now=0.02)
+    receive(conn, "ok P15 B3", now=0.03)
+    assert job.state is PrintState.DONE and conn.stats().fragments_run == 0
+    now = conn.next_deadline() or 1.0
+    assert sent(conn.data_to_send(now)) == [wire("M110 N2", 2)]

@@ -3,6 +3,10 @@
 Every received line is parsed into an event and dispatched here (`_handle`). An `ok` completes the oldest command
 it can answer (`matching`); `Resend:` goes to `resends`; busy keepalives and wait lines push
 the oldest command's deadline out; `Error:` lines halt, stop or refuse; `start` means the board reset.
+
+Over 400 lines because what an `ok` answers is one decision (`_on_ok`): matched in order, a line taken unnumbered,
+the held line's own or a cut line's tail's (`_held_in_doubt`, `_fragment_ran`), or lost; split, the cases that
+share one ok would be judged apart, and one could take another's ok.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from marlin_aio.protocol.events import (
 )
 from marlin_aio.protocol.matching import attribute, match_ok
 from marlin_aio.protocol.replies import Command, Reply, is_noise
-from marlin_aio.protocol.resends import wanted
+from marlin_aio.protocol.resends import answers_plainly, wanted
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.states import LineEvent, LineState, LinkEvent, LinkState
 
@@ -168,6 +172,15 @@ class Receiving:
             if core.resends.draining and ok.temperatures is None:
                 self._fragment_ran(now)
             return
+        held = core.resends.held
+        if held is not None and core.in_flight[index] is held and ok.line_number is None:
+            plain = ok.temperatures is None
+            if plain != answers_plainly(held):
+                self._fragment_ran(now)  # not the held line's answer: a tail's; the held line goes again
+                return
+            if not core.resends.held_answer_proven(held, plain=plain):
+                self._held_in_doubt(held, now)
+                return
         if ok.line_number is not None:
             core.exact_oks = True
         skipped = [core.in_flight.popleft(now) for _ in range(index)]
@@ -212,7 +225,8 @@ class Receiving:
         printer took as unnumbered (its `N` damaged), or None for the tail of a line cut by a flush.
 
         Tails arrive only after a flush, while nothing is written (`draining`); a line held after a flush was in
-        the printer before it, so the first such ok is its own. Otherwise it is the oldest plainly answered line.
+        the printer before it, so the first such ok may be its own (`_on_ok` decides whether it is surely so).
+        Otherwise it is the oldest plainly answered line.
         """
         core = self._core
         held = core.resends.held
@@ -323,8 +337,25 @@ class Receiving:
             return
         self._core.finish(command, error)
 
-    def _fragment_ran(self, now: float) -> None:
-        """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own."""
+    def _held_in_doubt(self, held: Command, now: float) -> None:
+        """An ok that no command earned came while `held` waits, and it cannot be proven `held`'s own: either
+        `held` ran unnumbered, or it did not run and the tail of a line cut behind it did. Neither may be guessed:
+        the print stops (`_fragment_ran`) and `held` is never written again (a placeholder takes its number once
+        the printer is quiet); a caller waiting for it is told that it may or may not have run."""
+        _log.warning("an ok that either %r (run unnumbered) or a cut line's tail earned", redact(held.text))
+        self._fragment_ran(now, held=held)
+        if held.job is None and not held.probe and not held.placeholder and not held.orphan:
+            held.orphan = True
+            error = RemoteProtocolError(
+                f"{redact(held.text)!r} may or may not have run: after a line error the printer sent an ok that it "
+                "earned if it ran without its line number, or the tail of a line cut in two by the flush earned",
+            )
+            core = self._core
+            core.finish(held, error)
+
+    def _fragment_ran(self, now: float, held: Command | None = None) -> None:
+        """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own
+        (or, with `held`, that line ran unnumbered: which of the two cannot be told)."""
         core = self._core
         core.resends.fragments_run += 1
         _log.warning("after a line error the tail of a cut line ran as a command of its own")
@@ -332,10 +363,18 @@ class Receiving:
         if job is None or not job.active:
             return
         pieces = ", ".join(repr(redact(text)) for text in core.resends.fragment_texts[:3])
+        if held is None:
+            what = "ran the rest of it as a command of its own (an ok that no command earned"
+            ran = "a line ran out of place"
+        else:
+            what = "may have run the rest of it as a command of its own (an ok that no command surely earned"
+            ran = (
+                f"either a line ran out of place, or {redact(held.text)!r}, asked for again, had run without its "
+                "line number: which of the two cannot be told"
+            )
         message = (
             f"print stopped after line {job.last_source_line} of {job.name}: after a line error the printer threw "
-            "away its receive buffer in the middle of a line and ran the rest of it as a command of its own (an ok "
-            f"that no command earned; the line was one of {pieces}), so a line ran out of place; "
+            f"away its receive buffer in the middle of a line and {what}; the line was one of {pieces}), so {ran}; "
             "send-ahead cannot rule this out on this link: print with send_ahead=False (ping-pong)"
         )
         core.stop_job(RemoteProtocolError(message), now)

@@ -67,6 +67,11 @@ def wanted(line: Command) -> bool:
     return job is None or (job.active and not job.cancelling)
 
 
+def answers_plainly(command: Command) -> bool:
+    """Is `command`'s ok a plain one (not an M105's `ok T:...`; a refused M105 is answered plainly too)?"""
+    return command.code != "M105" or command.refusal is not None
+
+
 class Resends:
     """Line numbering and resend recovery for one connection.
 
@@ -289,6 +294,8 @@ class Resends:
         # A line-number error means a *later* line was rejected: the line asked for was not counted. If it is in
         # flight with lines behind it, the printer may have taken it unnumbered (its `N` damaged): then its ok
         # comes before anything the flush let through, and it ran. Hold it in flight until the printer is quiet.
+        # (Its own digits damaged give the same error, and a cut line's tail may then earn that first ok instead:
+        # unless `held_answer_proven`, such an ok stops the print, `Receiving._held_in_doubt`.)
         held = first if self.sequence_error and first.state is LineState.ON_WIRE and first in flight else None
         if held is not None and not any(c.line_number is not None for c in flight.after(held)):
             held = None
@@ -403,6 +410,18 @@ class Resends:
         """Is a numbered line on the wire that the printer may still reject (and so flush what follows it)?"""
         through = self.accepted_through
         return any(c.line_number is not None and c.line_number > through for c in flight)
+
+    def held_answer_proven(self, held: Command, *, plain: bool) -> bool:
+        """Is an ok that no command earned (`plain`: without temperatures), which the printer sent while `held`
+        waits, surely `held`'s own: did it run unnumbered?
+
+        The same line-number error comes when the held line's own digits were damaged (it did not run), and the
+        flush may then cut a line behind it whose tail runs: that tail's ok is the first one no command earned, as
+        the held line's would be. So it is the held line's only if it has the shape of the held line's answer and
+        no line behind it answers that way (only an M105 answers with temperatures).
+        """
+        tails_plain = [text.split()[:1] != ["M105"] for text in self.fragment_texts]
+        return plain == answers_plainly(held) and plain not in tails_plain
 
     def fragment_refused(self) -> None:
         """The firmware refused a fragment (`Unknown command`); the ok after it answers nothing."""
