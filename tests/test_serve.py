@@ -489,7 +489,8 @@ async def test_two_cancels_run_the_script_once_and_a_client_leaving_mid_cancel_d
 
 async def test_a_send_given_up_by_its_caller_never_runs(tmp_path: Path) -> None:
     async with serving(tmp_path) as served, marlin_aio.connect(served.url()) as printer:
-        dwell = asyncio.create_task(printer.send("G4 S2"))  # 40 ms at 50x: holds the queue for a moment
+        # 0.4 s at 50x: holds the queue far longer than the caller waits, even on a loaded machine.
+        dwell = asyncio.create_task(printer.send("G4 S20"))
         with pytest.raises(TimeoutError):
             await asyncio.wait_for(printer.send("M118 given up"), 0.01)
         await dwell
