@@ -1448,3 +1448,36 @@ def test_an_ok_only_the_held_line_can_have_earned_is_its_own() -> None:
     assert job.state is PrintState.DONE and conn.stats().fragments_run == 0
     now = conn.next_deadline() or 1.0
     assert sent(conn.data_to_send(now)) == [wire("M110 N2", 2)]
+
+
+def test_a_cancelled_print_ends_only_once_the_tails_of_its_withdrawn_lines_cannot_run() -> None:
+    # The print is cancelled with lines 2 and 3 on the wire behind the poller's M105. The M105's digits are damaged
+    # (`Line Number is not Last Line Number+1` for it): the flush cuts line 3, whose tail runs later. Lines 2 and 3
+    # are withdrawn (a placeholder takes their numbers), but the print may not end CANCELLED until the printer has
+    # been quiet: the tail's ok then comes while the print still runs, and stops it saying why.
+    # Before: the withdrawal ended the print CANCELLED at once, and the tail's ok, coming after, was not reported.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
+    job = PrintJob(["G1 X1", "G1 X2"], name="part.gcode")
+    conn.attach(job, timeout_s=10.0)
+    conn.submit("M105", timeout_s=5.0, now=0.0)
+    assert sent(conn.data_to_send(0.0)) == [wire("M105", 1), wire("G1 X1", 2), wire("G1 X2", 3)]
+    job.cancel(0.005)
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok", now=0.01)
+    assert job.active and job.cancelling  # the tail of a withdrawn line may still run
+    receive(conn, "ok P15 B3", now=0.02)
+    assert job.state is PrintState.FAILED and conn.stats().fragments_run == 1
+    assert "ran out of place" in str(job.error)
+
+
+def test_a_cancelled_print_whose_withdrawn_lines_left_no_tail_ends_cancelled_once_the_printer_is_quiet() -> None:
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024, advanced_ok=True)
+    job = PrintJob(["G1 X1", "G1 X2"], name="part.gcode")
+    conn.attach(job, timeout_s=10.0)
+    conn.submit("M105", timeout_s=5.0, now=0.0)
+    assert len(sent(conn.data_to_send(0.0))) == 3
+    job.cancel(0.005)
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok", now=0.01)
+    assert job.active
+    now = conn.next_deadline() or 1.0
+    conn.tick(now)  # quiet: the M105 did not run, and goes again; the withdrawn lines cannot run any more
+    assert job.state is PrintState.CANCELLED

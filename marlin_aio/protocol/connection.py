@@ -391,6 +391,8 @@ class Connection:
         resends = core.resends
         if resends.drain_over(now):
             return b""
+        if core.feed.job is not None:
+            core.feed.job.finish_if_idle(now)  # a cancelled print whose last lines were withdrawn while draining
         held = resends.held
         if held is not None:
             # The printer has been quiet and the line it asked for again was not answered: it did not run.

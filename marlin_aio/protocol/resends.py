@@ -357,7 +357,11 @@ class Resends:
                 line.move(LineEvent.WITHDRAWN)
                 if line.job is not None and not line.placeholder:
                     line.job.in_flight -= 1  # it will never be answered
-                    line.job.finish_if_idle(self.now)
+                    if not self.draining:
+                        # While draining, the tail of a line cut by the flush may still run; its ok must find the
+                        # print still running (`Receiving._fragment_ran`), so the print ends once the drain is
+                        # over (`Connection.data_to_send`).
+                        line.job.finish_if_idle(self.now)
         number = lines[-1].line_number
         assert number is not None
         placeholder = self.make_placeholder(number)
