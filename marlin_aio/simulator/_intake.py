@@ -257,6 +257,11 @@ class WireFlips:
                 damaged[offset] ^= mask
         if damaged == line or b"\n" in damaged or b"\r" in damaged:
             return  # a flip on the line end, or one that made a new one: the pieces meet the checks on their own
+        # As the firmware reads it: a backslash made by a flip escapes the byte after it and is dropped, a `;` cuts
+        # the rest (`process_stream_char`), so the checks below see the line the board checks.
+        read = bytearray()
+        _stream_chars(read, _NORMAL, bytes(damaged))
+        damaged = read
         if damaged[:1] == b"n":
             self.unseen += 1
             return
