@@ -497,8 +497,8 @@ def _assert_covered(runs: list[ClientRun]) -> None:
         pytest.param(1116, id="start-m110"),
         # Fixed: a cancelled print ends only once the tails of its withdrawn lines can no longer run.
         pytest.param(2389, id="cancel-while-draining"),
-        # Fixed in the simulator's judge: two flips made a backslash (dropped by Marlin as an escape) and a checksum that
-        # still matched; no host can see that, and the campaign now reads the line as the board does to excuse it.
+        # Fixed in the simulator's judge: two flips made a backslash (dropped by Marlin as an escape) and a checksum
+        # that still matched; no host can see that, and the campaign now reads the line as the board does.
         pytest.param(2710, id="escaped-flip"),
     ],
 )
