@@ -221,16 +221,7 @@ class OctoPrintApi:
         """`GET /api/files`: the uploaded files."""
         folder = self.uploads.folder
         entries = sorted(folder.glob("*.gcode")) if folder.is_dir() else []
-        files = [
-            {
-                "name": path.name,
-                "path": path.name,
-                "origin": "local",
-                "type": "machinecode",
-                "size": path.stat().st_size,
-            }
-            for path in entries
-        ]
+        files = [_file_ref(path) | {"type": "machinecode", "size": path.stat().st_size} for path in entries]
         return web.json_response({"files": files, "free": None})
 
     # ------------------------------------------------------------------------------------------- act
@@ -326,15 +317,9 @@ class OctoPrintApi:
         if start:
             self._operational()
             await self._start(stored)
-        ref = {
-            "name": stored.name,
-            "path": stored.name,
-            "origin": "local",
-            "refs": {"resource": f"/api/files/local/{stored.name}"},
-        }
-        return web.json_response(
-            {"files": {"local": ref}, "done": True, "effectiveSelect": select, "effectivePrint": start}, status=201
-        )
+        files = {"local": _file_ref(stored)}
+        answer = {"files": files, "done": True, "effectiveSelect": select, "effectivePrint": start}
+        return web.json_response(answer, status=201)
 
     async def _receive(self, part: BodyPartReader) -> Path:
         upload_id = self.uploads.begin()
@@ -375,6 +360,7 @@ async def _json(request: web.Request) -> dict[str, Any]:
 
 
 def _file_ref(path: Path) -> dict[str, Any]:
+    """An uploaded file as OctoPrint's API names one (its name, origin and resource URL)."""
     return {
         "name": path.name,
         "path": path.name,
