@@ -803,17 +803,20 @@ class Printer:
         from then on); at once if that has happened already. For a supervisor that keeps a printer connected: no
         task wakes up per reading while it waits.
         """
-        if self._link.lost is not None:
-            return self._link.lost
-        if self._link.halted is not None:
-            return self._link.halted
-        waiter: asyncio.Future[MarlinError] = self._link.loop.create_future()
+        failure = self._failure()
+        if failure is not None:
+            return failure
+        waiter: asyncio.Future[MarlinError] = asyncio.get_running_loop().create_future()
         self._failure_waiters.append(waiter)
         try:
             return await waiter
         finally:
             if waiter in self._failure_waiters:
                 self._failure_waiters.remove(waiter)
+
+    def _failure(self) -> MarlinError | None:
+        """Why the printer can take no more commands (the link lost, the printer halted), or None."""
+        return self._link.lost if self._link.lost is not None else self._link.halted
 
     # ------------------------------------------------------------------------------------------- events
 

@@ -44,7 +44,6 @@ from marlin_aio.errors import (
     PrinterHaltedError,
 )
 from marlin_aio.protocol.events import FirmwareInfo
-from marlin_aio.protocol.heaters import HeaterLimits
 from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.printjob import gcode_commands
 from marlin_aio.protocol.replies import Reply
@@ -362,20 +361,5 @@ class ServedPrinter(Printer):
         """True while attached to the service and its printer is connected."""
         return self._rpc is not None and self._rpc.closed is None and self._lost is None and self._link_up
 
-    async def wait_for_failure(self) -> MarlinError:
-        """Wait until the service loses the printer or this client loses the service; return why."""
-        if self._lost is not None:
-            return self._lost
-        assert self._loop is not None, "open the printer first"
-        waiter: asyncio.Future[MarlinError] = self._loop.create_future()
-        self._failure_waiters.append(waiter)
-        try:
-            return await waiter
-        finally:
-            if waiter in self._failure_waiters:
-                self._failure_waiters.remove(waiter)
-
-    @property
-    def heater_limits(self) -> HeaterLimits:
-        """The limits this client checks targets against before the service checks its own."""
-        return self._heater_limits
+    def _failure(self) -> MarlinError | None:
+        return self._lost  # the service lost the printer, or this client lost the service
