@@ -5,11 +5,13 @@ Reports come from three places (the `ok T:` of an M105, auto-reports, the wait l
 fill the targets reports lack. Each subscriber of `readings()` has its own queue, bounded: a reader that falls
 behind loses its oldest readings (counted in `dropped`), never a failure, which always gets through.
 
-No user code runs in the read path (`Link.data_received` calls `on_event` from inside the transport's read
-handler): a reading is only queued there. Callbacks (`add_callback`, `Printer.on_reading`) get the readings of one
-read in one batch, from a `loop.call_soon` scheduled by its first reading: one call per read, not per reading, and
-no task to wake. A callback that raises is logged once (logger "marlin_aio", WARNING) and counted in
-`callback_errors` after that; it stays subscribed, and the other callbacks and the link never notice.
+No user code runs while the link handles a read (`Link.data_received` calls `on_event` in the middle of its
+step): a reading is only queued there. Callbacks (`add_callback`, `Printer.on_reading`) get the readings of one
+read in one batch, handed over by `deliver()`, which the link calls once that read's step is done (its bytes
+written, its futures resolved): one call per read, not per reading, no loop turn and no task to wake. Readings
+published from elsewhere (`publish()`, a served printer's) are delivered by a `loop.call_soon` instead. A callback
+that raises is logged once (logger "marlin_aio", WARNING) and counted in `callback_errors` after that; it stays
+subscribed, and the other callbacks and the link never notice.
 """
 
 from __future__ import annotations
@@ -71,8 +73,8 @@ class TemperatureFeed:
         self._subscribers: list[_Subscriber] = []
         self._callbacks: list[_Callback] = []
         self._published = 0  # readings published so far; the last one's number
-        # Readings not yet handed to the callbacks (those of one read), the number of the first, and the loop that
-        # will deliver them; one `call_soon` is pending while the batch is not empty.
+        # Readings not yet handed to the callbacks (those of one read), the number of the first, and the loop whose
+        # `call_soon` will deliver them (None: the link delivers them when the read's step is done).
         self._batch: list[TemperatureReading] = []
         self._batch_first = 0
         self._batch_loop: asyncio.AbstractEventLoop | None = None
@@ -114,7 +116,13 @@ class TemperatureFeed:
 
     def _arrived(self, temperatures: Temperatures, now: float, source: ReadingSource) -> None:
         if self._subscribers or self._callbacks:
-            self.publish(self.reading(temperatures, now, source))
+            # In the link's read handler, which calls `deliver()` when the read's step is done.
+            reading = (
+                self.reading(temperatures, now, source)
+                if self._targets
+                else TemperatureReading(temperatures, now, time.time(), source)
+            )
+            self._publish(reading, later=False)
         else:
             # No reader: a poller at 100 Hz builds nothing until someone looks at `latest`.
             self._unbuilt = (temperatures, now, time.time(), source)
@@ -138,22 +146,27 @@ class TemperatureFeed:
         return TemperatureReading(temperatures, now, time.time() if wall_time_s is None else wall_time_s, source)
 
     def publish(self, reading: TemperatureReading) -> None:
-        """Make `reading` the latest, queue it for every subscriber, and have the callbacks called with it soon.
+        """Make `reading` the latest, queue it for every subscriber, and have the callbacks called with it soon
+        (from a `loop.call_soon`: it calls no user code itself, and must be called on the running loop)."""
+        self._publish(reading, later=True)
 
-        Runs inside the read handler, so it calls no user code (it must be called on the running loop).
-        """
+    def _publish(self, reading: TemperatureReading, *, later: bool) -> None:
         self._latest = reading
         self._unbuilt = None
         self._published += 1
         if self._callbacks:
-            loop = asyncio.get_running_loop()
-            if not self._batch or self._batch_loop is not loop:
-                # The first reading of this read: one call for the batch. (A batch whose loop stopped before it ran
-                # is dropped: its readings belong to a connection that has gone.)
-                self._batch = []
+            if later:
+                loop = asyncio.get_running_loop()
+                if not self._batch or self._batch_loop is not loop:
+                    # The first reading since the last delivery: one call for the batch. (A batch whose loop stopped
+                    # before it ran is dropped: its readings belong to a connection that has gone.)
+                    self._batch = []
+                    self._batch_first = self._published
+                    self._batch_loop = loop
+                    loop.call_soon(self.deliver)
+            elif not self._batch:
                 self._batch_first = self._published
-                self._batch_loop = loop
-                loop.call_soon(self._deliver)
+                self._batch_loop = None  # delivered by the link when this read's step is done
             self._batch.append(reading)
         for subscriber in self._subscribers:
             if len(subscriber.readings) == QUEUE_READINGS:
@@ -162,8 +175,10 @@ class TemperatureFeed:
             subscriber.readings.append(reading)
             subscriber.wakeup.set()
 
-    def _deliver(self) -> None:
-        """Call every callback with the readings of one batch, outside the read handler."""
+    def deliver(self) -> None:
+        """Call every callback with the readings published since the last delivery (none: nothing to do)."""
+        if not self._batch:
+            return
         batch, self._batch = self._batch, []
         number = self._batch_first
         callbacks = tuple(self._callbacks)  # one added meanwhile gets none of these: they were read before it

@@ -7,7 +7,10 @@ Everything above it (the handshake, the poller, the temperature feed, prints) us
 Its listeners (`on_event`, `on_failure`, `after_results`, `submit_quietly`'s `done`) are called inside the read
 handler, between reading a step's events and writing its bytes, resolving its futures and re-arming its timer: one
 that raised would leave that step half done and the link hung. So they are the client's own bookkeeping only
-(resolve a future, update state, queue a reading), never user code: the feed defers user callbacks to the loop.
+(resolve a future, update state, queue a reading), never user code. `after_read` is the exception: it runs once a
+read's step is wholly done (bytes written, futures resolved, timer armed), so the feed hands that read's readings
+to user callbacks there, each guarded, with no loop turn of its own (at 100 Hz a turn a reading is a cost a
+Raspberry Pi notices).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from collections.abc import Callable
 
 from marlin_aio.aio import _serial
 from marlin_aio.errors import ConnectionLostError, MarlinError, PrinterHaltedError
-from marlin_aio.protocol.connection import Connection, Output, Reply
+from marlin_aio.protocol.connection import Command, Connection, Output, Reply
 from marlin_aio.protocol.events import Event
 from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.printjob import PrintJob
@@ -57,6 +60,7 @@ class Link:
         on_event: called with every event received and its time on the loop's clock.
         on_failure: called once when the printer halts (each halt) or the link is lost.
         after_results: called after every batch of finished commands was delivered (a print may have ended).
+        after_read: called after each read's step was carried out in full (see the module's docstring).
 
     The listeners run inside the read handler and must not raise (see the module's docstring).
     """
@@ -70,6 +74,7 @@ class Link:
         on_event: EventListener,
         on_failure: FailureListener,
         after_results: Callable[[], None],
+        after_read: Callable[[], None] | None = None,
     ) -> None:
         self.port = port
         self.baudrate = baudrate
@@ -77,6 +82,7 @@ class Link:
         self._on_event = on_event
         self._on_failure = on_failure
         self._after_results = after_results
+        self._after_read = after_read
         self._transport: asyncio.Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._closed: asyncio.Future[None] | None = None
@@ -200,10 +206,9 @@ class Link:
         now = self.now()
         if self._lost is not None:
             raise self._lost
-        entry = self._conn.submit(command, timeout_s=timeout_s, now=now, numbered=numbered)
+        entry = self._submit(command, timeout_s, now, numbered=numbered, checked=True)
         future: asyncio.Future[Reply] = self.loop.create_future()
         self._waiters[entry.id] = future
-        self.flush()
         try:
             return await future
         except asyncio.CancelledError:
@@ -218,10 +223,23 @@ class Link:
         halted or the link is down."""
         if self._lost is not None or self._conn.halted is not None:
             return False
-        entry = self._conn.submit(command, timeout_s=timeout_s, now=self.now(), checked=False)
+        entry = self._submit(command, timeout_s, self.now(), numbered=None, checked=False)
         self._callbacks[entry.id] = done
-        self.flush()
         return True
+
+    def _submit(self, text: str, timeout_s: float, now: float, *, numbered: bool | None, checked: bool) -> Command:
+        """Hand a command to the core and carry out what it says. On an idle link (the usual case: a poll, a
+        caller's command between others) it is written at once without a whole step of the core: no results can
+        come of it, only its deadline to arm."""
+        conn = self._conn
+        entry = conn.submit_and_write(text, timeout_s=timeout_s, now=now, numbered=numbered, checked=checked)
+        if entry is None:
+            entry = conn.submit(text, timeout_s=timeout_s, now=now, numbered=numbered, checked=checked)
+            self.flush()
+        elif self._transport is not None:
+            self._transport.write(entry.wire)
+            self._arm_timer(conn.next_deadline())
+        return entry
 
     def emergency_stop(self) -> None:
         """Write M112 at once; everything waiting fails with `PrinterHaltedError`.
@@ -262,20 +280,24 @@ class Link:
 
     def data_received(self, data: bytes) -> None:
         """Feed bytes read from the port to the core, and act on what they brought."""
-        output = self._conn.receive(data, self.now())
+        now = self.now()
+        output = self._conn.receive(data, now)
         if output.events and self.line_seen is not None:
             self.line_seen.set()
-        self._act(output)
+        self._act(output, now)
+        if output.events and self._after_read is not None:
+            self._after_read()
 
     def flush(self) -> None:
         """Let the core act now (a command was submitted, a print resumed) and carry out what it says."""
         if self._loop is not None:
-            self._act(self._conn.tick(self._loop.time()))
+            now = self._loop.time()
+            self._act(self._conn.tick(now), now)
 
-    def _act(self, output: Output) -> None:
-        """One `Output` of the core, handled in its order: events, bytes, finished commands, the next deadline."""
+    def _act(self, output: Output, now: float) -> None:
+        """One `Output` of the core (of a step at `now`), handled in its order: events, bytes, finished commands,
+        the next deadline."""
         if output.events:
-            now = self.now()
             for event in output.events:
                 self._on_event(event, now)
         if output.data and self._transport is not None and self._lost is None:

@@ -67,17 +67,19 @@ class Poller:
         """
         self._timer = None
         link = self._link
-        if not self._intervals or link.lost is not None:
+        intervals = self._intervals
+        if not intervals or link.lost is not None:
             return
-        now = link.now()
+        loop = link.loop
+        now = loop.time()
         if not self._pending:
             self._pending = link.submit_quietly("M105", timeout_s=self._timeout_s, done=self._answered)
-        interval = min(self._intervals)
+        interval = intervals[0] if len(intervals) == 1 else min(intervals)
         slowest = self._slow_down()
-        if slowest is not None:
-            interval = max(interval, slowest)
+        if slowest is not None and slowest > interval:
+            interval = slowest
         # Deadline-based, so the rate does not drift; slots missed behind a long command are skipped, not repeated.
         self._next += interval
         if self._next <= now:
             self._next = now + interval
-        self._timer = link.loop.call_at(self._next, self._tick)
+        self._timer = loop.call_at(self._next, self._tick)

@@ -238,6 +238,7 @@ class Printer:
             on_event=self._on_event,
             on_failure=self._failed,
             after_results=self._after_results,
+            after_read=self._feed.deliver,
         )
 
     def _failed(self, error: MarlinError) -> None:

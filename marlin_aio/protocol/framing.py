@@ -85,6 +85,16 @@ class LineSplitter:
         self._overlong_head = b""
 
     @property
+    def idle(self) -> bool:
+        """True between lines: nothing of an unfinished line is held, skipped or discarded."""
+        return not self._buffer and not self._skip_lf and not self._discarding
+
+    @property
+    def max_line_bytes(self) -> int:
+        """The longest line kept whole."""
+        return self._max
+
+    @property
     def pending_bytes(self) -> int:
         """How many bytes of an unfinished line are held (for diagnostics)."""
         return len(self._buffer)

@@ -188,6 +188,21 @@ class EventParser:
         """Forget any unfinished line."""
         self._splitter.clear()
 
+    def one_line(self, data: bytes) -> str | None:
+        """The text of `data` if it is exactly one whole plain line (ASCII, no NUL or carriage return, not too
+        long) arriving between lines, which `receive_data` would return as it is; else None (nothing changed)."""
+        if (
+            not data
+            or data.find(b"\n") != len(data) - 1
+            or b"\r" in data
+            or b"\x00" in data
+            or len(data) > self._splitter.max_line_bytes
+            or not data.isascii()
+            or not self._splitter.idle
+        ):
+            return None
+        return data[:-1].decode("ascii")
+
     def receive_data(self, data: bytes) -> list[tuple[str, Event]]:
         """Feed bytes; return each completed line's text with its event, in order."""
         out: list[tuple[str, Event]] = []

@@ -433,6 +433,11 @@ class Resends:
         self.fragments += 1
         self._fragment_oks += 1
 
+    @property
+    def idle(self) -> bool:
+        """Nothing under way: no ok to swallow, no flush to drain, no line held; an ok is an ordinary answer."""
+        return not self._swallow_ok and not self._fragment_oks and self.drain_until is None and self.held is None
+
     def settled(self, command: Command, *, answered_line: bool) -> None:
         """`command` came off the FIFO (`answered_line`: a print line answered by its own ok)."""
         if command.line_number is not None and command.line_number > self.accepted_through:

@@ -49,11 +49,19 @@ _S = TypeVar("_S", bound=Enum)
 _E = TypeVar("_E", bound=Enum)
 
 
+class _Singletons(Enum):
+    """An Enum hashed by identity: its members are singletons compared by identity anyway. `Enum.__hash__` is a
+    Python function (it hashes the member's name), called by every lookup in the tables below, several times for
+    each command; `object.__hash__` is a slot the interpreter calls directly."""
+
+    __hash__ = object.__hash__
+
+
 class ImpossibleTransitionError(RuntimeError):
     """A move that the state table does not allow: a bug in marlin_aio, never the printer's or the caller's fault."""
 
 
-class LinkState(Enum):
+class LinkState(_Singletons):
     """Where the link to the printer stands; `Printer.state` and `Connection.state` report it.
 
     The protocol core moves between READY, PRINTING, STOPPING, LOCKED, STOPPED and HALTED; the client adds
@@ -79,7 +87,7 @@ class LinkState(Enum):
     """The port was closed or went away."""
 
 
-class LinkEvent(Enum):
+class LinkEvent(_Singletons):
     """What moves the link from one state to another."""
 
     HANDSHAKE_DONE = "handshake done"
@@ -148,7 +156,7 @@ def next_link_state(state: LinkState, event: LinkEvent) -> LinkState:
     return _look_up(_link_table, state, event, "the link")
 
 
-class LineState(Enum):
+class LineState(_Singletons):
     """Where one command stands between its caller and the firmware."""
 
     QUEUED = "queued"
@@ -169,7 +177,7 @@ class LineState(Enum):
     """Ended without an answer: the printer halted or reset, or the link went away."""
 
 
-class LineEvent(Enum):
+class LineEvent(_Singletons):
     """What moves a line from one state to another."""
 
     WRITTEN = "written"
