@@ -100,6 +100,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("--runs must be at least 1", file=sys.stderr)
         return 2
     printcore = importlib.util.find_spec("printrun") is not None
+    uvloop = importlib.util.find_spec("uvloop") is not None
+    if not uvloop:
+        print("uvloop not installed: pip install -e '.[fast]' (its rows are skipped)", file=sys.stderr)
     if not printcore:
         print("printcore not installed: pip install --no-deps printrun (its baseline is skipped)", file=sys.stderr)
     if arguments.profile is not None:
@@ -112,7 +115,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     machine = machine_info()
     with tempfile.TemporaryDirectory(prefix="marlin-aio-bench-") as workdir:
         settings = Settings(
-            quick=arguments.quick, runs=runs, workdir=Path(workdir), printcore=printcore, profile_dir=arguments.profile
+            quick=arguments.quick,
+            runs=runs,
+            workdir=Path(workdir),
+            printcore=printcore,
+            profile_dir=arguments.profile,
+            uvloop=uvloop,
         )
         try:
             for name in names:

@@ -25,6 +25,7 @@ from typing import Any
 from benchmarks._worker import RESULT_MARKER
 
 __all__ = [
+    "UNPACED",
     "BenchmarkRunError",
     "Broker",
     "Simulator",
@@ -34,6 +35,10 @@ __all__ = [
     "simulator",
     "subscriber",
 ]
+
+#: The unpaced simulator of the ratio scenarios: no baud rate and no command loop time (`--command-time`), so a
+#: command is answered the moment it arrives and the clients' own costs are all that differ.
+UNPACED = ["--command-time", "0", "--report-time", "0"]
 
 _START_TIMEOUT_S = 15.0
 _STOP_TIMEOUT_S = 5.0

@@ -1,4 +1,9 @@
-"""What the results file says about the machine, and the tables printed at the end (Markdown, readable as text)."""
+"""What the results file says about the machine, and the tables printed at the end (Markdown, readable as text).
+
+Over 400 lines because it renders every scenario's tables, one function each of the same shape (rows from the
+summary, then `_table`), read side by side the way `_scenarios` sums them up; the seam, if it grows further, is
+one module per scenario's tables.
+"""
 
 from __future__ import annotations
 
@@ -158,6 +163,11 @@ def _streaming(entry: Json) -> list[str]:
                 _x(numbered / limit),
             ]
         )
+    loop = entry["ratios"].get("firmware_loop_limit_s")
+    if loop:
+        rows.append(
+            ["firmware loop limit (1 ms a line, `--command-time`)", _n(loop, 2), "", "", "", "", _x(loop / limit)]
+        )
     for key, v in summary.items():
         rows.append(
             [
@@ -170,6 +180,38 @@ def _streaming(entry: Json) -> list[str]:
                 _x(v["seconds"] / limit),
             ]
         )
+    return [*_streaming_table(settings, rows), *_short_lines(entry.get("short_lines"))]
+
+
+def _short_lines(short: Json | None) -> list[str]:
+    if not short:
+        return []
+    loop, wire = short["firmware_loop_limit_s"], short["numbered_wire_limit_s"]
+    rows = [
+        ["firmware loop limit (1 ms a line)", _n(loop, 2), "", _n(short["lines"] / loop), ""],
+        ["numbered wire limit", _n(wire, 2), "", _n(short["lines"] / wire), ""],
+    ]
+    for key, v in short["summary"].items():
+        rows.append(
+            [
+                short["labels"][key] + ("" if v["all_complete"] else " (INCOMPLETE)"),
+                _n(v["seconds"], 2),
+                " / ".join(_n(s, 2) for s in v["runs_seconds"]),
+                _n(v["lines_per_s"]),
+                f"{max(loop, wire) / v['seconds'] * 100:.1f}%",
+            ]
+        )
+    return [
+        "",
+        f"### Streaming {short['lines']:,} short lines (`{short['line']}`) at 250000 baud: the firmware's loop binds",
+        "",
+        *_table(["client", "seconds (median)", "runs", "lines/s", "share of the limit that binds"], rows),
+        "",
+        f"Send-ahead is {_x(short.get('ping_pong_over_send_ahead'))} faster than ping-pong on these lines.",
+    ]
+
+
+def _streaming_table(settings: Json, rows: list[list[str]]) -> list[str]:
     return [
         f"### Streaming {settings['lines']:,} lines ({settings['file_bytes']:,} bytes) at 250000 baud, "
         "Marlin's buffers (4 commands, 128-byte receive buffer), instant moves",

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks._files import write_moves, write_moves_of_size
-from benchmarks._procs import mosquitto, mosquitto_path, run_worker, simulator, subscriber
+from benchmarks._procs import UNPACED, mosquitto, mosquitto_path, run_worker, simulator, subscriber
 from benchmarks._profile import py_spy, summarise, wrapper
 
 __all__ = ["SCENARIOS", "Contender", "Settings", "run_scenario"]
@@ -62,6 +62,7 @@ class Settings:
     workdir: Path
     printcore: bool
     profile_dir: Path | None = None
+    uvloop: bool = False
     log: Callable[[str], None] = field(default=lambda text: print(text, file=sys.stderr, flush=True))
 
     @property
@@ -164,7 +165,23 @@ def _target(name: str, goal: str, measured: float | None, met: bool | None, unit
 
 
 def _available(settings: Settings, contenders: list[Contender]) -> list[Contender]:
-    return [c for c in contenders if settings.printcore or not c.needs_printcore]
+    return [
+        c
+        for c in contenders
+        if (settings.printcore or not c.needs_printcore) and (settings.uvloop or c.options.get("loop") != "uvloop")
+    ]
+
+
+def _uvloop_ratios(summary: Json, name: str, *, higher_is_better: bool) -> Json:
+    """What uvloop (the optional extra `marlin-aio[fast]`) buys each client: its figure on uvloop over its figure on
+    asyncio's own loop, as a gain (above 1: uvloop is better)."""
+    ratios: Json = {}
+    for key in ("marlin_aio", "lean_floor"):
+        on_uvloop = summary.get(f"{key}_uvloop")
+        if on_uvloop is not None:
+            ratio = _ratio(on_uvloop[name], summary[key][name])
+            ratios[f"uvloop_gain_{key}"] = ratio if higher_is_better else _ratio(1.0, ratio)
+    return ratios
 
 
 # ------------------------------------------------------------------------------------------------ 1. round trips
@@ -179,6 +196,8 @@ def run_roundtrips(settings: Settings) -> Json:
             Contender("floor", "floor: bare asyncio protocol with wait_for", "floor"),
             Contender("pyserial", "blocking pyserial", "pyserial"),
             Contender("printcore", "printcore send_now()", "printcore"),
+            Contender("marlin_aio_uvloop", "marlin_aio send(), on uvloop", "marlin_aio", {"loop": "uvloop"}),
+            Contender("lean_floor_uvloop", "lean floor, on uvloop", "lean_floor", {"loop": "uvloop"}),
         ],
     )
     seconds = settings.roundtrip_s
@@ -186,7 +205,7 @@ def run_roundtrips(settings: Settings) -> Json:
         settings,
         "roundtrips",
         contenders,
-        [],
+        UNPACED,
         lambda c: {"seconds": seconds},
         lambda c: seconds + 60,
         lambda r: f"{r['round_trips'] / r['wall_s']:.0f} round trips/s, CPU {r['cpu_s'] / r['wall_s']:.2f} s/s",
@@ -206,6 +225,7 @@ def run_roundtrips(settings: Settings) -> Json:
         }
         for key, results in runs.items()
     }
+    ratios |= _uvloop_ratios(summary, "rate_per_s", higher_is_better=True)
     targets = [
         _target(
             "round trips vs the lean floor",
@@ -251,6 +271,15 @@ def run_polling(settings: Settings) -> Json:
             ),
             Contender("floor", "floor: bare asyncio protocol every 10 ms", "floor", {"interval_s": 0.01}),
             Contender("printcore", "printcore, M105 back to back", "printcore"),
+            Contender(
+                "marlin_aio_uvloop",
+                "marlin_aio poll_temperatures(0.01), on uvloop",
+                "marlin_aio",
+                {"interval_s": 0.01, "loop": "uvloop"},
+            ),
+            Contender(
+                "lean_floor_uvloop", "lean floor, on uvloop", "lean_floor", {"interval_s": 0.01, "loop": "uvloop"}
+            ),
         ],
     )
     seconds = settings.polling_s
@@ -258,7 +287,7 @@ def run_polling(settings: Settings) -> Json:
         settings,
         "polling",
         contenders,
-        [],
+        UNPACED,
         lambda c: {"seconds": seconds},
         lambda c: seconds + 60,
         lambda r: (
@@ -288,6 +317,7 @@ def run_polling(settings: Settings) -> Json:
     ratios: Json = {
         "floor_cpu": _ratio(ours["cpu_s_per_min"], summary["floor"]["cpu_s_per_min"]),
         "lean_floor_cpu": _ratio(ours["cpu_s_per_min"], summary["lean_floor"]["cpu_s_per_min"]),
+        **_uvloop_ratios(summary, "cpu_s_per_min", higher_is_better=False),
     }
     if "printcore" in summary:
         theirs = summary["printcore"]
@@ -331,6 +361,59 @@ def run_polling(settings: Settings) -> Json:
 # ------------------------------------------------------------------------------------------------ 3. streaming
 
 
+#: Marlin's command loop in the streaming runs (`marlin-sim --command-time`, its default): about 1,000 lines a second.
+COMMAND_TIME_S = 0.001
+#: The short-lines case: lines short enough that the firmware's loop, not the wire, bounds the stream.
+SHORT_LINE = "G92 E0"
+
+
+def _stream_short_lines(settings: Settings) -> Json:
+    """Short lines at 250000 baud: the simulator's command loop binds (1 ms a line against about 0.6 ms on the
+    wire), so send-ahead is judged against the firmware's limit, and ping-pong shows what a window buys."""
+    count = settings.streaming_lines // 3
+    path = settings.workdir / f"short-{count}.gcode"
+    path.write_text("".join(f"{SHORT_LINE}\n" for _ in range(count)), encoding="ascii")
+    contenders = [
+        Contender("send_ahead", "marlin_aio print_file(send_ahead=True)", "marlin_aio", {"send_ahead": True}),
+        Contender("ping_pong", "marlin_aio print_file(send_ahead=False)", "marlin_aio", {"send_ahead": False}),
+    ]
+    timeout_s = count * COMMAND_TIME_S * 10 + 30
+    runs = _alternate(
+        settings,
+        "streaming short lines",
+        contenders,
+        ["--baud", "250000", "--motion-time-scale", "0", "--command-time", str(COMMAND_TIME_S)],
+        lambda c: {"path": str(path), "timeout_s": timeout_s},
+        lambda c: timeout_s + 30,
+        lambda r: f"{r['seconds']:.2f} s, {r['lines'] / r['seconds']:.0f} lines/s, simulator {_sim_counts(r)}",
+        task="streaming",
+    )
+    summary: Json = {}
+    for key, results in runs.items():
+        for result in results:
+            result["lines_per_s"] = result["lines"] / result["seconds"]
+            result["complete"] = result["lines"] == count and result["state"] == "done"
+        summary[key] = {name: _median(results, name) for name in ("seconds", "lines_per_s", "wire_bytes", "cpu_s")}
+        summary[key]["runs_seconds"] = [r["seconds"] for r in results]
+        summary[key]["all_complete"] = all(r["complete"] for r in results)
+    loop_limit_s = count * COMMAND_TIME_S
+    wire_limit_s = summary["send_ahead"]["wire_bytes"] / WIRE_BYTES_PER_S
+    return {
+        "lines": count,
+        "line": SHORT_LINE,
+        "firmware_loop_limit_s": loop_limit_s,
+        "numbered_wire_limit_s": wire_limit_s,
+        "labels": {c.key: c.label for c in contenders},
+        "runs": runs,
+        "summary": summary,
+    }
+
+
+def _binding_share(seconds: float, loop_limit_s: float, wire_limit_s: float) -> float:
+    """How close a stream came to the limit that binds it: the firmware's loop or the numbered wire (1 = at it)."""
+    return _ratio(max(loop_limit_s, wire_limit_s), seconds)
+
+
 def run_streaming(settings: Settings) -> Json:
     path = settings.workdir / f"moves-{settings.streaming_lines}.gcode"
     file_bytes = write_moves(path, settings.streaming_lines)
@@ -348,7 +431,7 @@ def run_streaming(settings: Settings) -> Json:
         settings,
         "streaming",
         contenders,
-        ["--baud", "250000", "--motion-time-scale", "0"],
+        ["--baud", "250000", "--motion-time-scale", "0", "--command-time", str(COMMAND_TIME_S)],
         lambda c: {"path": str(path), "timeout_s": timeout_s},
         lambda c: timeout_s + 30,
         lambda r: (
@@ -381,12 +464,33 @@ def run_streaming(settings: Settings) -> Json:
     # Issue 10's target counts what crosses the wire: every line numbered and checksummed (the 1.15x-of-file-bytes
     # target before it could not be met with numbering on, see BENCHMARKS.md).
     share = summary["send_ahead"]["numbered_share_of_wire"]
+    loop_limit_s = settings.streaming_lines * COMMAND_TIME_S
+    ratios["firmware_loop_limit_s"] = loop_limit_s
+    binding = _binding_share(ahead, loop_limit_s, numbered_limit_s)
+    short = _stream_short_lines(settings)
+    short_ahead = short["summary"]["send_ahead"]["seconds"]
+    short_binding = _binding_share(short_ahead, short["firmware_loop_limit_s"], short["numbered_wire_limit_s"])
+    short["ping_pong_over_send_ahead"] = _ratio(short["summary"]["ping_pong"]["seconds"], short_ahead)
     targets = [
         _target(
             "streaming: send-ahead's share of the numbered wire limit",
             ">= 98%",
             share * 100,
             _at_least(share, 0.98),
+            "%",
+        ),
+        _target(
+            "streaming: send-ahead's share of the limit that binds (firmware loop or numbered wire)",
+            ">= 98%",
+            binding * 100,
+            _at_least(binding, 0.98),
+            "%",
+        ),
+        _target(
+            f"streaming short lines ({SHORT_LINE}): send-ahead's share of the limit that binds",
+            ">= 98%",
+            short_binding * 100,
+            _at_least(short_binding, 0.98),
             "%",
         ),
         _target(
@@ -416,8 +520,12 @@ def run_streaming(settings: Settings) -> Json:
             "file_bytes": file_bytes,
             "wire_limit_s": wire_limit_s,
             "wire_bytes_per_s": WIRE_BYTES_PER_S,
-            "simulator": "marlin-sim --baud 250000 --motion-time-scale 0 (4 commands, 128-byte receive buffer)",
+            "simulator": (
+                f"marlin-sim --baud 250000 --motion-time-scale 0 --command-time {COMMAND_TIME_S:g}"
+                " (4 commands, 128-byte receive buffer)"
+            ),
         },
+        "short_lines": short,
         "labels": {c.key: c.label for c in contenders},
         "runs": runs,
         "summary": summary,
@@ -455,7 +563,7 @@ def run_memory(settings: Settings) -> Json:
         settings,
         "memory",
         contenders,
-        ["--motion-time-scale", "0"],
+        [*UNPACED, "--motion-time-scale", "0"],
         lambda c: {"cap_s": cap_s},
         lambda c: cap_s + 120,
         lambda r: (
@@ -552,7 +660,7 @@ def run_many(settings: Settings) -> Json:
             settings,
             f"many {name}",
             contenders,
-            [],
+            UNPACED,
             lambda c, interval=interval: {"seconds": seconds, "interval_s": interval},  # type: ignore[misc]
             lambda c: seconds + 90,
             lambda r: (
@@ -586,6 +694,11 @@ def run_many(settings: Settings) -> Json:
         targets.append(
             _target(f"{name}: timeouts", "0", ours["timeouts"], ours["timeouts"] == 0),
         )
+        if (printers, interval) == (10, 0.01):
+            # Issue 24: ten printers polled at 100 Hz on one loop, against the lean floor doing the same.
+            targets.append(
+                _target(f"{name}: client CPU vs the lean floor", "<= 1.3x", ratio, _at_most(ratio, 1.3), "x")
+            )
         if (printers, interval) == (50, 0.1):
             targets.append(
                 _target(f"{name}: client CPU", "< 5% of a core", ours["cpu_share"] * 100, ours["cpu_share"] < 0.05, "%")
@@ -628,7 +741,7 @@ def run_farm(settings: Settings) -> Json:
             load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
             samples_path = settings.workdir / f"farm-{contender.key}-{index}.json"
             with (
-                simulator([], FARM_PRINTERS) as sim,
+                simulator(UNPACED, FARM_PRINTERS) as sim,
                 mosquitto(settings.workdir) as broker,
                 subscriber(broker.port, samples_path),
             ):
@@ -683,6 +796,7 @@ def run_farm(settings: Settings) -> Json:
             bridge["telemetry_dropped"],
             bridge["telemetry_dropped"] == 0,
         ),
+        _target("farm: the bridge's CPU vs the same farm without it", "<= 1.5x", ratio, _at_most(ratio, 1.5), "x"),
     ]
     return {
         "settings": {

@@ -68,6 +68,11 @@ def run(spec: Result) -> Result:
     key = (spec["scenario"], spec["client"])
     if key in ASYNC_TASKS:
         coroutine_function: Callable[[Result], Coroutine[Any, Any, Result]] = _load(ASYNC_TASKS[key])
+        if spec.get("loop") == "uvloop":
+            import uvloop  # the optional extra `marlin-aio[fast]`; only its rows ask for it
+
+            result: Result = uvloop.run(coroutine_function(spec))
+            return result
         return asyncio.run(coroutine_function(spec))
     if key in THREAD_TASKS:
         function: Callable[[Result], Result] = _load(THREAD_TASKS[key])

@@ -35,7 +35,7 @@ from typing import Any
 
 import marlin_aio
 from benchmarks._measure import time_round_trips
-from benchmarks._procs import simulator
+from benchmarks._procs import UNPACED, simulator
 
 _HERE = Path(__file__).resolve().parent
 OUTPUT = _HERE / "serve-results.json"
@@ -85,7 +85,7 @@ async def _round_trips(url: str, seconds: float) -> dict[str, Any]:
 
 
 async def _one_round_trip_run(kind: str, seconds: float, folder: Path) -> dict[str, Any]:
-    with simulator([]) as sim:
+    with simulator(UNPACED) as sim:
         if kind == "direct":
             result = await _round_trips(sim.url, seconds)
         else:
@@ -96,7 +96,7 @@ async def _one_round_trip_run(kind: str, seconds: float, folder: Path) -> dict[s
 
 
 async def _cpu_run(printers: int, seconds: float, folder: Path) -> dict[str, Any]:
-    with simulator([], printers=printers) as sim:
+    with simulator(UNPACED, printers=printers) as sim:
         ports = {f"p{n + 1}": url for n, url in enumerate(sim.urls)}
         logs = folder / f"logs-{printers}"
         async with serving(ports, folder, "--log-dir", str(logs)) as (_, pid):

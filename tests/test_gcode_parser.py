@@ -164,7 +164,9 @@ def test_the_simulator_runs_what_the_library_read(
         command = validate_command(text)
     except ValueError:
         return
-    printer = SimulatedPrinter(SimulatorConfig(motion_time_scale=0.0), boot=False)
+    printer = SimulatedPrinter(
+        SimulatorConfig(motion_time_scale=0.0, command_time_s=0.0, report_time_s=0.0), boot=False
+    )
     printer.receive(encode_command("M110 N0", 0), 0.0)
     printer.receive(encode_command(command, 1), 0.0)
     ran = list(printer.executed)[-1]
@@ -254,7 +256,9 @@ def test_no_line_that_passes_the_check_leaves_a_target_over_the_limit(
         check_gcode_targets(line, limits)
     except ValueError:
         return
-    printer = SimulatedPrinter(SimulatorConfig(motion_time_scale=0.0, has_chamber=True), boot=False)
+    printer = SimulatedPrinter(
+        SimulatorConfig(motion_time_scale=0.0, has_chamber=True, command_time_s=0.0, report_time_s=0.0), boot=False
+    )
     printer.receive(encode_command(line), 0.0)
     targets = _targets(printer)
     assert targets["T"] <= limits.hotend

@@ -33,7 +33,10 @@ IDLE_M105 = "ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0"
 
 
 def make(faults: Faults | None = None, **config: object) -> SimulatedPrinter:
-    """A printer without its boot banner, so replies start clean."""
+    """A printer without its boot banner, so replies start clean; its command loop takes no time unless asked
+    (`command_time_s`), so each reply comes at the instant its command arrives (the loop's time is tested on
+    its own, in test_simulator.py)."""
+    config = {"command_time_s": 0.0, "report_time_s": 0.0} | config
     return SimulatedPrinter(SimulatorConfig(**config), faults, boot=False)  # type: ignore[arg-type]
 
 
@@ -692,7 +695,7 @@ def test_dropped_oks_are_a_share_of_normal_oks_only() -> None:
 
 def test_a_silent_printer_executes_but_writes_nothing() -> None:
     faults = Faults(silent=True)
-    printer = SimulatedPrinter(faults=faults)
+    printer = SimulatedPrinter(SimulatorConfig(command_time_s=0.0, report_time_s=0.0), faults)
     assert send(printer, "M105") == []
     assert send(printer, "G4 S5") == []
     assert run(printer, 10.0) == []
@@ -1278,3 +1281,37 @@ def test_silent_after_lines_counts_lines_the_record_no_longer_keeps() -> None:
     assert printer.stalled
     assert send(printer, number_command("M400", 5)) == []
     assert printer.executed_line_numbers == [3, 4]
+
+
+# ------------------------------------------------------------------------------------------- the command loop
+
+
+def test_the_command_loop_takes_marlins_time_over_each_command() -> None:
+    # By default each command costs the loop 1 ms before its ok, and an M105 4.3 ms (its report): about 1,000
+    # short lines a second, and an M105 round trip of 6.3 ms at 250000 baud, as Marlin 2.1 on an ATmega2560.
+    printer = SimulatedPrinter(boot=False)
+    printer.receive(b"M105\n", 0.0)
+    assert printer.take_output() == b""
+    assert printer.next_wakeup() == pytest.approx(0.0043)
+    printer.advance(0.0042)
+    assert printer.take_output() == b""
+    printer.advance(0.0043)
+    assert printer.take_output() == (IDLE_M105 + "\n").encode()
+    printer.receive(b"G92 X0\nG92 X1\nG92 X2\n", 1.0)
+    printer.advance(1.0025)
+    assert printer.take_output() == b"ok\nok\n"  # one a millisecond
+    printer.advance(1.003)
+    assert printer.take_output() == b"ok\n"
+    assert printer.executed[-3:] == ["G92 X0", "G92 X1", "G92 X2"]
+
+
+def test_the_command_loop_time_can_be_set_or_turned_off() -> None:
+    printer = make(command_time_s=0.01, report_time_s=0.02)
+    printer.receive(b"G92 X0\nM105\n", 0.0)
+    printer.advance(0.0099)
+    assert printer.take_output() == b""
+    printer.advance(0.03)
+    assert printer.take_output() == (f"ok\n{IDLE_M105}\n").encode()
+    assert send(make(), "M105") == [IDLE_M105]  # 0: at the instant it arrives
+    with pytest.raises(ValueError, match="command_time_s"):
+        SimulatorConfig(command_time_s=-1.0)

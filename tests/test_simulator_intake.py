@@ -88,7 +88,10 @@ FLIPPED_N = b"\xce"  # N (0x4E) with bit 7 flipped, which the capture prints as 
 
 
 def make(faults: Faults | None = None, **config: object) -> SimulatedPrinter:
-    """A printer without its boot banner, so replies start clean."""
+    """A printer without its boot banner, so replies start clean; its command loop takes no time unless asked
+    (`command_time_s`), so each reply comes at the instant its command arrives (the loop's time is tested on
+    its own, in test_simulator.py)."""
+    config = {"command_time_s": 0.0, "report_time_s": 0.0} | config
     return SimulatedPrinter(SimulatorConfig(**config), faults, boot=False)  # type: ignore[arg-type]
 
 
@@ -447,7 +450,7 @@ def test_a_ratio_of_one_flips_one_bit_of_every_byte() -> None:
 
 
 def test_a_board_says_and_reads_nothing_in_its_bootloader() -> None:
-    printer = SimulatedPrinter(SimulatorConfig(boot_delay_s=1.5))
+    printer = SimulatedPrinter(SimulatorConfig(boot_delay_s=1.5, command_time_s=0.0, report_time_s=0.0))
     assert printer.take_output() == b""
     assert printer.booting
     assert printer.next_wakeup() == pytest.approx(1.5)

@@ -296,7 +296,7 @@ async def test_manual_clock_moves_only_when_poked() -> None:
         host.send("M105")
         with pytest.raises(TimeoutError):
             await host.readline(timeout_s=0.3)
-        simulated[0] = 1.0
+        simulated[0] = 1.1  # G4's second, and the command loop's time over each of the two (about 5 ms)
         sim.poke()
         assert await host.readline() == "ok"
         assert await host.readline() == IDLE_M105

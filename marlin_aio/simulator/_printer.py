@@ -254,9 +254,18 @@ class SimulatedPrinter:
         self._task: Task | None = None
         self._task_due = 0
         self._next_keepalive: int | None = None
+        # The command the loop is working through before it runs it (`command_time_s`), and when it is done.
+        self._loop_command: Command | None = None
+        self._loop_due = 0
+
+    def _loop_time_us(self, command: Command) -> int:
+        config = self.config
+        return to_us(config.report_time_s if command.code == "M105" else config.command_time_s)
 
     def _next_event_us(self) -> int | None:
         due: int | None = self._board.next_report_us
+        if self._loop_command is not None and (due is None or self._loop_due < due):
+            due = self._loop_due
         if self._task is not None:
             if due is None or self._task_due < due:
                 due = self._task_due
@@ -325,7 +334,18 @@ class SimulatedPrinter:
             self._intake()
             if not self._ring:
                 return
-            self._start_command(self._ring[0])
+            command = self._ring[0]
+            if self._loop_command is not command:
+                cost = self._loop_time_us(command)
+                if cost > 0:
+                    # The loop's own time over this command (`command_time_s`) comes before it runs.
+                    self._loop_command = command
+                    self._loop_due = board.now_us + cost
+            if self._loop_command is command:
+                if self._loop_due > board.now_us:
+                    return
+                self._loop_command = None
+            self._start_command(command)
 
     # ------------------------------------------------------------------------------------------------- intake
 
