@@ -1,5 +1,5 @@
-"""The six scenarios (round trips, polling, streaming, memory, many printers, the farm): who runs, against which
-simulated printer, and how the runs are summed up into ratios and targets.
+"""The seven scenarios (round trips, polling, streaming, memory, many printers, the farm, serve): who runs, against
+which simulated printer, and how the runs are summed up into ratios and targets.
 
 Each scenario alternates its contenders run by run (the starting contender rotates, so none always goes first
 after a quiet machine), with a fresh `marlin-sim` process for every run so each contender meets the same
@@ -828,6 +828,18 @@ def _latencies(samples_path: Path, start: float, end: float) -> Json:
     }
 
 
+# ------------------------------------------------------------------------------------------------ 7. serve
+
+
+def run_serve(settings: Settings) -> Json:
+    """`benchmarks.serve`'s measurements (served against direct round trips, the service's CPU) as a scenario."""
+    import asyncio  # only this scenario runs a loop in the orchestrator (the service and simulators are processes)
+
+    from benchmarks import serve
+
+    return asyncio.run(serve.measure(settings.runs, settings.quick, settings.log))
+
+
 SCENARIOS = {
     scenario.name: scenario
     for scenario in (
@@ -837,6 +849,7 @@ SCENARIOS = {
         Scenario("memory", "Memory while streaming a 1 MB and a 200 MB file", run_memory),
         Scenario("many", "Many printers in one process: 10 x 100 Hz, 50 x 10 Hz, 50 x 100 Hz", run_many),
         Scenario("farm", "A farm of 50 printers at 10 Hz through Mosquitto", run_farm),
+        Scenario("serve", "Sharing a printer: marlin-temp serve against a direct Printer", run_serve),
     )
 }
 

@@ -1,15 +1,18 @@
 """`python -m benchmarks.serve`: what sharing a printer through `marlin-temp serve` costs.
 
-    python -m benchmarks.serve                  # 3 runs each, 5 s of round trips, 30 s of CPU per size (~3 min)
+    python -m benchmarks.serve                  # 3 runs each, 5 s of round trips, 30 s of CPU per size (~4 min)
     python -m benchmarks.serve --quick          # 1 run, 2 s, 10 s
+    python -m benchmarks --only serve           # the same, as one scenario of the suite (its targets in the table)
 
-Two figures, each measured against the same simulated printer (a fresh `marlin-sim` process per run, served on a
-pty, unpaced) in the same invocation:
+Three figures, each measured against the same simulated printer (a fresh `marlin-sim` process per run, served on
+a pty) in the same invocation:
 
 - **Round trips, served against direct.** M105 back to back for the same time, once by a `Printer` on the pty and
   once by a `ServedPrinter` through a `marlin-temp serve` that holds the pty (its own poller slowed to once an hour,
   so both put the same commands on the wire). The ratio is served rate / direct rate; the runs alternate which
-  goes first. The client's loop is the suite's own (`_measure.time_round_trips`).
+  goes first. The client's loop is the suite's own (`_measure.time_round_trips`). Measured twice: on the unpaced
+  simulator (answers at once: what the service's hops cost, the target's case), and on one paced like Marlin
+  (250000 baud, its command loop's time: a 6.3 ms M105 round trip), what a user of a real printer sees.
 - **The service's CPU at its default rates**: `marlin-temp serve` holding 1 and then 10 printers (one `marlin-sim
   --printers N` process, so the simulators' CPU is not counted), polling each every 0.1 s and logging each once a
   second, with no client attached: CPU seconds per minute of the service process (from /proc), and microseconds
@@ -84,8 +87,12 @@ async def _round_trips(url: str, seconds: float) -> dict[str, Any]:
     return result
 
 
-async def _one_round_trip_run(kind: str, seconds: float, folder: Path) -> dict[str, Any]:
-    with simulator(UNPACED) as sim:
+#: The simulators the round trips are measured on: unpaced (the target's case), and paced like Marlin.
+PACINGS = {"unpaced": UNPACED, "like Marlin": ["--baud", "250000"]}
+
+
+async def _one_round_trip_run(kind: str, seconds: float, folder: Path, pacing: str = "unpaced") -> dict[str, Any]:
+    with simulator(PACINGS[pacing]) as sim:
         if kind == "direct":
             result = await _round_trips(sim.url, seconds)
         else:
@@ -117,48 +124,96 @@ async def _cpu_run(printers: int, seconds: float, folder: Path) -> dict[str, Any
     }
 
 
+async def measure(runs: int, quick: bool, log: Any = None) -> dict[str, Any]:
+    """Every run of the three figures, their medians, the ratios and the target (served round trips within 1.5x
+    of direct ones, on the unpaced simulator)."""
+    say = log or (lambda text: print(text, file=sys.stderr, flush=True))
+    seconds = 2.0 if quick else 5.0
+    cpu_seconds = 10.0 if quick else 30.0
+    results: dict[str, Any] = {"when": time.strftime("%Y-%m-%d %H:%M:%S"), "cores": os.cpu_count(), "runs_each": runs}
+    with tempfile.TemporaryDirectory() as temporary:
+        folder = Path(temporary)
+        trips: dict[str, dict[str, list[dict[str, Any]]]] = {p: {"direct": [], "served": []} for p in PACINGS}
+        for pacing in PACINGS:
+            for run in range(runs):
+                order = ("direct", "served") if run % 2 == 0 else ("served", "direct")
+                for kind in order:
+                    result = await _one_round_trip_run(kind, seconds, folder, pacing)
+                    trips[pacing][kind].append(result)
+                    say(f"  serve: round trips {pacing}, {kind}, run {run + 1}: {result['rate_per_s']:.0f}/s "
+                        f"(load {result['load']:.2f})")  # fmt: skip
+        cpu = []
+        for printers in (1, 10):
+            result = await _cpu_run(printers, cpu_seconds, folder)
+            cpu.append(result)
+            say(f"  serve: service CPU, {printers} printer(s): {result['core_percent']:.1f} % of a core")
+    medians = {
+        pacing: {kind: statistics.median(r["rate_per_s"] for r in runs_) for kind, runs_ in kinds.items()}
+        for pacing, kinds in trips.items()
+    }
+    # As times: a served round trip takes this many times as long as a direct one.
+    slower = {pacing: m["direct"] / m["served"] for pacing, m in medians.items()}
+    results |= {
+        "round_trips": trips,
+        "medians": medians,
+        "served_time_over_direct": slower,
+        "served_over_direct": medians["unpaced"]["served"] / medians["unpaced"]["direct"],
+        "cpu": cpu,
+        "targets": [
+            {
+                "name": "served round trips vs direct ones (time per round trip, unpaced simulator)",
+                "goal": "<= 1.5x",
+                "measured": slower["unpaced"],
+                "unit": "x",
+                "met": slower["unpaced"] <= 1.5,
+            }
+        ],
+    }
+    loads = [r["load"] for kinds in trips.values() for rs in kinds.values() for r in rs] + [r["load"] for r in cpu]
+    results["load_range"] = [min(loads), max(loads)]
+    return results
+
+
+def render(results: dict[str, Any]) -> list[str]:
+    """The tables of `measure`'s results."""
+    lines = [
+        "| round trips (M105, back to back) | simulator | per second (median) | time per round trip vs direct |",
+        "| --- | --- | --- | --- |",
+    ]
+    for pacing, medians in results["medians"].items():
+        direct, served = medians["direct"], medians["served"]
+        lines.append(f"| direct (Printer on the pty) | {pacing} | {direct:,.0f} | 1.00x |")
+        lines.append(
+            f"| served (ServedPrinter through marlin-temp serve) | {pacing} | {served:,.0f} | {direct / served:.2f}x |"
+        )
+    lines += [
+        "",
+        "| marlin-temp serve, default rates (0.1 s polls, 1 s log rows) | CPU s/min | % of a core | us per reading |",
+        "| --- | --- | --- | --- |",
+    ]
+    for result in results["cpu"]:
+        lines.append(
+            f"| {result['printers']} printer(s) | {result['cpu_s_per_min']:.2f} | {result['core_percent']:.1f} | "
+            f"{result['us_per_reading']:.0f} |"
+        )
+    low, high = results["load_range"]
+    lines.append(f"\nload average during the runs: {low:.2f} to {high:.2f} on {results['cores']} cores")
+    return lines
+
+
 async def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark, print the table, write the results file."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.serve", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="1 run, 2 s of round trips, 10 s of CPU")
     parser.add_argument("--runs", type=int, help="runs of each contender (default 3; 1 with --quick)")
     args = parser.parse_args(argv)
-    runs = args.runs or (1 if args.quick else 3)
-    seconds = 2.0 if args.quick else 5.0
-    cpu_seconds = 10.0 if args.quick else 30.0
-    results: dict[str, Any] = {"when": time.strftime("%Y-%m-%d %H:%M:%S"), "cores": os.cpu_count(), "runs": runs}
-    with tempfile.TemporaryDirectory() as temporary:
-        folder = Path(temporary)
-        trips: dict[str, list[dict[str, Any]]] = {"direct": [], "served": []}
-        for run in range(runs):
-            order = ("direct", "served") if run % 2 == 0 else ("served", "direct")
-            for kind in order:
-                result = await _one_round_trip_run(kind, seconds, folder)
-                trips[kind].append(result)
-                print(f"round trips, {kind}, run {run + 1}: {result['rate_per_s']:.0f}/s (load {result['load']:.2f})",
-                      file=sys.stderr, flush=True)  # fmt: skip
-        cpu = []
-        for printers in (1, 10):
-            result = await _cpu_run(printers, cpu_seconds, folder)
-            cpu.append(result)
-            print(f"service CPU, {printers} printer(s): {result['core_percent']:.1f} % of a core", file=sys.stderr)
-    direct = statistics.median(r["rate_per_s"] for r in trips["direct"])
-    served = statistics.median(r["rate_per_s"] for r in trips["served"])
-    results |= {"round_trips": trips, "cpu": cpu, "served_over_direct": served / direct}
+    results = await measure(args.runs or (1 if args.quick else 3), args.quick)
     OUTPUT.write_text(json.dumps(results, indent=2) + "\n")
     print()
-    print("| round trips (M105, back to back) | per second (median) | ratio |")
-    print("| --- | --- | --- |")
-    print(f"| direct (Printer on the pty) | {direct:.0f} | 1.00 |")
-    print(f"| served (ServedPrinter through marlin-temp serve) | {served:.0f} | {served / direct:.2f} |")
-    print()
-    print("| marlin-temp serve, default rates (0.1 s polls, 1 s log rows) | CPU s/min | % of a core | us per reading |")
-    print("| --- | --- | --- | --- |")
-    for result in cpu:
-        print(f"| {result['printers']} printer(s) | {result['cpu_s_per_min']:.2f} | {result['core_percent']:.1f} | "
-              f"{result['us_per_reading']:.0f} |")  # fmt: skip
-    loads = [r["load"] for rs in trips.values() for r in rs] + [r["load"] for r in cpu]
-    print(f"\nload average during the runs: {min(loads):.2f} to {max(loads):.2f} on {os.cpu_count()} cores")
+    print("\n".join(render(results)))
+    target = results["targets"][0]
+    print(f"\ntarget: {target['name']} {target['goal']}: {target['measured']:.2f}x, "
+          f"{'met' if target['met'] else 'missed'}")  # fmt: skip
     return 0
 
 
