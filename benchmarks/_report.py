@@ -149,7 +149,7 @@ def _polling(entry: Json) -> list[str]:
                 "interval p99 ms",
                 "interval max ms",
                 "client CPU s/min",
-                "CPU ms per 1000 readings",
+                "CPU us per reading",
             ],
             rows,
         ),
@@ -300,6 +300,15 @@ def _memory(entry: Json) -> list[str]:
     ]
 
 
+def _us_per_reading(v: Json) -> float:
+    """CPU microseconds per reading of a many-printers case: a printer's share of a core over its readings."""
+    return _ratio_or_nan(v["cpu_share_per_printer"] * 1e6, v["readings_per_s_median"])
+
+
+def _ratio_or_nan(a: float, b: float) -> float:
+    return a / b if b and not math.isnan(b) else math.nan
+
+
 def _many(entry: Json) -> list[str]:
     labels = entry["labels"]
     rows = []
@@ -311,6 +320,7 @@ def _many(entry: Json) -> list[str]:
                     labels[key].split(":")[0],
                     f"{v['cpu_share'] * 100:.1f}%",
                     f"{v['cpu_share_per_printer'] * 100:.2f}%",
+                    _n(_us_per_reading(v), 0),
                     "-" if key == "marlin_aio" else _x(case["cpu_ratio"]),
                     f"{_n(v['readings_per_s_median'], 1)} (slowest {_n(v['readings_per_s_min'], 1)})",
                     _n(v["interval_p99_ms"], 2),
@@ -328,6 +338,7 @@ def _many(entry: Json) -> list[str]:
                 "client",
                 "client CPU (share of a core)",
                 "CPU per printer",
+                "CPU us per reading",
                 "marlin_aio CPU vs floor",
                 "readings/s a printer (median)",
                 "interval p99 ms (all printers)",

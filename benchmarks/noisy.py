@@ -40,7 +40,8 @@ class Run:
 
 async def print_once(lines: int, corrupt: float, seed: int, *, send_ahead: bool) -> Run:
     """Print `lines` lines on a fresh simulated printer with this corruption rate and seed."""
-    config = SimulatorConfig(motion_time_scale=0, seed=seed)
+    # An instant command loop, as when the figures in BENCHMARKS.md were measured (the wire bounds these runs).
+    config = SimulatorConfig(motion_time_scale=0, seed=seed, command_time_s=0.0, report_time_s=0.0)
     async with serve_pty(config, Faults(corrupt_rx_ratio=corrupt), baud_rate=250_000) as server:
         async with marlin_aio.connect(server.url) as printer:
             started = time.perf_counter()
