@@ -334,6 +334,9 @@ class LineReader:
         """The line counter: the number of the last numbered line taken (M110 sets it)."""
         self.dropped_since_counted = 0
         """Numbered lines dropped without a word (as repeats of the last two) since the last one counted."""
+        self.unseen = 0
+        """Numbered lines that `Faults.corrupt_rx_ratio` damaged and that still passed the checksum: one replaced
+        byte alone never does, so a flip on the wire (`WireFlips`) cancelled it in the 8-bit XOR."""
 
     def reset(self) -> None:
         """Power-on state: buffers empty, line counter 0. The fault stream carries on."""
@@ -423,8 +426,11 @@ class LineReader:
             raw = raw[:nul]  # the rest is beyond the C string's end
         command = raw.lstrip(b" ")
         ratio = faults.corrupt_rx_ratio
+        corrupted = False
         if command and ratio > 0.0 and self._corrupt_rng.random() < ratio:
-            command = self._corrupt(command)
+            damaged = self._corrupt(command)
+            corrupted = damaged != command  # a `~` replaced by `~` changes nothing
+            command = damaged
             raw = raw[: len(raw) - len(command)] + command
         line_number = None
         if command[:1] == b"N":
@@ -449,6 +455,8 @@ class LineReader:
             if _strtol(command, star + 1) != _xor(command[:star]):
                 self._line_error("checksum mismatch, Last Line: ")
                 return None
+            if corrupted:
+                self.unseen += 1  # a byte replaced and the checksum still right: a wire flip cancelled it
             self.last_line_number = number
             self.dropped_since_counted = 0
             line_number = number if not is_m110 else _strtol(command, 1)

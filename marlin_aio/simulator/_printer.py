@@ -128,9 +128,10 @@ class SimulatedPrinter:
 
     @property
     def unseen_damage(self) -> int:
-        """How many lines the wire damaged in a way no check of Marlin's can see (`WireFlips.unseen`): the 8-bit
-        XOR's blind spot. No host can keep such a line from running as it arrived."""
-        return self._wire.unseen
+        """How many lines the wire damaged in a way no check of Marlin's can see (`WireFlips.unseen`), or a flip
+        and a replaced byte together (`LineReader.unseen`): the 8-bit XOR's blind spot. No host can keep such a
+        line from running as it arrived."""
+        return self._wire.unseen + self._reader.unseen
 
     @property
     def booting(self) -> bool:
