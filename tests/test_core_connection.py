@@ -1417,6 +1417,27 @@ def test_an_ok_that_a_held_line_or_a_cut_tail_may_have_earned_stops_the_print() 
     assert sent(conn.data_to_send(now)) == [wire("M110 N1", 1)]
 
 
+def test_an_ok_after_a_line_error_may_be_the_tail_of_the_line_right_behind_the_held_one() -> None:
+    # Line 2 is the last on the wire. `Line Number is not Last Line Number+1` for line 1 comes when line 2 met the
+    # check after line 1 ran unnumbered (its `N` damaged into `n`), and also when line 1's own digits were damaged
+    # (it did not run): the flush then came as line 1 was read and cut line 2, whose tail ran. Plain oks give the
+    # same bytes either way, and Marlin with a command ring sends the line error before the oks of the lines
+    # already in it. Before: the lines behind the flush were counted from line 2 on, leaving none; the plain ok was
+    # taken for line 1's, a placeholder took its number, and the print went on with line 1 unrun.
+    conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
+    job = PrintJob(["G1 X1", "G1 X2"], name="part.gcode")
+    conn.attach(job, timeout_s=10.0)
+    assert sent(conn.data_to_send(0.0)) == [wire("G1 X1", 1), wire("G1 X2", 2)]
+    receive(conn, "Error:Line Number is not Last Line Number+1, Last Line: 0", "Resend: 1", "ok", now=0.01)
+    assert job.active  # line 1 is held: it may have run unnumbered
+    receive(conn, "ok", now=0.02)
+    assert job.state is PrintState.FAILED and conn.stats().fragments_run == 1
+    message = str(job.error)
+    assert "cannot be told" in message and "'G1 X2'" in message
+    now = conn.next_deadline() or 1.0
+    assert sent(conn.data_to_send(now)) == [wire("M110 N1", 1)]  # line 1 is never written again
+
+
 def test_with_advanced_ok_a_plain_ok_while_an_m105_is_held_is_a_cut_tail_s() -> None:
     # The held line is an M105, whose own ok carries temperatures: a plain ok is the tail's of the cut line 3.
     # Before: it was taken for the M105's, and the print went on with line 2 run out of place.

@@ -301,9 +301,11 @@ class Resends:
             held = None
         keep: list[Command] = []
         removed = 0
-        behind: list[Command] = []  # written after the rejected line: on the wire when the firmware flushed
+        # Written after the rejected line: on the wire when the firmware flushed. With a line held, the rejected
+        # line may be the held one (its own digits damaged), so the flush may have cut the line right behind it.
+        behind: list[Command] = flight.after(held) if held is not None else []
         for command in flight:
-            if removed:
+            if removed and held is None:
                 behind.append(command)
             if command is not held and command.line_number is not None and command.line_number >= line_number:
                 removed += 1
