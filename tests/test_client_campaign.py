@@ -130,14 +130,12 @@ def run_client_print(scenario: Scenario) -> ClientRun:
 
 async def _run(scenario: Scenario) -> ClientRun:
     loop = asyncio.get_running_loop()
-    # An instant command loop, as in the core's campaign (`marlin_aio.simulator._campaign.run_print` says why).
+    # Marlin's command loop takes its time over each command, as in the core's campaign (`_campaign.run_print`).
     config = SimulatorConfig(
         advanced_ok=scenario.advanced_ok,
         seed=scenario.seed,
         motion_time_scale=0.0,
         record_limit=None,
-        command_time_s=0.0,
-        report_time_s=0.0,
     )
     faults = Faults()
     lines = print_lines(scenario.lines, relative=scenario.relative)
