@@ -213,9 +213,10 @@ async def farm_run(spec: Result) -> Result:
         readings_before = sum(p.readings for p in farm.printers.values())
         published_before = bridge.published if bridge is not None else 0
         window_start = time.time()
-        meter = Meter()
-        await asyncio.sleep(spec["seconds"])
-        wall, cpu = meter.stop()
+        with profiled(spec.get("profile")):
+            meter = Meter()
+            await asyncio.sleep(spec["seconds"])
+            wall, cpu = meter.stop()
         window_end = time.time()
         readings = sum(p.readings for p in farm.printers.values()) - readings_before
         published = (bridge.published if bridge is not None else 0) - published_before

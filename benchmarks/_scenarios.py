@@ -755,7 +755,18 @@ def run_farm(settings: Settings) -> Json:
                     "broker_port": broker.port,
                     "seconds": seconds,
                 }
-                result = run_worker(spec, seconds + 120)
+                prefix: list[str] = []
+                profile = None
+                if settings.profile_dir is not None:
+                    settings.profile_dir.mkdir(parents=True, exist_ok=True)
+                    profile = settings.profile_dir / f"farm-{contender.key}-{index + 1}"
+                    if py_spy() is not None:
+                        prefix = wrapper(profile.with_suffix(".raw"))
+                    else:
+                        spec["profile"] = str(profile.with_suffix(".pstats"))
+                result = run_worker(spec, seconds + 120, prefix)
+            if profile is not None and prefix:
+                profile.with_suffix(".txt").write_text(summarise(profile.with_suffix(".raw")))
             result["load_average"] = load
             result["cpu_share"] = result["cpu_s"] / result["wall_s"]
             result["cpu_share_per_printer"] = result["cpu_share"] / FARM_PRINTERS
