@@ -39,7 +39,9 @@ LAYERS: dict[str, tuple[set[str], set[str]]] = {
             "marlin_aio.protocol",
             "marlin_aio.simulator",
         },
-        {"aiomqtt"},
+        # paho-mqtt is aiomqtt's own MQTT client, which the bridge hands its telemetry batches to; orjson is
+        # optional (the `fast` extra).
+        {"aiomqtt", "paho", "orjson"},
     ),
     # The service is the farm's supervisor shared on a socket: it may import the farm, never its MQTT bridge's
     # library (a service without the [farm] extra still runs).
