@@ -730,8 +730,8 @@ class Bridge:
         (`publish_packet`) and queued as one packet with paho's `_packet_queue`, which its `publish` calls: one
         `send`, one callback, for the lot. What it saves, at 50 printers and 500 messages a second: the awaited
         publishes were a fifth of the bridge's busy samples and the sends another fifth; with batches (and
-        orjson, and `_sample` making only changed states) the bridge's extra CPU fell from about three times the
-        plain farm's to about half of it. It needs two private names (aiomqtt's `_client`, paho's
+        orjson, and `_sample` making only changed states) the bridge's CPU went from about 3x the plain farm's to
+        about 1.2-1.5x (benchmarks, farm scenario). It needs two private names (aiomqtt's `_client`, paho's
         `_packet_queue`) and MQTT 3.1.1 framing, the protocol the bridge asks for; lacking either, each message
         goes through paho's `publish`.
         """
