@@ -178,6 +178,8 @@ async def marlin_many(spec: Result) -> Result:
 async def farm_run(spec: Result) -> Result:
     """`marlin-temp farm`'s own code, N printers polled at `interval_s`: with the MQTT bridge publishing each
     printer's telemetry at `rate_hz` to the broker on `broker_port` (client "bridge"), or without it ("plain")."""
+    if spec.get("orjson") is False:
+        sys.modules["orjson"] = None  # type: ignore[assignment]  # `import orjson` fails: the bridge uses json
     from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
     from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 

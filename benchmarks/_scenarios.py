@@ -732,6 +732,8 @@ def run_farm(settings: Settings) -> Json:
     contenders = [
         Contender("bridge", "farm with the MQTT bridge (telemetry at 10 Hz a printer)", "bridge"),
         Contender("plain", "the same farm, no bridge", "plain"),
+        # The bridge with the json module instead of orjson (the extra `fast`): what orjson buys, as a row of its own.
+        Contender("bridge_json", "the same bridge, json instead of orjson", "bridge", {"orjson": False}),
     ]
     seconds = settings.many_s
     runs: dict[str, list[Json]] = {c.key: [] for c in contenders}
@@ -754,7 +756,7 @@ def run_farm(settings: Settings) -> Json:
                     "rate_hz": 1 / FARM_INTERVAL_S,
                     "broker_port": broker.port,
                     "seconds": seconds,
-                }
+                } | contender.options
                 prefix: list[str] = []
                 profile = None
                 if settings.profile_dir is not None:
@@ -771,7 +773,7 @@ def run_farm(settings: Settings) -> Json:
             result["cpu_share"] = result["cpu_s"] / result["wall_s"]
             result["cpu_share_per_printer"] = result["cpu_share"] / FARM_PRINTERS
             result["readings_per_s"] = result["readings"] / result["wall_s"]
-            if contender.key == "bridge":
+            if contender.client == "bridge":
                 result |= _latencies(samples_path, result["window_start"], result["window_end"])
             runs[contender.key].append(result)
             settings.log(
@@ -781,7 +783,7 @@ def run_farm(settings: Settings) -> Json:
                     f", {result['received_per_s']:.0f} messages/s received, latency p50 "
                     f"{result['latency_p50_ms']:.1f} ms p99 {result['latency_p99_ms']:.1f} ms, "
                     f"{result['telemetry_dropped']} dropped"
-                    if contender.key == "bridge"
+                    if contender.client == "bridge"
                     else ""
                 )
                 + f" (load {load:.2f})"
@@ -819,7 +821,11 @@ def run_farm(settings: Settings) -> Json:
         "labels": {c.key: c.label for c in contenders},
         "runs": runs,
         "summary": summary,
-        "ratios": {"bridge_cpu_over_plain": ratio},
+        "ratios": {
+            "bridge_cpu_over_plain": ratio,
+            # Above 1: the json module costs the bridge more than orjson does.
+            "orjson_gain": _ratio(summary["bridge_json"]["cpu_share"], bridge["cpu_share"]),
+        },
         "targets": targets,
     }
 
