@@ -102,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     printcore = importlib.util.find_spec("printrun") is not None
     uvloop = importlib.util.find_spec("uvloop") is not None
     if not uvloop:
-        print("uvloop not installed: pip install -e '.[fast]' (its rows are skipped)", file=sys.stderr)
+        print("uvloop not installed: pip install -e '.[dev]' (its rows are skipped)", file=sys.stderr)
     if not printcore:
         print("printcore not installed: pip install --no-deps printrun (its baseline is skipped)", file=sys.stderr)
     if arguments.profile is not None:

@@ -118,7 +118,7 @@ def _roundtrips(entry: Json) -> list[str]:
     ]
     gain = entry["ratios"].get("uvloop_gain_marlin_aio")
     if gain is not None:
-        lines[-1] += f" On uvloop (`pip install 'marlin-aio[fast]'`) marlin_aio makes {_x(gain)} the round trips."
+        lines[-1] += f" On uvloop marlin_aio makes {_x(gain)} the round trips."
     return lines
 
 
@@ -165,7 +165,9 @@ def _polling(entry: Json) -> list[str]:
     ]
     gain = entry["ratios"].get("uvloop_gain_marlin_aio")
     if gain is not None:
-        lines[-1] += f" On uvloop (`pip install 'marlin-aio[fast]'`) marlin_aio's CPU falls by {_x(gain)}."
+        lines[-1] += (
+            f" On uvloop marlin_aio uses {_x(1 / gain if gain else math.nan)} the CPU it uses on asyncio's loop."
+        )
     if "printcore" in summary:
         lines[-3] += (
             " printcore has no poller of its own, so its loop sends M105 as soon as the last one is answered: its "

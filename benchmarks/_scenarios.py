@@ -173,7 +173,7 @@ def _available(settings: Settings, contenders: list[Contender]) -> list[Contende
 
 
 def _uvloop_ratios(summary: Json, name: str, *, higher_is_better: bool) -> Json:
-    """What uvloop (the optional extra `marlin-aio[fast]`) buys each client: its figure on uvloop over its figure on
+    """What uvloop (a dev dependency, for these rows) buys each client: its figure on uvloop over its figure on
     asyncio's own loop, as a gain (above 1: uvloop is better)."""
     ratios: Json = {}
     for key in ("marlin_aio", "lean_floor"):

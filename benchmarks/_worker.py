@@ -69,7 +69,7 @@ def run(spec: Result) -> Result:
     if key in ASYNC_TASKS:
         coroutine_function: Callable[[Result], Coroutine[Any, Any, Result]] = _load(ASYNC_TASKS[key])
         if spec.get("loop") == "uvloop":
-            import uvloop  # the optional extra `marlin-aio[fast]`; only its rows ask for it
+            import uvloop  # a dev dependency; only its rows ask for it
 
             result: Result = uvloop.run(coroutine_function(spec))
             return result

@@ -202,19 +202,3 @@ async def test_a_wait_for_cooling_that_times_out_names_no_heater_as_on() -> None
     )
     assert code == Exit.TIMEOUT, output
     assert "stay" not in output and "set --off" not in output  # every target is 0: nothing is on
-
-
-def test_marlin_loop_uvloop_runs_the_command_on_uvloop(monkeypatch: pytest.MonkeyPatch) -> None:
-    # MARLIN_LOOP=uvloop (the extra `marlin-aio[fast]`, which the dev install has): the same command, on uvloop.
-    pytest.importorskip("uvloop")
-    monkeypatch.setenv("MARLIN_LOOP", "uvloop")
-    result = runner.invoke(app, ["set", "--sim", "--bed", "60"])
-    assert result.exit_code == Exit.OK, result.output
-    assert "bed" in result.output.lower()
-
-
-def test_an_unknown_marlin_loop_exits_2_with_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("MARLIN_LOOP", "trio")
-    result = runner.invoke(app, ["set", "--sim", "--bed", "60"])
-    assert result.exit_code == Exit.USAGE
-    assert one_line(result.output) == "error: MARLIN_LOOP='trio': use uvloop or asyncio"

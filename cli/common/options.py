@@ -63,34 +63,10 @@ def fail(message: str, code: int = Exit.ERROR) -> NoReturn:
     raise typer.Exit(int(code))
 
 
-#: `MARLIN_LOOP=uvloop` runs every command on uvloop (the optional extra `marlin-aio[fast]`): less CPU a reading
-#: on a Raspberry Pi (BENCHMARKS.md measures it), timers to the millisecond. Unset: asyncio's own loop.
-LOOP_ENV = "MARLIN_LOOP"
-
-
-def _runner() -> Callable[[Coroutine[Any, Any, _T]], _T]:
-    """asyncio.run, or uvloop.run when $MARLIN_LOOP asks for it (a usage error if it cannot be had)."""
-    wanted = os.environ.get(LOOP_ENV, "").strip().lower()
-    if wanted in ("", "asyncio"):
-        return asyncio.run
-    if wanted != "uvloop":
-        raise UsageProblem(f"{LOOP_ENV}={wanted!r}: use uvloop or asyncio")
-    try:
-        import uvloop
-    except ImportError:
-        raise UsageProblem(f"{LOOP_ENV}=uvloop needs uvloop: pip install 'marlin-aio[fast]'") from None
-    return uvloop.run
-
-
 def run(main: Coroutine[Any, Any, _T]) -> _T:
     """Run an async command body; map errors to one line and an exit code, Ctrl-C to 130."""
     try:
-        try:
-            runner = _runner()
-        except UsageProblem:
-            main.close()  # never started: no "coroutine was never awaited" warning
-            raise
-        return runner(main)
+        return asyncio.run(main)
     except BrokenPipeError:
         # The reader went away (`marlin-temp watch | head`): not an error. Point stdout at /dev/null so the flush at
         # exit does not fail on the closed pipe again.
