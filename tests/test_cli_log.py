@@ -364,3 +364,30 @@ async def test_several_hotends_are_logged_by_number_only(tmp_path: Path) -> None
     header = output.read_text().splitlines()[0].split(",")
     assert "hotend_0_actual_c" in header and "hotend_1_actual_c" in header
     assert "hotend_actual_c" not in header
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (
+            ["log", "--output", "{missing}/t.csv"],
+            "--output {missing}/t.csv: its folder does not exist: {missing} (create it first)",
+        ),
+        (
+            ["watch", "--log", "{missing}/t.csv"],
+            "--log {missing}/t.csv: its folder does not exist: {missing} (create it first)",
+        ),
+        (["log", "--output", "{folder}"], "--output {folder} is a folder: give a file name in it"),
+    ],
+    ids=["log-output-without-its-folder", "watch-log-without-its-folder", "log-output-a-folder"],
+)
+def test_a_log_file_that_cannot_be_made_exits_2_naming_the_folder_before_connecting(
+    tmp_path: Path, args: list[str], message: str
+) -> None:
+    # Checked before anything connects (the simulated printer is never started): exit code 2, one line that names
+    # the folder, and no file or folder made. (Before: exit code 1 after the connect, naming only the file.)
+    names = {"missing": str(tmp_path / "nodir"), "folder": str(tmp_path)}
+    result = runner.invoke(app, [*(a.format(**names) for a in args), "--sim", "--duration", "1"])
+    assert result.exit_code == Exit.USAGE, result.output
+    assert result.output.strip().splitlines() == [f"error: {message.format(**names)}"]
+    assert list(tmp_path.iterdir()) == []

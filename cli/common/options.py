@@ -41,6 +41,7 @@ __all__ = [
     "SimOption",
     "SimSpeedOption",
     "TimeoutOption",
+    "checked_log_path",
     "checked_target",
     "connect_options",
     "error_console",
@@ -85,6 +86,19 @@ def run(main: Coroutine[Any, Any, _T]) -> _T:
         fail(str(exc), Exit.USAGE)
     except OSError as exc:
         fail(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
+
+
+def checked_log_path(path: Path, flag: str) -> Path:
+    """A log file the user named (`log --output`, `watch --log`), checked before anything connects: its folder must
+    exist and it must not be a folder itself, else one line naming what is wrong and exit code 2 (before this, the
+    open failed after the connect, with exit code 1 and only the file's name)."""
+    folder = path.parent
+    if not folder.is_dir():
+        what = "is not a folder" if folder.exists() else "does not exist"
+        fail(f"{flag} {path}: its folder {what}: {folder.resolve()} (create it first)", Exit.USAGE)
+    if path.is_dir():
+        fail(f"{flag} {path} is a folder: give a file name in it", Exit.USAGE)
+    return path
 
 
 def checked_target(name: str, raw: str | None, limit: float) -> float | None:

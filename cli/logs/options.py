@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 
 from ..common.connect import ConnectOptions, Exit, UsageProblem
-from ..common.options import checked_target, error_console, fail, run, with_connect_options
+from ..common.options import checked_log_path, checked_target, error_console, fail, run, with_connect_options
 
 __all__ = ["LOG_HELP", "log", "plot"]
 
@@ -71,7 +71,7 @@ def log(
     if duration is not None and not (math.isfinite(duration) and duration > 0):
         fail(f"--duration must be more than 0 seconds, got {duration:g}", Exit.USAGE)
     settings = LogSettings(
-        output=output,
+        output=checked_log_path(output, "--output"),
         fmt=fmt,
         interval_s=interval,
         duration_s=duration,
