@@ -235,6 +235,9 @@ def test_faster_than_the_wire_says_the_link_is_not_paced() -> None:
     console = Console(record=True, width=100)
     console.print(bench_table(paced_result(200_000)))
     assert "this link is not paced" in console.export_text()
+    # And the JSON says the same (it said "paced": true beside a table calling the link not paced).
+    assert bench_json(paced_result(200_000))["paced"] is False
+    assert bench_json(paced_result(9_216))["paced"] is True
 
 
 def test_lost_oks_alone_are_a_warning_and_with_a_failure_are_named_apart() -> None:
