@@ -391,3 +391,16 @@ def test_a_log_file_that_cannot_be_made_exits_2_naming_the_folder_before_connect
     assert result.exit_code == Exit.USAGE, result.output
     assert result.output.strip().splitlines() == [f"error: {message.format(**names)}"]
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", [["log", "--output"], ["watch", "--log"]], ids=["log", "watch"])
+def test_a_failed_connect_leaves_no_empty_log_file_but_keeps_one_that_was_there(
+    tmp_path: Path, command: list[str]
+) -> None:
+    new, there = tmp_path / "new.csv", tmp_path / "there.csv"
+    there.write_text("")  # the user's own (empty) file: not ours to take away
+    for path in (new, there):
+        result = runner.invoke(app, [*command, str(path), "--port", str(tmp_path / "no-such-port")])
+        assert result.exit_code == Exit.NO_PORT, result.output
+    assert not new.exists()
+    assert there.exists()

@@ -33,6 +33,7 @@ one is changed in the other in the same reading, and the disk-full and kill-safe
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import csv
 import errno
 import io
@@ -259,9 +260,11 @@ class TemperatureLog:
         self._header: str | None = None  # the CSV header, until it is written (or found already there)
         self.failure: LogWriteError | None = None  # why logging stopped, if the file system refused a write
         self._failed: asyncio.Event | None = None
+        self._created = False  # this log made the file (it was not there): one left empty is taken away again
 
     async def __aenter__(self) -> TemperatureLog:
         needs_newline = self._check_existing()
+        self._created = not self.path.exists()
         self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
         if needs_newline:
             self._pending.append(_Entry("\n"))  # a last line cut short by someone else's crash stays a line of its own
@@ -562,8 +565,14 @@ class TemperatureLog:
             self.flush()
         finally:
             if self._fd is not None:
+                empty = os.fstat(self._fd).st_size == 0
                 os.close(self._fd)
                 self._fd = None
+                if self._created and empty:
+                    # Nothing was ever written (the printer could not be reached, say): no empty file is left
+                    # behind where there was none.
+                    with contextlib.suppress(OSError):
+                        self.path.unlink()
 
 
 # ------------------------------------------------------------------------------------------- reading back
