@@ -365,6 +365,12 @@ def run_polling(settings: Settings) -> Json:
 COMMAND_TIME_S = 0.001
 #: The short-lines case: lines short enough that the firmware's loop, not the wire, bounds the stream.
 SHORT_LINE = "G92 E0"
+#: The simulator of both streaming cases: a 250000-baud wire, instant moves, Marlin's command loop.
+_STREAM_SIMULATOR = ["--baud", "250000", "--motion-time-scale", "0", "--command-time", str(COMMAND_TIME_S)]
+_MARLIN_STREAMERS = (
+    Contender("send_ahead", "marlin_aio print_file(send_ahead=True)", "marlin_aio", {"send_ahead": True}),
+    Contender("ping_pong", "marlin_aio print_file(send_ahead=False)", "marlin_aio", {"send_ahead": False}),
+)
 
 
 def _stream_short_lines(settings: Settings) -> Json:
@@ -373,16 +379,13 @@ def _stream_short_lines(settings: Settings) -> Json:
     count = settings.streaming_lines // 3
     path = settings.workdir / f"short-{count}.gcode"
     path.write_text("".join(f"{SHORT_LINE}\n" for _ in range(count)), encoding="ascii")
-    contenders = [
-        Contender("send_ahead", "marlin_aio print_file(send_ahead=True)", "marlin_aio", {"send_ahead": True}),
-        Contender("ping_pong", "marlin_aio print_file(send_ahead=False)", "marlin_aio", {"send_ahead": False}),
-    ]
+    contenders = list(_MARLIN_STREAMERS)
     timeout_s = count * COMMAND_TIME_S * 10 + 30
     runs = _alternate(
         settings,
         "streaming short lines",
         contenders,
-        ["--baud", "250000", "--motion-time-scale", "0", "--command-time", str(COMMAND_TIME_S)],
+        _STREAM_SIMULATOR,
         lambda c: {"path": str(path), "timeout_s": timeout_s},
         lambda c: timeout_s + 30,
         lambda r: f"{r['seconds']:.2f} s, {r['lines'] / r['seconds']:.0f} lines/s, simulator {_sim_counts(r)}",
@@ -420,18 +423,14 @@ def run_streaming(settings: Settings) -> Json:
     wire_limit_s = file_bytes / WIRE_BYTES_PER_S
     contenders = _available(
         settings,
-        [
-            Contender("send_ahead", "marlin_aio print_file(send_ahead=True)", "marlin_aio", {"send_ahead": True}),
-            Contender("ping_pong", "marlin_aio print_file(send_ahead=False)", "marlin_aio", {"send_ahead": False}),
-            Contender("printcore", "printcore startprint(LightGCode)", "printcore"),
-        ],
+        [*_MARLIN_STREAMERS, Contender("printcore", "printcore startprint(LightGCode)", "printcore")],
     )
     timeout_s = wire_limit_s * 4 + 30
     runs = _alternate(
         settings,
         "streaming",
         contenders,
-        ["--baud", "250000", "--motion-time-scale", "0", "--command-time", str(COMMAND_TIME_S)],
+        _STREAM_SIMULATOR,
         lambda c: {"path": str(path), "timeout_s": timeout_s},
         lambda c: timeout_s + 30,
         lambda r: (
