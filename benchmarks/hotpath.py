@@ -23,7 +23,7 @@ from typing import Any
 import marlin_aio
 from benchmarks import _contender_floor as floor
 from benchmarks._procs import UNPACED
-from marlin_aio.protocol.connection import Connection
+from marlin_aio.protocol import Connection
 
 _ANSWER = b"ok T:200.00 /200.00 B:60.00 /60.00 @:0 B@:0\n"
 _POLLS = 50_000
