@@ -27,6 +27,7 @@ from .common.options import error_console
 from .console import options as console
 from .farm import options as farm
 from .heaters import options as heaters
+from .heaters import presets as heater_presets
 from .logs import options as logs
 from .ports import options as ports
 from .printing import options as printing
@@ -121,6 +122,7 @@ def main(
 # The commands, in the order `marlin-temp --help` lists them.
 app.command("watch", help=watch.WATCH_HELP, epilog=EXIT_CODES_HELP)(watch.watch)
 app.command("set", help=heaters.SET_HELP, epilog=EXIT_CODES_HELP)(heaters.set_targets)
+app.command("presets", help=heater_presets.PRESETS_HELP, epilog=EXIT_CODES_HELP)(heater_presets.presets)
 app.command("log", help=logs.LOG_HELP, epilog=EXIT_CODES_HELP)(logs.log)
 app.command("print", help=printing.PRINT_HELP, epilog=EXIT_CODES_HELP)(printing.print_file)
 app.command("send", help=console.SEND_HELP, epilog=EXIT_CODES_HELP)(console.send)

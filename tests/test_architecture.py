@@ -75,6 +75,7 @@ PUBLIC_MODULES = (
     "marlin_aio.farm.bridge",
     "marlin_aio.farm.commands",
     "marlin_aio.farm.config",
+    "marlin_aio.farm.presets",
     "marlin_aio.farm.supervisor",
     "marlin_aio.service",
 )
