@@ -56,6 +56,8 @@ class SetRequest:
     tolerance_c: float = 2.0
     timeout_s: float | None = None
     cool_to_c: float = SAFE_CELSIUS
+    preset: str | None = None
+    """The preset the targets came from (said in the confirmation line)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -323,7 +325,8 @@ async def _set_and_wait(
 ) -> Exit:
     await _send_targets(printer, targets)
     reading = await printer.read_temperatures()
-    console.print(f"{label}: {confirmation(reading, targets)}", soft_wrap=True, markup=False, emoji=False)
+    preset = f"preset {request.preset}: " if request.preset else ""
+    console.print(f"{label}: {preset}{confirmation(reading, targets)}", soft_wrap=True, markup=False, emoji=False)
     if not request.wait:
         return Exit.OK
     confirmed = _confirmed_targets(reading, targets)

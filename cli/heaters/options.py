@@ -3,13 +3,18 @@ opens the printer."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
 
+from marlin_aio.farm.presets import find_preset
+from marlin_aio.protocol import HeaterLimits, check_target
+
 from ..common.connect import ConnectOptions, Exit
 from ..common.options import checked_target, error_console, fail, run, with_connect_options
+from ..common.presets import PresetsOption, load_presets_file
 
 __all__ = ["SET_HELP", "set_targets"]
 
@@ -24,6 +29,10 @@ SET_HELP = "\n\n".join(
         "keeps whole degrees and caps a target at its own maximum; the line says so, and --wait waits for the "
         "confirmed target. --off turns off every hotend, the bed and the chamber; --off --wait waits until each "
         "is below --cool-to (50 C: safe to touch).",
+        "--preset NAME sets a preset's targets (marlin-temp presets lists them, with their file; the name in any "
+        "case): set --preset PETG --wait. --hotend or --bed given with it replaces that heater's target of the "
+        "preset (--preset PLA --hotend 215). An unknown name, a bad presets file or a preset above the limits "
+        "exits with code 2 before anything is sent.",
     )
 )
 
@@ -33,6 +42,16 @@ def set_targets(
     hotend: Annotated[str | None, typer.Option("--hotend", help="Hotend target in C (0 turns it off).")] = None,
     bed: Annotated[str | None, typer.Option("--bed", help="Bed target in C (0 turns it off).")] = None,
     chamber: Annotated[str | None, typer.Option("--chamber", help="Chamber target in C.")] = None,
+    preset: Annotated[
+        str | None,
+        typer.Option(
+            "--preset",
+            help="Set this preset's targets (marlin-temp presets lists them); --hotend or --bed replaces its own.",
+            show_default=False,
+            metavar="NAME",
+        ),
+    ] = None,
+    presets_file: PresetsOption = None,
     tool: Annotated[
         int | None, typer.Option("--tool", help="Which hotend --hotend sets (default: active).", min=0)
     ] = None,
@@ -59,12 +78,19 @@ def set_targets(
 
     if off and (hotend or bed or chamber):
         fail("--off turns every heater off; do not combine it with targets", Exit.USAGE)
-    if tool is not None and hotend is None:
-        fail("--tool says which hotend --hotend sets; give --hotend too", Exit.USAGE)
+    if off and preset is not None:
+        fail("--off turns every heater off; do not combine it with --preset", Exit.USAGE)
     limits = options.limits
+    # The preset's targets, less those --hotend or --bed replaces.
+    given = {"hotend": checked_target("hotend", hotend, limits.hotend), "bed": checked_target("bed", bed, limits.bed)}
+    replaced = {heater for heater, celsius in given.items() if celsius is not None}
+    preset_name, from_preset = (None, {}) if preset is None else _preset_targets(preset, presets_file, limits, replaced)
+    wanted = {heater: from_preset.get(heater) if celsius is None else celsius for heater, celsius in given.items()}
+    if tool is not None and wanted["hotend"] is None:
+        fail("--tool says which hotend --hotend sets; give --hotend too", Exit.USAGE)
     request = SetRequest(
-        hotend=None if off else checked_target("hotend", hotend, limits.hotend),
-        bed=None if off else checked_target("bed", bed, limits.bed),
+        hotend=None if off else wanted["hotend"],
+        bed=None if off else wanted["bed"],
         chamber=checked_target("chamber", chamber, limits.chamber),
         tool=tool,
         off=off,
@@ -72,8 +98,29 @@ def set_targets(
         tolerance_c=tolerance,
         timeout_s=wait_timeout,
         cool_to_c=cool_to,
+        preset=preset_name,
     )
     if not off and request.hotend is None and request.bed is None and request.chamber is None:
-        fail("nothing to set: give --hotend, --bed, --chamber or --off", Exit.USAGE)
+        fail("nothing to set: give --hotend, --bed, --chamber, --preset or --off", Exit.USAGE)
     code = run(set_printer_targets(options, request, Console(highlight=False, emoji=False), error_console()))
     raise typer.Exit(int(code))
+
+
+def _preset_targets(
+    name: str, presets_file: Path | None, limits: HeaterLimits, replaced: set[str]
+) -> tuple[str, dict[str, float]]:
+    """The preset called `name` (any case) in the presets file in use: its name as the file spells it, and its
+    targets but those `replaced` (by --hotend, --bed), each checked against `limits`; an unknown name or a target
+    above its limit fails with one line naming the file and the preset (exit code 2)."""
+    loaded = load_presets_file(presets_file)
+    try:
+        found = find_preset(loaded.presets, name)
+    except ValueError as exc:
+        fail(f"{loaded.source}: {exc}", Exit.USAGE)
+    targets = {heater: celsius for heater, celsius in found.targets().items() if heater not in replaced}
+    for heater, celsius in targets.items():
+        try:
+            check_target(heater, celsius, limits.of(heater))
+        except ValueError as exc:
+            fail(f"{loaded.source}: preset {found.name!r}: {exc} (raise the limit with --max-{heater})", Exit.USAGE)
+    return found.name, targets
