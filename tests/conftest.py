@@ -38,6 +38,14 @@ def _own_service_socket(tmp_path_factory: pytest.TempPathFactory, monkeypatch: p
     monkeypatch.setenv("MARLIN_SERVE_SOCKET", str(tmp_path_factory.mktemp("serve") / "serve.sock"))
 
 
+@pytest.fixture(autouse=True)
+def _own_config_folder(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test has an empty config folder of its own (`$XDG_CONFIG_HOME`), so the presets are the defaults unless
+    a test writes a presets file: never the developer's own `~/.config/marlin-temp/presets.toml`."""
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path_factory.mktemp("config")))
+    monkeypatch.delenv("MARLIN_TEMP_PRESETS", raising=False)
+
+
 @pytest.fixture
 def campaign_report(pytestconfig: pytest.Config) -> list[str]:
     """Lines the fault campaign reports (run counts, failing seeds); printed at the end of the test session."""

@@ -6,9 +6,14 @@ from __future__ import annotations
 import asyncio
 import json
 import re
+import shlex
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
+from test_cli_terminal import Tmux
 from typer.testing import CliRunner
 
 from marlin_aio.farm.presets import (
@@ -22,6 +27,7 @@ from marlin_aio.farm.presets import (
 from marlin_aio.protocol import DEFAULT_LIMITS, HeaterLimits
 from marlin_aio.simulator import SimulatorConfig, serve_pty
 from marlin_temp.common.connect import Exit
+from marlin_temp.common.model import SetTargets, WatchControls, WatchModel
 from marlin_temp.main import app
 
 runner = CliRunner()
@@ -207,3 +213,55 @@ async def test_set_preset_with_a_bad_file_exits_2_naming_the_file_preset_and_key
     assert code == Exit.USAGE, output
     assert f"{path}: preset 'PLA': unknown key 'nozzle'" in one_line(output)
     assert ran == []
+
+
+# ------------------------------------------------------------------------------------------- watch's keys
+
+
+def test_watchs_keys_1_to_9_are_the_presets_in_order() -> None:
+    presets = (Preset("Warm", 60.0, 40.0), Preset("Bed", None, 55.0))
+    controls = WatchControls(presets=presets)
+    model = WatchModel(window_s=60)
+    assert controls.press("1", model) == SetTargets(hotend=60.0, bed=40.0, label="Warm")
+    assert controls.press("2", model) == SetTargets(hotend=None, bed=55.0, label="Bed")
+    assert controls.press("3", model) is None
+    items = controls.help_items()
+    assert "1 Warm" in items and "2 Bed" in items and not any(item.startswith("3 ") for item in items)
+    many = tuple(Preset(f"P{n}", float(n), None) for n in range(1, 12))
+    controls = WatchControls(presets=many)
+    assert controls.press("9", model) == SetTargets(hotend=9.0, label="P9")
+    assert [item for item in controls.help_items() if item[:1].isdigit()][-1] == "9 P9"
+
+
+def test_a_preset_above_the_limits_is_refused_when_its_key_is_pressed() -> None:
+    controls = WatchControls(HeaterLimits(230, 140, 60))
+    assert controls.press("2", WatchModel(window_s=60)) is None  # PETG: 240
+    assert controls.notice is not None and controls.notice.error
+    assert "PETG: hotend target 240 C is above the limit of 230 C" in controls.notice.title
+
+
+def test_watch_with_a_bad_presets_file_exits_2_before_connecting(tmp_path: Path) -> None:
+    path = write_presets(tmp_path, "[preset.PLA]\nhotend = 200\nbed = 'sixty'\n")
+    result = runner.invoke(app, ["watch", "--port", "/dev/marlin-test-no-such-port"], env=config_home(tmp_path))
+    assert result.exit_code == Exit.USAGE
+    assert f"{path}: preset 'PLA': bed must be a number of degrees C, got 'sixty'" in one_line(result.output)
+
+
+@pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
+def test_the_live_views_keys_are_the_files_presets(tmp_path: Path) -> None:
+    write_presets(tmp_path, "[preset.Warm]\nhotend = 65\nbed = 45\n[preset.PLA]\nhotend = 200\nbed = 60\n")
+    tmux = Tmux()
+    command = (
+        f"XDG_CONFIG_HOME={shlex.quote(str(tmp_path))} {sys.executable} -m marlin_temp watch --sim --sim-speed 20 "
+        "--refresh 0.3; echo MARLIN-EXIT=$?; sleep 600"  # keep the pane alive to read the exit status
+    )
+    try:
+        tmux.run("new-session", "-d", "-s", "w", "-x", "100", "-y", "40", f"stty cols 100 rows 40; {command}")
+        screen = tmux.wait_for(lambda s: "polls/s" in s and "h hotend" in s, "the live view with its key help")
+        assert "1 Warm" in screen and "2 PLA" in screen and "PETG" not in screen
+        tmux.run("send-keys", "-t", "w", "1")
+        tmux.wait_for(lambda s: "Warm: hotend target 65 °C, bed target 45 °C" in s, "the Warm preset's notice")
+        tmux.run("send-keys", "-t", "w", "q")
+        assert "MARLIN-EXIT=0" in tmux.wait_for(lambda s: "MARLIN-EXIT=" in s, "watch to exit")
+    finally:
+        subprocess.run(["tmux", "-L", tmux.socket, "kill-server"], capture_output=True, check=False)

@@ -150,7 +150,8 @@ def test_off_fan_command_and_quit() -> None:
 def test_without_keys_the_help_says_ctrl_c() -> None:
     assert WatchControls(keys_enabled=False).help_items() == ["Ctrl-C quits (keys need a terminal on stdin)"]
     items = WatchControls().help_items()
-    assert items == ["h hotend", "b bed", "o off", "+/- 5C hotend", "1 PLA", "2 PETG", "f fan", ": command", "q quit"]
+    presets = ["1 PLA", "2 PETG", "3 ABS", "4 cooldown"]  # the default presets (no presets file)
+    assert items == ["h hotend", "b bed", "o off", "+/- 5C hotend", *presets, "f fan", ": command", "q quit"]
 
 
 def test_split_keys_keeps_escape_sequences_whole() -> None:

@@ -18,13 +18,14 @@ from collections import deque
 from dataclasses import dataclass
 
 from marlin_aio import HeaterLimits, TemperatureReading
+from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
 from marlin_aio.protocol import DEFAULT_LIMITS, HEATER_NAMES, check_target, command_code, heater_name
 
 from .keys import PASTE
 
 __all__ = [
     "HEATER_NAMES",
-    "PRESETS",
+    "PRESET_KEYS",
     "STEP_CELSIUS",
     "Action",
     "HeaterStatus",
@@ -185,17 +186,8 @@ class WatchModel:
 # ------------------------------------------------------------------------------------------- keys
 
 
-@dataclass(frozen=True, slots=True)
-class Preset:
-    """A material's usual targets, set with one key."""
-
-    key: str
-    name: str
-    hotend_celsius: float
-    bed_celsius: float
-
-
-PRESETS = (Preset("1", "PLA", 200.0, 60.0), Preset("2", "PETG", 240.0, 80.0))
+PRESET_KEYS = "123456789"
+"""The keys of the presets (the presets file's first nine, in its order; `marlin_aio.farm.presets` reads it)."""
 STEP_CELSIUS = 5.0
 
 
@@ -277,10 +269,19 @@ class WatchControls:
     Args:
         limits: the highest targets allowed: the same `--max-hotend` and `--max-bed` as `marlin-temp set`.
         keys_enabled: whether key presses can arrive at all (stdin is a terminal); the view says so.
+        presets: the presets, in the presets file's order: the first nine get the keys 1-9. Each is checked
+            against `limits` when its key is pressed, as a typed target is.
     """
 
-    def __init__(self, limits: HeaterLimits = DEFAULT_LIMITS, *, keys_enabled: bool = True) -> None:
+    def __init__(
+        self,
+        limits: HeaterLimits = DEFAULT_LIMITS,
+        *,
+        keys_enabled: bool = True,
+        presets: tuple[Preset, ...] = DEFAULT_PRESETS,
+    ) -> None:
         self.limits = limits
+        self.presets = presets[: len(PRESET_KEYS)]
         self.keys_enabled = keys_enabled
         self.notice: Notice | None = None
         self.prompt: str | None = None  # the input line's label while one is open
@@ -303,7 +304,7 @@ class WatchControls:
             if self._prompt.what == "command":
                 return ["Enter sends", "Esc cancels", "one G-code line, e.g. M114"]
             return ["digits, then Enter sets", "Esc cancels"]
-        presets = [f"{p.key} {p.name}" for p in PRESETS]
+        presets = [f"{key} {preset.name}" for key, preset in zip(PRESET_KEYS, self.presets, strict=False)]
         return [
             "h hotend",
             "b bed",
@@ -340,8 +341,8 @@ class WatchControls:
             return TurnOff()
         if key in "+=-_":
             return self._step(STEP_CELSIUS if key in "+=" else -STEP_CELSIUS, model)
-        for preset in PRESETS:
-            if key == preset.key:
+        for preset_key, preset in zip(PRESET_KEYS, self.presets, strict=False):
+            if key == preset_key:
                 return self._targets(preset.hotend_celsius, preset.bed_celsius, preset.name)
         return None
 

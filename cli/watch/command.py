@@ -34,6 +34,7 @@ from rich.text import Text
 
 import marlin_aio
 import marlin_aio.protocol
+from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
 from ..common.connect import ConnectOptions, Exit, run_sessions
@@ -69,6 +70,8 @@ class WatchSettings:
     json_lines: bool = False
     duration_s: float | None = None
     reconnect: bool = False
+    presets: tuple[Preset, ...] = DEFAULT_PRESETS
+    """The presets file's presets: the keys 1-9 of one printer's view."""
 
 
 @dataclass(frozen=True)
@@ -313,7 +316,7 @@ async def watch_printer(options: ConnectOptions, settings: WatchSettings, consol
     started = loop.time()
     log = TemperatureLog(settings.log_path) if settings.log_path is not None else None
     # One for the whole run: what the keys set is remembered across reconnects, for the word on the way out.
-    controls = WatchControls(options.limits)
+    controls = WatchControls(options.limits, presets=settings.presets)
     with on_stop_signals(stop.set):
         try:
             async with log if log is not None else contextlib.nullcontext():

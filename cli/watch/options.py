@@ -32,6 +32,7 @@ from ..common.options import (
     fail,
     run,
 )
+from ..common.presets import PresetsOption, load_presets_file
 
 if TYPE_CHECKING:
     from marlin_aio.farm.supervisor import PrinterSpec
@@ -43,10 +44,11 @@ WATCH_HELP = "\n\n".join(
     (
         "Live view of every heater: table, chart of the last minute, link statistics. q or Ctrl-C quits.",
         "Keys set targets while watching: h hotend and b bed (type the degrees, Enter; Esc cancels), o every "
-        "heater off, + and - step the last one chosen by 5 C, 1 PLA (200/60 C), 2 PETG (240/80 C), f the fan "
-        "(percent), and : sends one G-code line, its reply shown under the chart. Targets are checked against "
-        "--max-hotend and --max-bed as in set; one refused is shown in the view and nothing is sent. Narrow "
-        "terminals (down to 40 columns) get a compact table.",
+        "heater off, + and - step the last one chosen by 5 C, 1-9 the presets in the presets file's order (by "
+        "default 1 PLA 200/60 C, 2 PETG 240/80 C, 3 ABS 250/100 C, 4 cooldown; marlin-temp presets lists them), f "
+        "the fan (percent), and : sends one G-code line, its reply shown under the chart. Targets are checked "
+        "against --max-hotend and --max-bed as in set; one refused is shown in the view and nothing is sent. "
+        "Narrow terminals (down to 40 columns) get a compact table.",
         "With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and "
         "power, and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints "
         "one plain line per refresh instead (or JSON lines with --json), and q is the only key.",
@@ -113,6 +115,7 @@ def watch(
     ] = False,
     max_hotend: MaxHotendOption = DEFAULT_LIMITS.hotend,
     max_bed: MaxBedOption = DEFAULT_LIMITS.bed,
+    presets_file: PresetsOption = None,
 ) -> None:
     """Live view of every heater, with keys to set targets; the farm view for several printers (the help text
     is `WATCH_HELP`)."""
@@ -145,6 +148,8 @@ def watch(
         json_lines=json_lines,
         duration_s=duration,
         reconnect=reconnect,
+        # One printer's view only: the farm view's keys 1-9 choose a printer.
+        presets=() if farm_specs else load_presets_file(presets_file).presets,
     )
     if farm_specs:
         if log is not None:
