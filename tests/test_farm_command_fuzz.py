@@ -253,6 +253,7 @@ _field_values: dict[str, st.SearchStrategy[Any]] = {
         | _documents,
     ),
     "path": _mostly(_paths, _bad_paths | _scalars),
+    "name": _mostly(st.sampled_from(["PLA", "petg", "ABS", "cooldown"]), st.text(max_size=80) | _scalars),
 }
 # Each action with some of the fields it takes; or any action with any fields.
 _ACTION_FIELDS = {
@@ -260,6 +261,7 @@ _ACTION_FIELDS = {
     "set_target": ("heater", "celsius"),
     "gcode": ("command", "commands"),
     "print": ("path",),
+    "preset": ("name",),
 }
 _commands = st.sampled_from(ACTIONS).flatmap(
     lambda action: st.fixed_dictionaries(

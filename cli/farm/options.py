@@ -15,6 +15,7 @@ import typer
 
 from ..common.connect import Exit, UsageProblem
 from ..common.options import BaudOption, SimSpeedOption, error_console, fail, run
+from ..common.presets import PresetsOption, load_presets_file
 from ..common.printers import ConfigOption, IntervalOption, PortsOption, SimsOption, printer_specs
 
 __all__ = ["FARM_HELP", "farm"]
@@ -31,7 +32,9 @@ FARM_HELP = (
     "Per printer NAME it publishes PREFIX/NAME/telemetry (each heater's actual, target and power in percent, at "
     "--rate), PREFIX/NAME/state (retained JSON), PREFIX/NAME/events (QoS 1, queued while the broker is away) and "
     "PREFIX/NAME/availability (retained); and PREFIX/bridge/availability with a Last Will, so a crashed bridge "
-    "shows offline. The broker password comes from $MARLIN_MQTT_PASSWORD or --password-file, never from the "
+    'shows offline. With --allow-commands, {"action": "preset", "name": "PLA"} on PREFIX/NAME/command sets a '
+    "preset of the presets file (marlin-temp presets lists them), and Home Assistant gets a button per preset. "
+    "The broker password comes from $MARLIN_MQTT_PASSWORD or --password-file, never from the "
     "command line."
     "\n\n"
     "Try it: install Mosquitto (apt install mosquitto mosquitto-clients), run 'marlin-temp farm --sims 5', and "
@@ -86,7 +89,8 @@ def farm(
         bool,
         typer.Option(
             "--allow-commands",
-            help="Take commands on PREFIX/NAME/command (set targets, G-code, prints, emergency stop); off by default.",
+            help="Take commands on PREFIX/NAME/command (set targets, presets, G-code, prints, emergency stop); off "
+            "by default.",
         ),
     ] = False,
     allowed_dir: Annotated[
@@ -102,6 +106,7 @@ def farm(
         ),
     ] = None,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    presets_file: PresetsOption = None,
 ) -> None:
     """Bridge many printers to an MQTT broker (the help text is `FARM_HELP`)."""
     if importlib.util.find_spec("aiomqtt") is None:
@@ -152,6 +157,8 @@ def farm(
         discovery_prefix=discovery_prefix,
         allow_commands=allow_commands,
         allowed_dir=allowed_dir,
+        # Only commands use the presets: without them a bad presets file need not stop the farm.
+        presets=load_presets_file(presets_file).presets if allow_commands else (),
     )
     bridge = run(run_farm(specs, broker_at, settings, FarmOptions(duration_s=duration, socket=socket), error_console()))
     if bridge.connections == 0:

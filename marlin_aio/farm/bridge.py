@@ -78,9 +78,10 @@ from .commands import (
     run_command,
 )
 from .config import NAME_PATTERN
+from .presets import DEFAULT_PRESETS, Preset
 from .supervisor import RESERVED_NAMES, Farm, FarmEvent, FarmPrinter, one_line, redact, redact_payload
 
-__all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug"]
+__all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug", "preset_slugs"]
 
 _log = logging.getLogger("marlin_temp.bridge")
 
@@ -169,6 +170,9 @@ class BridgeSettings:
     """Events and answers kept until delivered; past it the oldest is lost (counted, and logged)."""
     max_command_age_s: float = MAX_COMMAND_AGE_S
     """A command with a `time` older (or further in the future) than this is refused."""
+    presets: tuple[Preset, ...] = DEFAULT_PRESETS
+    """What a `preset` command may name (`marlin-temp farm` gives the presets file's); with commands, Home
+    Assistant gets a button for each."""
 
 
 def _stdlib_json(value: Any) -> bytes:
@@ -195,6 +199,21 @@ else:
 def heater_slug(name: str) -> str:
     """A heater's name as a topic or entity id part: `"hotend 0"` gives `"hotend_0"`."""
     return name.replace(" ", "_")
+
+
+def preset_slugs(presets: tuple[Preset, ...]) -> list[tuple[str, Preset]]:
+    """Each preset with the id its Home Assistant button gets: its name in lower case, `+` as `plus` and other
+    signs as `_` ("PLA+" is `pla_plus`), numbered where two would be the same ("a-b" and "a.b")."""
+    slugs: list[tuple[str, Preset]] = []
+    taken: set[str] = set()
+    for preset in presets:
+        base = "".join(c if c.isalnum() else "_" for c in preset.name.lower().replace("+", "_plus"))
+        slug, number = base, 2
+        while slug in taken:
+            slug, number = f"{base}_{number}", number + 1
+        taken.add(slug)
+        slugs.append((slug, preset))
+    return slugs
 
 
 def telemetry_payload(reading: marlin_aio.TemperatureReading) -> dict[str, Any]:
@@ -599,6 +618,7 @@ class Bridge:
                 self.settings.allowed_dir,
                 now_s=time.time(),
                 max_age_s=self.settings.max_command_age_s,
+                presets=self.settings.presets,
             )
         except CommandError as exc:
             # The id as parse_command checked it; a refusal before that (an unknown printer) looks for one.
@@ -818,7 +838,8 @@ class Bridge:
 
     def discovery_messages(self, name: str, heaters: tuple[str, ...]) -> list[tuple[str, dict[str, Any]]]:
         """Home Assistant MQTT discovery for one printer: a device with, per heater, a temperature sensor, a target
-        sensor and a power sensor, and a link sensor; each available while the bridge and the printer are.
+        sensor and a power sensor, and a link sensor; each available while the bridge and the printer are. With
+        commands on, also a number per heater target, a button per preset and the emergency stop button.
 
         As Home Assistant's MQTT documentation asks: an `origin` (this software and its version), the device's
         firmware as `sw_version`, `device_class: temperature` on temperatures and target numbers, no device class on
@@ -895,6 +916,19 @@ class Bridge:
                             "mode": "box",
                             "unit_of_measurement": "°C",
                             "device_class": "temperature",
+                        },
+                    )
+                )
+            for slug, preset in preset_slugs(self.settings.presets):
+                messages.append(
+                    (
+                        f"{prefix}/button/{node}/preset_{slug}/config",
+                        base
+                        | {
+                            "name": f"preset {preset.name}",
+                            "unique_id": f"{node}_preset_{slug}",
+                            "command_topic": self.topic(name, "command"),
+                            "payload_press": json.dumps({"action": "preset", "name": preset.name}),
                         },
                     )
                 )

@@ -5,6 +5,7 @@ A command is a JSON object published to `PREFIX/NAME/command`; its answer goes t
 
     {"id": 1, "action": "set_temperatures", "hotend": 200, "bed": 60}
     {"id": 2, "action": "set_target", "heater": "hotend", "celsius": 210}    (Home Assistant's number entities)
+    {"id": 7, "action": "preset", "name": "PLA"}                             (the bridge's presets, any case)
     {"id": 3, "action": "gcode", "command": "G28"}                            (or "commands": ["G28", "M114"])
     {"id": 4, "action": "print", "path": "benchy.gcode"}                      (inside --allowed-dir only)
     {"id": 5, "action": "pause"} / "resume" / "cancel"
@@ -40,7 +41,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +49,7 @@ from typing import Any
 import marlin_aio
 import marlin_aio.protocol
 
+from .presets import DEFAULT_PRESETS, Preset
 from .supervisor import FarmPrinter
 
 __all__ = [
@@ -61,7 +63,17 @@ __all__ = [
     "run_command",
 ]
 
-ACTIONS = ("set_temperatures", "set_target", "gcode", "print", "pause", "resume", "cancel", "emergency_stop")
+ACTIONS = (
+    "set_temperatures",
+    "set_target",
+    "preset",
+    "gcode",
+    "print",
+    "pause",
+    "resume",
+    "cancel",
+    "emergency_stop",
+)
 """What a command can ask for (its "action")."""
 UNQUEUED_ACTIONS = frozenset({"emergency_stop", "pause", "resume", "cancel"})
 """Actions that wait for no command before them and take no time: never refused for being too many waiting (a
@@ -117,6 +129,8 @@ class FarmCommand:
     """For set_temperatures: hotend, bed, chamber (degrees C) and tool."""
     gcode: tuple[str, ...] = ()
     path: Path | None = None
+    preset: str | None = None
+    """For a preset command (run as set_temperatures): the preset's name, as its file spells it."""
 
 
 def _show(value: object) -> str:
@@ -169,18 +183,20 @@ def parse_command(
     *,
     now_s: float | None = None,
     max_age_s: float = MAX_COMMAND_AGE_S,
+    presets: Sequence[Preset] = DEFAULT_PRESETS,
 ) -> FarmCommand:
     """Check one command payload for `printer` (a topic level: any text).
 
     `now_s` is the bridge's clock (`time.time()`); given it, a command whose "time" is more than `max_age_s` from
-    it either way is refused. Nothing is written or opened: a print's path is only resolved and stat'ed.
+    it either way is refused. Nothing is written or opened: a print's path is only resolved and stat'ed. A
+    "preset" command names one of `presets` and becomes the set_temperatures of its targets.
 
     Raises:
         CommandError: anything wrong with it, and nothing else whatever the bytes; the message is one printable
             line of at most MAX_ERROR_CHARS characters, the answer to publish.
     """
     try:
-        return _parse(printer, payload, printers, allowed_dir, now_s, max_age_s)
+        return _parse(printer, payload, printers, allowed_dir, now_s, max_age_s, presets)
     except CommandError as exc:
         raise CommandError(_clip(str(exc)), exc.command_id) from None
 
@@ -192,13 +208,14 @@ def _parse(
     allowed_dir: Path | None,
     now_s: float | None,
     max_age_s: float,
+    presets: Sequence[Preset],
 ) -> FarmCommand:
     if printer not in printers:
         raise CommandError(f"no printer named {_show(printer)} (printers: {', '.join(printers)})")
     body = _decode(payload)
     command_id = _command_id(body)
     try:
-        return _check(printer, body, command_id, printers[printer], allowed_dir, now_s, max_age_s)
+        return _check(printer, body, command_id, printers[printer], allowed_dir, now_s, max_age_s, presets)
     except CommandError as exc:
         exc.command_id = command_id
         raise
@@ -352,6 +369,7 @@ def _check(
     allowed_dir: Path | None,
     now_s: float | None,
     max_age_s: float,
+    presets: Sequence[Preset],
 ) -> FarmCommand:
     action = body.get("action")
     if not isinstance(action, str) or action not in ACTIONS:
@@ -381,6 +399,13 @@ def _check(
             values["tool"] = tool
         # The same command as set_temperatures, with one heater.
         return FarmCommand(printer, "set_temperatures", command_id, targets=_targets(values, farm_printer))
+    if action == "preset":
+        preset = _preset(body.get("name"), presets)
+        try:
+            targets = _targets(dict(preset.targets()), farm_printer)
+        except CommandError as exc:
+            raise CommandError(f"preset {preset.name!r}: {exc}") from None
+        return FarmCommand(printer, "set_temperatures", command_id, targets=targets, preset=preset.name)
     if action == "gcode":
         return FarmCommand(printer, action, command_id, gcode=_gcode(body, farm_printer))
     if action == "print":
@@ -392,6 +417,7 @@ _COMMON_FIELDS = {"id", "action", "time"}
 _FIELDS: dict[str, set[str]] = {
     "set_temperatures": {"hotend", "bed", "chamber", "tool"},
     "set_target": {"heater", "celsius"},
+    "preset": {"name"},
     "gcode": {"command", "commands"},
     "print": {"path"},
     "pause": set(),
@@ -399,6 +425,16 @@ _FIELDS: dict[str, set[str]] = {
     "cancel": set(),
     "emergency_stop": set(),
 }
+
+
+def _preset(name: object, presets: Sequence[Preset]) -> Preset:
+    names = ", ".join(preset.name for preset in presets) or "none"
+    if not isinstance(name, str) or not name:
+        raise CommandError(f'preset needs "name": one of the presets ({names})')
+    for preset in presets:
+        if preset.name.casefold() == name.casefold():
+            return preset
+    raise CommandError(f"no preset named {_show(name)} (presets: {names})")
 
 
 def _gcode(body: dict[str, Any], farm_printer: FarmPrinter) -> tuple[str, ...]:
@@ -494,7 +530,7 @@ async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
                 chamber=targets.get("chamber"),
                 tool=None if tool is None else int(tool),
             )
-            return {"targets": command.targets}
+            return {"targets": command.targets} | ({"preset": command.preset} if command.preset else {})
         case "gcode":
             replies = []
             for text in command.gcode:
