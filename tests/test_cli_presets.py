@@ -84,6 +84,7 @@ def test_presets_keep_the_files_order() -> None:
         ("[preset.PLA]\n", "f.toml: preset 'PLA': no target"),
         ("[preset.pla]\nbed = 1\n[preset.PLA]\nbed = 2\n", "f.toml: preset 'PLA': the same name as preset 'pla'"),
         ('[preset."P L A"]\nbed = 1\n', "f.toml: preset 'P L A': a name is"),
+        ("[preset.-x]\nbed = 1\n", "f.toml: preset '-x': a name is"),
         ("", "f.toml: no presets"),
     ],
 )

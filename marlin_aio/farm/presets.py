@@ -47,8 +47,9 @@ __all__ = [
 
 PRESET_HEATERS = ("hotend", "bed")
 """The keys a preset may have, each a target in degrees C."""
-PRESET_NAME_RULE = "1 to 32 letters, digits, '_', '-', '+' or '.'"
-_NAME = re.compile(r"[A-Za-z0-9_+.-]{1,32}")
+PRESET_NAME_RULE = "1 to 32 letters, digits, '_', '-', '+' or '.', starting with a letter or a digit"
+# Not starting with '-', which the command line would read as an option (`--preset -x`).
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_+.-]{0,31}")
 _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 
