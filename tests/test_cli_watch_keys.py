@@ -150,7 +150,18 @@ def test_off_fan_command_and_quit() -> None:
 def test_without_keys_the_help_says_ctrl_c() -> None:
     assert WatchControls(keys_enabled=False).help_items() == ["Ctrl-C quits (keys need a terminal on stdin)"]
     items = WatchControls().help_items()
-    assert items == ["h hotend", "b bed", "o off", "+/- 5C hotend", "1 PLA", "2 PETG", "f fan", ": command", "q quit"]
+    assert items == [
+        "h hotend",
+        "b bed",
+        "o off",
+        "+/- 5C hotend",
+        "1 PLA",
+        "2 PETG",
+        "f fan",
+        ": command",
+        "w window",
+        "q quit",
+    ]
 
 
 def test_split_keys_keeps_escape_sequences_whole() -> None:

@@ -103,12 +103,15 @@ def _update_link_stats(model: WatchModel, printer: marlin_aio.Printer, since: fl
     # watch has at most one command in flight (its poll), so a reset fails at most one. The larger count is what
     # went wrong without counting a reset twice, nor missing one that came between two polls.
     model.errors = baseline.model_errors + max(failures, resets)
-    newest = since
-    for answered_s, latency_s in printer.round_trips:
-        if answered_s > since:
-            model.add_latency(answered_s, latency_s)
-            newest = answered_s
-    return newest
+    # Polls included, the deque holds up to 8,192 round trips: read back only to the last one copied.
+    fresh = []
+    for answered_s, latency_s in reversed(printer.round_trips):
+        if answered_s <= since:
+            break
+        fresh.append((answered_s, latency_s))
+    for answered_s, latency_s in reversed(fresh):
+        model.add_latency(answered_s, latency_s)
+    return fresh[0][0] if fresh else since
 
 
 def _json_status(model: WatchModel) -> str:
