@@ -61,6 +61,11 @@ class HeaterStatus:
     eta_s: float | None
 
 
+#: The footer's latency figures are of the round trips answered in this many seconds up to the latest: recent
+#: enough that a slow G28 stops being the "worst" soon after, long enough to hold a thousand polls.
+LATENCY_WINDOW_S = 10.0
+
+
 @dataclass(frozen=True, slots=True)
 class LinkHealth:
     """The footer: how well the link is doing over the last window (the figures `watch` shows; the library's own
@@ -72,14 +77,11 @@ class LinkHealth:
     readings: int
     timeouts: int
     errors: int
-    latency_window_s: float = 10.0  # the span of the latency figures (`LATENCY_WINDOW_S`)
+    latency_window_s: float = LATENCY_WINDOW_S  # the span of the latency figures
 
 
 #: The chart's windows the `w` key steps through (with `--window`'s own, if it is none of these).
 WINDOWS_S = (60.0, 600.0, 3600.0, 6 * 3600.0)
-#: The footer's latency figures are of the round trips answered in this many seconds up to the latest: recent
-#: enough that a slow G28 stops being the "worst" soon after, long enough to hold a thousand polls.
-LATENCY_WINDOW_S = 10.0
 _LATENCIES_KEPT = 10_000  # 10 s at 1,000 Hz: a bound on memory whatever the poll rate
 
 
