@@ -7,6 +7,10 @@ Every part is laid out for the width it is given, from 30 columns up: the table 
 that fits, and the lines made of several parts (footer, legend, key help) break between parts, never inside one.
 Given a height too, the view gives way in an order: the chart first, then the footer and the key help shorten,
 so the key help (how to quit) is always on screen.
+
+Over 400 lines because the parts of the view are laid out together: the rows the chart gets, and which form of
+the footer and the key help fits, depend on what the table, the footer, a reply and the key help take at the same
+width, so they are measured where they are drawn.
 """
 
 from __future__ import annotations
