@@ -151,7 +151,17 @@ def test_without_keys_the_help_says_ctrl_c() -> None:
     assert WatchControls(keys_enabled=False).help_items() == ["Ctrl-C quits (keys need a terminal on stdin)"]
     items = WatchControls().help_items()
     presets = ["1 PLA", "2 PETG", "3 ABS", "4 cooldown"]  # the default presets (no presets file)
-    assert items == ["h hotend", "b bed", "o off", "+/- 5C hotend", *presets, "f fan", ": command", "q quit"]
+    assert items == [
+        "h hotend",
+        "b bed",
+        "o off",
+        "+/- 5C hotend",
+        *presets,
+        "f fan",
+        ": command",
+        "w window",
+        "q quit",
+    ]
 
 
 def test_split_keys_keeps_escape_sequences_whole() -> None:

@@ -15,13 +15,18 @@ from dataclasses import dataclass
 from rich.cells import cell_len
 from rich.text import Text
 
-__all__ = ["Curve", "flow", "heater_colour", "legend", "time_chart"]
+__all__ = ["Curve", "flow", "heater_colour", "legend", "plot_columns", "time_chart"]
 
 _COLOURS = {"hotend": "red", "bed": "blue", "chamber": "green"}
 # One colour per numbered hotend, so each curve can be told apart; none of them is the bed's or chamber's.
 _HOTEND_COLOURS = ("red", "yellow", "bright_red", "orange3", "bright_yellow", "deep_pink3", "gold3", "dark_orange")
 _AXIS_WIDTH = 6  # " 200 ┤" or "     │" before each row
 _INDENT = " " * _AXIS_WIDTH
+
+
+def plot_columns(width: int) -> int:
+    """How many columns of time `time_chart` draws at `width` (the rest is the temperature axis)."""
+    return max(width - _AXIS_WIDTH - 1, 10)  # a column spare: a line that fills the terminal may wrap
 
 
 def heater_colour(name: str) -> str:
@@ -59,10 +64,11 @@ def time_chart(
     axis (`time_labels` at its left and right end), a row of `marks` (each label under its time, left out where it
     would touch another) if any, and the legend.
 
-    Each column shows the last reading that falls in it, so a stretch without readings stays empty; targets are
-    drawn first so actual temperatures draw over them, and a target of 0 (off) is not drawn.
+    Each column spans the lowest to the highest actual temperature that falls in it (so a column of hours shows
+    how far it swung, not whichever reading came last), and a stretch without readings stays empty; each column's
+    target is its last, drawn first so actual temperatures draw over it, and a target of 0 (off) is not drawn.
     """
-    plot_width = max(width - _AXIS_WIDTH - 1, 10)  # a column spare: a line that fills the terminal may wrap
+    plot_width = plot_columns(width)
     span = max(end_s - start_s, 1e-9)
 
     def column_of(time_s: float) -> int:
@@ -82,19 +88,27 @@ def time_chart(
     grid: list[list[tuple[str, str]]] = [[(" ", "")] * plot_width for _ in range(height)]
     for curve in curves:
         targets: dict[int, float] = {}
-        actuals: dict[int, float] = {}
+        lows: dict[int, float] = {}
+        highs: dict[int, float] = {}
         for time_s, actual, target in curve.points:
             if time_s < start_s:
                 continue
             column = column_of(time_s)
             if actual is not None:
-                actuals[column] = actual
+                if column not in lows:
+                    lows[column] = highs[column] = actual
+                elif actual < lows[column]:
+                    lows[column] = actual
+                elif actual > highs[column]:
+                    highs[column] = actual
             if target:
                 targets[column] = target
         for column, target in targets.items():
             grid[row_of(target)][column] = ("─", f"dim {curve.colour}")
-        for column, actual in actuals.items():
-            grid[row_of(actual)][column] = ("•", f"bold {curve.colour}")
+        for column, low in lows.items():
+            # Rows grow downwards: the highest temperature is the top row.
+            for grid_row in range(row_of(highs[column]), row_of(low) + 1):
+                grid[grid_row][column] = ("•", f"bold {curve.colour}")
 
     # Label the rows that hold round values (quarters of a multiple of 50), not whatever each row happens to be.
     labels = {row_of(top * quarter / 4): top * quarter / 4 for quarter in range(5)}

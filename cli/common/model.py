@@ -1,7 +1,9 @@
-"""What `watch` knows: a rolling window of readings per heater, the figures derived from it, and the keys.
+"""What `watch` knows: the readings per heater (the last minute as read, hours of them downsampled), the figures
+derived from them, and the keys.
 
 Pure data, no I/O and no rich: the live view, the plain-line output and the tests all read the same numbers.
-Readings arrive about every 10 ms, so adding one must be cheap: it appends to a deque and trims the front.
+Readings arrive about every 10 ms, so adding one must be cheap: it appends to a deque, trims the front and updates
+a bucket (`history.HeaterHistory`, whose docstring states the memory bound).
 
 `WatchControls` turns key presses into actions (set targets, fan, a G-code line, quit) without touching the
 printer: every target is checked here, with the limits `set` uses, so a refused one becomes a notice in the view
@@ -21,12 +23,15 @@ from marlin_aio import HeaterLimits, TemperatureReading
 from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
 from marlin_aio.protocol import DEFAULT_LIMITS, HEATER_NAMES, check_target, command_code, heater_name
 
+from .history import HeaterHistory, Point
 from .keys import PASTE
 
 __all__ = [
     "HEATER_NAMES",
+    "LATENCY_WINDOW_S",
     "PRESET_KEYS",
     "STEP_CELSIUS",
+    "WINDOWS_S",
     "Action",
     "HeaterStatus",
     "LinkHealth",
@@ -57,6 +62,11 @@ class HeaterStatus:
     eta_s: float | None
 
 
+#: The footer's latency figures are of the round trips answered in this many seconds up to the latest: recent
+#: enough that a slow G28 stops being the "worst" soon after, long enough to hold a thousand polls.
+LATENCY_WINDOW_S = 10.0
+
+
 @dataclass(frozen=True, slots=True)
 class LinkHealth:
     """The footer: how well the link is doing over the last window (the figures `watch` shows; the library's own
@@ -68,27 +78,44 @@ class LinkHealth:
     readings: int
     timeouts: int
     errors: int
+    latency_window_s: float = LATENCY_WINDOW_S  # the span of the latency figures
+
+
+#: The chart's windows the `w` key steps through (with `--window`'s own, if it is none of these).
+WINDOWS_S = (60.0, 600.0, 3600.0, 6 * 3600.0)
+_LATENCIES_KEPT = 10_000  # 10 s at 1,000 Hz: a bound on memory whatever the poll rate
 
 
 class WatchModel:
-    """Readings of the last `window_s` seconds, per heater, and the figures `watch` shows.
+    """The readings per heater (`HeaterHistory`: up to 12 hours), the chart's window, and the figures `watch`
+    shows.
 
     Args:
-        window_s: how much history the chart shows.
+        window_s: how much history the chart shows at first; `next_window` steps it through `WINDOWS_S`.
         tolerance_c: a heater within this of its target is "holding".
         rate_window_s: the span the heating rate is measured over (short enough to follow, long enough to
             smooth the 0.01 C steps of M105).
+        latency_window_s: the span of the footer's latency figures.
     """
 
-    def __init__(self, window_s: float = 60.0, tolerance_c: float = 2.0, rate_window_s: float = 3.0) -> None:
+    def __init__(
+        self,
+        window_s: float = 60.0,
+        tolerance_c: float = 2.0,
+        rate_window_s: float = 3.0,
+        latency_window_s: float = LATENCY_WINDOW_S,
+    ) -> None:
         self.window_s = window_s
+        self.windows = tuple(sorted({*WINDOWS_S, window_s}))
         self.tolerance_c = tolerance_c
         self.rate_window_s = rate_window_s
-        # time, actual, target per heater key: parallel tuples in one deque keep appends cheap
-        self.series: dict[str, deque[tuple[float, float, float | None]]] = {}
+        self.latency_window_s = latency_window_s
+        self.history: dict[str, HeaterHistory] = {}
+        # The last minute of (time, actual, target) per heater key, as read: each history's `raw`.
+        self.series: dict[str, deque[Point]] = {}
         self._power: dict[str, int | None] = {}
         self._poll_times: deque[float] = deque()
-        self._latencies: deque[tuple[float, float]] = deque()
+        self._latencies: deque[tuple[float, float]] = deque(maxlen=_LATENCIES_KEPT)
         self.readings = 0
         self.timeouts = 0
         self.errors = 0
@@ -101,14 +128,12 @@ class WatchModel:
         self.readings += 1
         self.latest_time = now
         self.latest = reading
-        horizon = now - self.window_s
         for key, heater in reading.temperatures.heaters.items():
-            series = self.series.get(key)
-            if series is None:
-                series = self.series[key] = deque()
-            series.append((now, heater.actual, heater.target))
-            while series and series[0][0] < horizon:
-                series.popleft()
+            history = self.history.get(key)
+            if history is None:
+                history = self.history[key] = HeaterHistory()
+                self.series[key] = history.raw
+            history.add(now, heater.actual, heater.target)
             self._power[key] = heater.power
         if reading.source == "poll":
             self._poll_times.append(now)
@@ -116,10 +141,21 @@ class WatchModel:
                 self._poll_times.popleft()
 
     def add_latency(self, time_s: float, latency_s: float) -> None:
-        """Record one command round trip (for the footer's median and worst)."""
+        """Record one command round trip answered at `time_s` (for the footer's median and worst)."""
         self._latencies.append((time_s, latency_s))
-        while self._latencies and self._latencies[0][0] < time_s - self.window_s:
+        while self._latencies[0][0] < time_s - self.latency_window_s:
             self._latencies.popleft()
+
+    def next_window(self) -> float:
+        """Step the chart's window to the next of `windows` (after the longest, the shortest); return it."""
+        later = [window for window in self.windows if window > self.window_s]
+        self.window_s = later[0] if later else self.windows[0]
+        return self.window_s
+
+    def points(self, key: str, start_s: float, column_s: float) -> list[Point]:
+        """Heater `key`'s readings from `start_s` on, for a chart `column_s` seconds a column
+        (`HeaterHistory.points`)."""
+        return self.history[key].points(start_s, column_s)
 
     def heater_keys(self) -> list[str]:
         """The heaters to show: the hotends first, then the others in the order the printer reports them.
@@ -158,21 +194,25 @@ class WatchModel:
             eta = (actual - target) / -rate if rate and rate < -0.01 else None
         return HeaterStatus(key, heater_name(key), actual, target, power_percent, rate, state, eta)
 
-    def _rate(self, series: deque[tuple[float, float, float | None]], now: float) -> float | None:
-        # Compare with the oldest sample inside the rate window; readings are in time order.
+    def _rate(self, series: deque[Point], now: float) -> float | None:
+        # Compare with the oldest sample inside the rate window; readings are in time order. From the newest end:
+        # the rate window is 3 s of the minute kept, so this reads a twentieth of it.
         start = now - self.rate_window_s
         first = None
-        for sample in series:
-            if sample[0] >= start:
-                first = sample
+        for sample in reversed(series):
+            if sample[0] < start:
                 break
+            first = sample
         if first is None or now - first[0] < 0.5:
             return None
         return (series[-1][1] - first[1]) / (now - first[0])
 
     def link(self) -> LinkHealth:
-        """Footer figures: polls in the last second, latency median and worst over the window."""
-        latencies = [latency for _, latency in self._latencies]
+        """Footer figures: polls in the last second; the median and worst of the round trips answered in the
+        `latency_window_s` up to the latest reading (or round trip), so one slow command ages out."""
+        newest = max(self.latest_time or float("-inf"), self._latencies[-1][0] if self._latencies else float("-inf"))
+        horizon = newest - self.latency_window_s
+        latencies = [latency for answered_s, latency in self._latencies if answered_s >= horizon]
         return LinkHealth(
             polls_per_s=float(len(self._poll_times)),
             latency_median_ms=statistics.median(latencies) * 1000 if latencies else None,
@@ -180,6 +220,7 @@ class WatchModel:
             readings=self.readings,
             timeouts=self.timeouts,
             errors=self.errors,
+            latency_window_s=self.latency_window_s,
         )
 
 
@@ -313,6 +354,7 @@ class WatchControls:
             *presets,
             "f fan",
             ": command",
+            "w window",
             "q quit",
         ]
 
@@ -333,6 +375,9 @@ class WatchControls:
         key = key.lower()
         if key == "q":
             return Quit()
+        if key == "w":
+            model.next_window()  # what the chart shows, nothing the printer is told
+            return None
         if key in _PROMPTS:
             self._open(key)
             return None

@@ -3,8 +3,14 @@
 Nothing here touches the printer or the terminal; tests render into `Console(record=True, width=...)`.
 Everything that can carry the printer's or the user's text (heater names, the firmware's name, the port, a
 reply) is a `rich.text.Text`, which reads no markup and no emoji codes: `Cap:REPEAT:0` stays as it is.
-Every part is laid out for the width it is given, from 40 columns up: the table takes the widest of its layouts
+Every part is laid out for the width it is given, from 30 columns up: the table takes the widest of its layouts
 that fits, and the lines made of several parts (footer, legend, key help) break between parts, never inside one.
+Given a height too, the view gives way in an order: the chart first, then the footer and the key help shorten,
+so the key help (how to quit) is always on screen.
+
+Over 400 lines because the parts of the view are laid out together: the rows the chart gets, and which form of
+the footer and the key help fits, depend on what the table, the footer, a reply and the key help take at the same
+width, so they are measured where they are drawn.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from rich.text import Text
 
 from marlin_aio import TemperatureReading
 
-from .chart import Curve, flow, heater_colour, legend, time_chart
+from .chart import Curve, flow, heater_colour, legend, plot_columns, time_chart
 from .model import HeaterStatus, LinkHealth, WatchControls, WatchModel, heater_name
 
 __all__ = [
@@ -33,6 +39,7 @@ __all__ = [
     "plain_line",
     "table_lines",
     "watch_view",
+    "window_label",
 ]
 
 _STATE_STYLE = {"heating": "bold red", "cooling": "cyan", "holding": "green", "off": "dim"}
@@ -180,38 +187,70 @@ def heater_table(statuses: list[HeaterStatus], width: int | None = None) -> Tabl
     return table
 
 
+def window_label(window_s: float) -> str:
+    """A chart's window as its time axis says it: `60 s`, `10 min`, `1 h`, `6 h`."""
+    if window_s >= 3600 and window_s % 3600 == 0:
+        return f"{window_s / 3600:g} h"
+    if window_s >= 120 and window_s % 60 == 0:
+        return f"{window_s / 60:g} min"
+    return f"{window_s:g} s"
+
+
 def chart(model: WatchModel, width: int = 72, height: int = 12, now: float | None = None) -> Text:
     """A chart of the last `model.window_s` seconds up to `now` (default: the latest reading): actual (•) and
-    target (─) of each hotend, the bed and chamber."""
+    target (─) of each hotend, the bed and chamber. Longer windows draw from the downsampled history, each column
+    spanning the range of its readings."""
     end = now if now is not None else (model.latest_time or 0.0)
-    labels = (f"-{model.window_s:.0f} s", "now")
-    return time_chart(_curves(model), end - model.window_s, end, width=width, height=height, time_labels=labels)
+    start = end - model.window_s
+    column_s = model.window_s / plot_columns(width)
+    curves = [Curve(heater_name(key), model.points(key, start, column_s)) for key in _chart_keys(model)]
+    labels = (f"-{window_label(model.window_s)}", "now")
+    return time_chart(curves, start, end, width=width, height=height, time_labels=labels)
+
+
+def _chart_keys(model: WatchModel) -> list[str]:
+    return [key for key in model.heater_keys() if key[0] in "TBC"]
 
 
 def _curves(model: WatchModel) -> list[Curve]:
-    return [Curve(heater_name(key), model.series[key]) for key in model.heater_keys() if key[0] in "TBC"]
+    """The chart's curves by name only (for the legend's size)."""
+    return [Curve(heater_name(key), ()) for key in _chart_keys(model)]
 
 
-def footer(port: str, firmware: str, link: LinkHealth, width: int | None = None, quit_hint: str = "q quits") -> Text:
-    """The status line: port, firmware, polls per second, latency, and counts of timeouts and errors.
+def footer(
+    port: str,
+    firmware: str,
+    link: LinkHealth,
+    width: int | None = None,
+    quit_hint: str = "q quits",
+    *,
+    compact: bool = False,
+) -> Text:
+    """The status line: port, firmware, polls per second, the latency of the recent round trips (median, and the
+    worst of the last 10 s), and counts of timeouts and errors.
 
     Given a `width`, it breaks between its parts rather than inside one; `quit_hint` ends it (empty: left out,
-    when the key help line below says how to quit).
+    when the key help line below says how to quit). `compact` (a short terminal): polls per second, the median,
+    and the timeouts and errors only if there are any.
     """
-    latency = (
-        "-"
-        if link.latency_median_ms is None
-        else f"{link.latency_median_ms:.1f} ms median, {link.latency_worst_ms or 0:.1f} worst"
-    )
     style = "bold red" if link.timeouts or link.errors else "dim"
-    parts = [
-        Text(port, style="bold"),
-        # "Marlin 2.1.2.4 (Jan  1 2024 12:00:00)": the build date only crowds the line.
-        Text(firmware.split(" (")[0], style="dim"),
-        Text(f"{link.polls_per_s:.0f} polls/s"),
-        Text(f"latency {latency}"),
-        Text(f"{link.timeouts} timeouts  {link.errors} errors", style=style),
-    ]
+    median = "-" if link.latency_median_ms is None else f"{link.latency_median_ms:.1f} ms"
+    if compact:
+        parts = [Text(f"{link.polls_per_s:.0f} polls/s"), Text(f"latency {median}")]
+        if link.timeouts or link.errors:
+            parts.append(Text(f"{link.timeouts} timeouts  {link.errors} errors", style=style))
+    else:
+        parts = [
+            Text(port, style="bold"),
+            # "Marlin 2.1.2.4 (Jan  1 2024 12:00:00)": the build date only crowds the line.
+            Text(firmware.split(" (")[0], style="dim"),
+            Text(f"{link.polls_per_s:.0f} polls/s"),
+            Text(f"latency {median} median" if link.latency_median_ms is not None else "latency -"),
+        ]
+        if link.latency_worst_ms is not None:
+            # Its own part, so a narrow footer breaks before it; "of 10 s": a slow G28 is not the worst for ever.
+            parts.append(Text(f"worst {link.latency_worst_ms:.1f} ms of {link.latency_window_s:g} s"))
+        parts.append(Text(f"{link.timeouts} timeouts  {link.errors} errors", style=style))
     if quit_hint:
         parts.append(Text(quit_hint, style="dim"))
     return flow(parts, width)
@@ -219,12 +258,21 @@ def footer(port: str, firmware: str, link: LinkHealth, width: int | None = None,
 
 def controls_view(controls: WatchControls, width: int | None = None) -> Text:
     """Under the chart: the last action's outcome (a reply, or an error in red), the input line, the key help."""
+    text = _notice_and_prompt(controls)
+    text.append_text(_key_helps(controls, width)[0])
+    return text
+
+
+def _notice_and_prompt(controls: WatchControls, notice_lines: int | None = None) -> Text:
+    """The last action's outcome and the open input line, each line ended; of a reply's lines, the last
+    `notice_lines` only (None: all of them)."""
     text = Text()
     notice = controls.notice
     if notice is not None:
         style = "bold red" if notice.error else "bold"
         text.append(f"error: {notice.title}" if notice.error else notice.title, style=style)
-        for line in notice.lines:
+        lines = notice.lines if notice_lines is None else notice.lines[max(len(notice.lines) - notice_lines, 0) :]
+        for line in lines:
             text.append("\n  " + line)
         text.append("\n")
     if controls.prompt is not None:
@@ -232,7 +280,43 @@ def controls_view(controls: WatchControls, width: int | None = None) -> Text:
         text.append(controls.buffer)
         text.append("_", style="blink")  # a cursor: the terminal's own is hidden while the view is live
         text.append("\n")
-    text.append_text(flow([_help_item(item) for item in controls.help_items()], width))
+    return text
+
+
+def _key_helps(controls: WatchControls, width: int | None) -> list[Text]:
+    """The key help, longest first: every item, broken into lines of `width`; the keys alone on one line
+    (`h b o +/- 1-4 f : w  q quit`); then only how to leave (the input line's Enter and Esc, or q)."""
+    items = controls.help_items()
+    helps = [flow([_help_item(item) for item in items], width)]
+    if controls.prompt is not None:
+        helps.append(flow([_help_item(item) for item in items[:2]], width))
+        return helps
+    if controls.keys_enabled:
+        helps.append(_keys_only(items))
+    # "Ctrl-C quits (keys need a terminal on stdin)": its first words are what must stay.
+    helps.append(_help_item(items[-1].split(" (")[0]))
+    return helps
+
+
+def _keys_only(items: list[str]) -> Text:
+    """The keys of `items` without their words, runs of digits as one range (1-2), the last item (q quit) whole."""
+    keys = [item.partition(" ")[0] for item in items[:-1]]
+    merged: list[str] = []
+    run: list[str] = []
+    for key in [*keys, ""]:
+        if key.isdigit() and len(key) == 1 and (not run or int(key) == int(run[-1]) + 1):
+            run.append(key)
+            continue
+        if run:
+            merged.append(run[0] if len(run) == 1 else f"{run[0]}-{run[-1]}")
+            run = []
+        if key.isdigit() and len(key) == 1:
+            run.append(key)
+        elif key:
+            merged.append(key)
+    text = Text(" ".join(merged), style="bold")
+    text.append("  ")
+    text.append_text(_help_item(items[-1]))
     return text
 
 
@@ -257,30 +341,59 @@ def watch_view(
 ) -> Group:
     """The whole live view: heater table, chart, footer, and (with `controls`) the reply area and the key help.
 
-    Everything is laid out for `width` columns (40 and up). Given the terminal's `height`, the chart takes what
-    the other parts leave (up to 30 rows) instead of `chart_height`, and none at all when fewer than 4 are left.
+    Everything is laid out for `width` columns (30 and up). Given the terminal's `height`, the chart takes what
+    the other parts leave (up to 30 rows) instead of `chart_height`, and none at all when fewer than 4 are left;
+    on a terminal too short even for the rest, the footer and the key help shorten (`_SHORTENINGS`), so the keys
+    and how to quit stay on screen (30x12 and up).
     """
     statuses = [model.status(key) for key in model.heater_keys()]
     quit_hint = "q quits" if controls is None else ""
-    bottom = footer(port, firmware, model.link(), width, quit_hint=quit_hint)
-    under = controls_view(controls, width) if controls is not None else None
+    link = model.link()
+    footers: list[Text | None] = [
+        footer(port, firmware, link, width, quit_hint=quit_hint),
+        footer(port, firmware, link, width, quit_hint=quit_hint, compact=True),
+        None,
+    ]
+    helps = _key_helps(controls, width) if controls is not None else []
+    bottom, under = footers[0], controls_view(controls, width) if controls is not None else None
     if height is not None:
-        # table, a blank line, (the chart,) its time axis and legend, a blank line, the footer
-        used = table_lines(statuses, width) + 2 + _lines(legend(_curves(model), width), width)
-        used += 1 + _lines(bottom, width)
-        if under is not None:
-            used += _lines(under, width)
-        # One line spare: the cursor's line after the view. The chart gives way first: on a short terminal the
-        # footer, a reply and the key help (how to quit) stay on screen and the chart goes.
-        room = height - used - 1
-        chart_height = min(room, 30) if room >= 4 else 0
+        # One line spare: the cursor's line after the view. Above the chart: the table and a blank line.
+        room = height - 1 - table_lines(statuses, width) - 1
+        for footer_index, help_index, notice_lines in _SHORTENINGS:
+            bottom = footers[footer_index]
+            under = None
+            if controls is not None:
+                under = _notice_and_prompt(controls, notice_lines)
+                under.append_text(helps[min(help_index, len(helps) - 1)])
+            left = room - (_lines(bottom, width) if bottom is not None else 0)
+            left -= _lines(under, width) if under is not None else 0
+            if left >= 0:
+                break
+        # The chart's own time axis and legend, and a blank line under it.
+        left -= 2 + _lines(legend(_curves(model), width), width)
+        chart_height = min(left, 30) if left >= 4 else 0
     parts: list[RenderableType] = [heater_table(statuses, width), Text("")]
     if chart_height:
         parts += [chart(model, width=width, height=chart_height), Text("")]
-    parts.append(bottom)
+    if bottom is not None:
+        parts.append(bottom)
     if under is not None:
         parts.append(under)
     return Group(*parts)
+
+
+# How the parts under the table give way on a short terminal, after the chart, one step at a time: (footer: full,
+# compact, none; key help: full, keys only, how to quit; a reply's lines: all, the last 2, none). The key help
+# goes last: without it the user is left not knowing how to get out.
+_SHORTENINGS: tuple[tuple[int, int, int | None], ...] = (
+    (0, 0, None),
+    (1, 0, None),
+    (1, 1, None),
+    (2, 1, None),
+    (2, 1, 2),
+    (2, 2, 2),
+    (2, 2, 0),
+)
 
 
 def plain_line(model: WatchModel, wall_time_s: float | None = None) -> str:

@@ -106,12 +106,20 @@ def _update_link_stats(model: WatchModel, printer: marlin_aio.Printer, since: fl
     # watch has at most one command in flight (its poll), so a reset fails at most one. The larger count is what
     # went wrong without counting a reset twice, nor missing one that came between two polls.
     model.errors = baseline.model_errors + max(failures, resets)
-    newest = since
-    for answered_s, latency_s in printer.round_trips:
-        if answered_s > since:
-            model.add_latency(answered_s, latency_s)
-            newest = answered_s
-    return newest
+    return _copy_round_trips(model, printer.round_trips, since)
+
+
+def _copy_round_trips(model: WatchModel, round_trips: deque[tuple[float, float]], since: float) -> float:
+    """Hand the round trips answered after `since` to the model, oldest first; return the newest one's time."""
+    # Polls included, the deque holds up to 8,192 of them: read back only to the last one copied.
+    fresh = []
+    for answered_s, latency_s in reversed(round_trips):
+        if answered_s <= since:
+            break
+        fresh.append((answered_s, latency_s))
+    for answered_s, latency_s in reversed(fresh):
+        model.add_latency(answered_s, latency_s)
+    return fresh[0][0] if fresh else since
 
 
 def _json_status(model: WatchModel) -> str:
@@ -413,11 +421,10 @@ async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console:
         # For the detail view's latency figures: the replies each open printer got since the last redraw.
         for farm_printer in printers:
             if farm_printer.printer is not None:
-                model, since = models[farm_printer.name], answered_since[farm_printer.name]
-                for answered_s, latency_s in farm_printer.printer.round_trips:
-                    if answered_s > since:
-                        model.add_latency(answered_s, latency_s)
-                        answered_since[farm_printer.name] = answered_s
+                name = farm_printer.name
+                answered_since[name] = _copy_round_trips(
+                    models[name], farm_printer.printer.round_trips, answered_since[name]
+                )
 
     def view(keys_enabled: bool) -> Group:
         copy_round_trips()

@@ -16,6 +16,7 @@ import marlin_aio
 from marlin_aio.protocol import DEFAULT_LIMITS
 
 from ..common.connect import ConnectOptions, Exit
+from ..common.history import BUCKETS, LEVELS_S
 from ..common.options import (
     AskPasswordOption,
     BaudOption,
@@ -39,19 +40,26 @@ if TYPE_CHECKING:
 
 __all__ = ["WATCH_HELP", "watch"]
 
+#: The longest window the history holds: its coarsest buckets (12 h).
+MAX_WINDOW_S = LEVELS_S[-1] * BUCKETS
+
 # Typer keeps single line breaks in help paragraphs, so each paragraph is one string.
 WATCH_HELP = "\n\n".join(
     (
-        "Live view of every heater: table, chart of the last minute, link statistics. q or Ctrl-C quits.",
+        "Live view of every heater: table, chart of the last minute (w steps it to 10 min, 1 h, 6 h and back; "
+        "--window sets where it starts), link statistics. q or Ctrl-C quits.",
         "Keys set targets while watching: h hotend and b bed (type the degrees, Enter; Esc cancels), o every "
         "heater off, + and - step the last one chosen by 5 C, 1-9 the presets in the presets file's order (by "
         "default 1 PLA 200/60 C, 2 PETG 240/80 C, 3 ABS 250/100 C, 4 cooldown; marlin-temp presets lists them), f "
         "the fan (percent), and : sends one G-code line, its reply shown under the chart. Targets are checked "
         "against --max-hotend and --max-bed as in set; one refused is shown in the view and nothing is sent. "
-        "Narrow terminals (down to 40 columns) get a compact table.",
+        "Narrow terminals (down to 40 columns) get a compact table; short ones lose the chart first, then the "
+        "footer and the key help shorten (down to 30x12 the keys stay on screen).",
         "With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and "
         "power, and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints "
         "one plain line per refresh instead (or JSON lines with --json), and q is the only key.",
+        "The footer's latency is of the recent round trips, polls included: the median and the worst of the "
+        "last 10 s, so a slow command (G28) stops being the worst 10 s after it.",
         "The footer counts timeouts and errors (failed commands, board resets) from the moment the connection is "
         "established: a board that resets when the port opens, printing 'start' and its banner during the "
         "handshake, is starting up, not failing.",
@@ -100,7 +108,17 @@ def watch(
         ),
     ] = None,
     refresh: Annotated[float, typer.Option("--refresh", help="Seconds between screen redraws.", min=0.05)] = 1.0,
-    window: Annotated[float, typer.Option("--window", help="Seconds of history in the chart.", min=5)] = 60.0,
+    window: Annotated[
+        float,
+        typer.Option(
+            "--window",
+            help="Seconds of history the chart starts with (default 60; up to 43200, 12 h); the w key steps it "
+            "through 1 min, 10 min, 1 h and 6 h.",
+            min=5,
+            max=MAX_WINDOW_S,
+            show_default=False,
+        ),
+    ] = 60.0,
     tolerance: Annotated[
         float, typer.Option("--tolerance", help="Within this many C a heater is holding.", min=0)
     ] = 2.0,

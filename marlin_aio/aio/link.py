@@ -93,7 +93,8 @@ class Link:
         self._halt_notified: PrinterHaltedError | None = None
         #: Set by every batch of lines received while it is not None (the handshake waits for the banner to end).
         self.line_seen: asyncio.Event | None = None
-        #: (answered at, round trip) of the latest replies, on the loop's clock: for latency figures.
+        #: (answered at, round trip) of the latest replies, the poller's included, on the loop's clock: for latency
+        #: figures.
         self.round_trips: deque[tuple[float, float]] = deque(maxlen=8192)
 
     # ------------------------------------------------------------------------------------------- lifecycle
@@ -305,6 +306,10 @@ class Link:
         for command, outcome in output.finished:
             callback = self._callbacks.pop(command.id, None)
             if callback is not None:
+                # The poller's M105s come this way: recorded too, or the latency figures would only ever show the
+                # handshake and the callers' commands (watch's footer did). Inline, not `latency_s`: 100 Hz path.
+                if isinstance(outcome, Reply):
+                    self.round_trips.append((outcome.answered_s, outcome.answered_s - outcome.sent_s))
                 callback(outcome)
                 continue
             future = self._waiters.get(command.id)

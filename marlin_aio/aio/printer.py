@@ -762,7 +762,8 @@ class Printer:
 
     @property
     def round_trips(self) -> deque[tuple[float, float]]:
-        """(answered at, round trip) of the latest replies (up to 8,192), on the loop's clock: latency figures."""
+        """(answered at, round trip) of the latest replies (up to 8,192), polls included, on the loop's clock:
+        latency figures."""
         return self._link.round_trips
 
     @property
