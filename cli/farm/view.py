@@ -28,7 +28,7 @@ from rich.text import Text
 
 from marlin_aio.farm.supervisor import FarmPrinter
 
-from ..common.model import WatchModel, heater_name
+from ..common.model import WatchModel, heater_name, target_text
 from ..common.render import watch_view
 
 __all__ = [
@@ -46,6 +46,7 @@ __all__ = [
 
 _STATE_STYLE = {
     "heating": "bold red",
+    "heating?": "red",
     "cooling": "cyan",
     "holding": "green",
     "idle": "dim",
@@ -58,7 +59,7 @@ _ERROR_CHARS = 60  # of the last error in a plain line; the live view cuts it to
 
 @dataclass(frozen=True, slots=True)
 class HeaterCell:
-    """One heater of a row: its key (T, B, T0...), the name shown, actual and target (None or 0: off)."""
+    """One heater of a row: its key (T, B, T0...), the name shown, actual and target (0: off; None: unknown)."""
 
     key: str
     name: str
@@ -66,8 +67,9 @@ class HeaterCell:
     target: float | None
 
     def text(self, decimals: int = 1) -> str:
-        """`204.6/210`, or `25.0/off` with no target (`205/210` and `25/off` with no decimals)."""
-        return f"{self.actual:.{decimals}f}/{'off' if not self.target else f'{self.target:.0f}'}"
+        """`204.6/210`, `25.0/off` with a target of 0, `25.0/?` when the printer does not report its target
+        (`205/210` and `25/off` with no decimals)."""
+        return f"{self.actual:.{decimals}f}/{target_text(self.target)}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,7 +144,9 @@ def farm_row(number: int, farm_printer: FarmPrinter, model: WatchModel, now_s: f
         heaters = tuple(HeaterCell(s.key, s.name, s.actual, s.target) for s in statuses)
         states = {s.state for s in statuses}
         # The state that asks most of the user's attention names the printer.
-        state = next((name for name in ("heating", "cooling", "holding") if name in states), "idle")
+        # "heating?" (no target reported, power on) is not idle: a printer of Repetier-style reports heats unseen.
+        attention = ("heating", "heating?", "cooling", "holding")
+        state = next((name for name in attention if name in states), "idle")
         if print_state is not None:
             state = print_state
     return FarmRow(

@@ -127,16 +127,24 @@ def heating_text(wait: HeatWait, reading: marlin_aio.TemperatureReading | None) 
     return f"{verb} {name} {heater.actual:.0f}/{target_text} C"
 
 
+def _target_g(target: float | None) -> str:
+    return "?" if target is None else f"{target:g}"
+
+
 def heaters_on(reading: marlin_aio.TemperatureReading | None) -> list[str]:
-    """The heaters of `reading` that have a target, each as "hotend 198.2/200 C" (none for no reading): what every
-    command that ends with heaters on names (`heaters_on_text` here, `heaters.command.heaters_left_on`)."""
+    """The heaters of `reading` that have a target (or draw power with none reported), each as "hotend 198.2/200 C"
+    (none for no reading): what every command that ends with heaters on names (`heaters_on_text` here,
+    `heaters.command.heaters_left_on`)."""
     if reading is None:
         return []
     heaters = reading.temperatures.heaters
     return [
-        f"{marlin_aio.protocol.heater_name(key)} {heater.actual:.1f}/{heater.target:g} C"
+        f"{marlin_aio.protocol.heater_name(key)} {heater.actual:.1f}/{_target_g(heater.target)} C"
         for key, heater in heaters.items()
-        if heater.target and key[:1] in "TBC" and not (key == "T" and "T0" in heaters)  # T is one of T0, T1...
+        # A target the report does not carry (Repetier style) is unknown, not off: a heater drawing power is on.
+        if (heater.target or (heater.target is None and (heater.power or 0) > 0))
+        and key[:1] in "TBC"
+        and not (key == "T" and "T0" in heaters)  # T is one of T0, T1...
     ]
 
 
@@ -146,7 +154,8 @@ def heaters_on_text(reading: marlin_aio.TemperatureReading | None) -> str | None
 
 
 def temperatures_text(reading: marlin_aio.TemperatureReading | None) -> str:
-    """Every heater of the reading as "hotend 187.2/200 °C   bed 60.0/60 °C" ("off" for no target)."""
+    """Every heater of the reading as "hotend 187.2/200 °C   bed 60.0/60 °C" ("off" for a target of 0, "?" when the
+    printer does not report it)."""
     if reading is None:
         return "temperatures: waiting for a reading"
     heaters = reading.temperatures.heaters
@@ -154,7 +163,7 @@ def temperatures_text(reading: marlin_aio.TemperatureReading | None) -> str:
     for key, heater in heaters.items():
         if key[:1] not in ("T", "B", "C") or (key == "T" and "T0" in heaters):
             continue  # the active hotend appears again under its number
-        target = "off" if not heater.target else f"{heater.target:.0f}"
+        target = "?" if heater.target is None else "off" if not heater.target else f"{heater.target:.0f}"
         parts.append(f"{marlin_aio.protocol.heater_name(key)} {heater.actual:.1f}/{target} °C")
     return "   ".join(parts)
 
