@@ -223,3 +223,11 @@ async def test_log_and_watch_have_each_hotends_power(tmp_path: Path, repetier: b
     assert watched.exit_code == Exit.OK, watched.output
     heaters = json.loads(watched.stdout.splitlines()[-1])["heaters"]
     assert heaters["hotend 0"]["power_percent"] == 0.0 and heaters["hotend 1"]["power_percent"] > 0
+
+
+def test_watch_help_says_an_unknown_target_is_not_off() -> None:
+    result = runner.invoke(app, ["watch", "--help"])
+    assert result.exit_code == 0
+    assert "shows as ?, and its heater as heating? while it draws power, else unknown: never off" in " ".join(
+        result.output.split()
+    )

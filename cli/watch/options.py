@@ -50,6 +50,8 @@ WATCH_HELP = "\n\n".join(
         "With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and "
         "power, and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints "
         "one plain line per refresh instead (or JSON lines with --json), and q is the only key.",
+        "A target the printer does not report (Repetier-style reports, set by another program) shows as ?, and "
+        "its heater as heating? while it draws power, else unknown: never off.",
         "The footer counts timeouts and errors (failed commands, board resets) from the moment the connection is "
         "established: a board that resets when the port opens, printing 'start' and its banner during the "
         "handshake, is starting up, not failing.",
