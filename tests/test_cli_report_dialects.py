@@ -197,6 +197,12 @@ def test_each_hotends_power_is_parsed_into_its_own_reading() -> None:
     assert repetier.heaters["T1"] == HeaterReading(28.41, None, 127)
 
 
+def test_the_farm_telemetry_has_each_hotends_power() -> None:
+    heaters = telemetry_payload(reading(GOLDEN_TWO_HOTENDS[3:]))["heaters"]
+    assert set(heaters) == {"hotend 0", "hotend 1", "bed"}  # by number only: "T" repeats the active one
+    assert heaters["hotend 0"]["power_percent"] == 0.0 and heaters["hotend 1"]["power_percent"] == 100.0
+
+
 @pytest.mark.parametrize("repetier", [False, True], ids=["marlin", "repetier"])
 async def test_log_and_watch_have_each_hotends_power(tmp_path: Path, repetier: bool) -> None:
     config = SimulatorConfig(extruders=2, repetier_targets=repetier)
