@@ -12,6 +12,10 @@ A row keeps its number, heaters and state whole; the link column (the last one, 
 shortened, with an ellipsis, to what the width leaves. At 40 columns and less a long name is cut, then the link and
 the print progress fold into the state, and the key line takes a shorter form that still says how to quit. A
 printer whose link is down shows no temperatures: its last ones would read as if they were current.
+
+Over 400 lines because the rows, the ways the table fits a width, the key lines and the keys' meaning are read
+together: what the narrow table folds into the state and what the key line keeps both answer "what is left at 40
+columns", and the keys the help names are the ones `FarmKeys` handles; the tests render and press them side by side.
 """
 
 from __future__ import annotations
