@@ -45,7 +45,16 @@ __all__ = [
     "WatchControls",
     "WatchModel",
     "heater_name",
+    "target_text",
 ]
+
+
+def target_text(target: float | None) -> str:
+    """A target as the views show it: `200`, `off` for 0, and `?` when the printer does not say (Repetier-style
+    reports carry none, and no `TargetExtr0:` line has told this client one): an unknown target is not off."""
+    if target is None:
+        return "?"
+    return "off" if target == 0 else f"{target:.0f}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,7 +67,7 @@ class HeaterStatus:
     target: float | None
     power_percent: float | None
     rate_c_per_s: float | None
-    state: str  # "heating", "cooling", "holding", "off"
+    state: str  # "heating", "cooling", "holding", "off"; with no target known "heating?" (powered) or "unknown"
     eta_s: float | None
 
 
@@ -181,7 +190,14 @@ class WatchModel:
         rate = self._rate(series, now)
         power = self._power.get(key)
         power_percent = None if power is None else min(max(power / 127 * 100, 0.0), 100.0)
-        if not target:
+        if target is None:
+            # No target known (a Repetier-style report, and no target line seen): it may be heating to anything, so
+            # never "off"; the power (or a rising temperature) says whether it is on, with a "?" for the unknown goal.
+            rising = rate is not None and rate > 0.05
+            falling = rate is not None and rate < -0.05
+            state = "cooling" if falling else "heating?" if rising or (power or 0) > 0 else "unknown"
+            eta = None
+        elif not target:
             state = "off" if rate is None or rate > -0.05 else "cooling"
             eta = None
         elif abs(actual - target) <= self.tolerance_c:
@@ -466,6 +482,11 @@ class WatchControls:
 
     def _step(self, delta: float, model: WatchModel) -> Action | None:
         key = "T" if self.stepped == "hotend" else "B"
+        if key in model.series and model.target(key) is None and key not in self._wanted:
+            # A report without targets: stepping from an unknown target would start from 0 and set 5 C.
+            unknown = f"the {self.stepped}'s target is unknown (the printer does not report it)"
+            self.notice = Notice(f"{unknown}: press {self.stepped[0]} and type one")
+            return None
         base = self._base(key, model)
         if delta < 0 and base <= 0:
             self.notice = Notice(f"the {self.stepped} is already off")

@@ -28,7 +28,7 @@ from rich.text import Text
 from marlin_aio import TemperatureReading
 
 from .chart import Curve, flow, heater_colour, legend, plot_columns, time_chart
-from .model import HeaterStatus, LinkHealth, WatchControls, WatchModel, heater_name
+from .model import HeaterStatus, LinkHealth, WatchControls, WatchModel, heater_name, target_text
 
 __all__ = [
     "chart",
@@ -42,7 +42,14 @@ __all__ = [
     "window_label",
 ]
 
-_STATE_STYLE = {"heating": "bold red", "cooling": "cyan", "holding": "green", "off": "dim"}
+_STATE_STYLE = {
+    "heating": "bold red",
+    "cooling": "cyan",
+    "holding": "green",
+    "off": "dim",
+    "heating?": "red",
+    "unknown": "dim",
+}
 
 
 def _fmt(value: float | None, spec: str, unit: str = "") -> str:
@@ -102,7 +109,7 @@ def _cells(status: HeaterStatus, units: bool) -> dict[str, str]:
         return {
             "heater": status.name,
             "actual": _fmt(status.actual, ".1f", " °C"),
-            "target": "off" if not status.target else _fmt(status.target, ".0f", " °C"),
+            "target": target_text(status.target) + (" °C" if status.target else ""),
             "power": _fmt(status.power_percent, ".0f", " %"),
             "rate": _fmt(status.rate_c_per_s, "+.2f", " °C/s"),
             "state": status.state,
@@ -111,7 +118,7 @@ def _cells(status: HeaterStatus, units: bool) -> dict[str, str]:
     return {
         "heater": status.name,
         "actual": _fmt(status.actual, ".1f"),
-        "target": "off" if not status.target else _fmt(status.target, ".0f"),
+        "target": target_text(status.target),
         "power": _fmt(status.power_percent, ".0f"),
         "rate": _fmt(status.rate_c_per_s, "+.2f"),
         "state": status.state,
@@ -402,7 +409,7 @@ def plain_line(model: WatchModel, wall_time_s: float | None = None) -> str:
     parts = []
     for key in model.heater_keys():
         status = model.status(key)
-        target = "off" if not status.target else f"{status.target:.0f}"
+        target = target_text(status.target)
         power = "" if status.power_percent is None else f" {status.power_percent:.0f}%"
         rate = "" if status.rate_c_per_s is None else f" {status.rate_c_per_s:+.2f} C/s"
         parts.append(f"{status.name} {status.actual:.1f}/{target} C{power}{rate} {status.state}")

@@ -8,9 +8,14 @@ is the single-printer view (`common.render.watch_view`) of its model, so both vi
 Every cell is a `rich.text.Text`, never a str rich would read as markup: a printer named `[b]p1` or an error quoting
 `Cap:REPEAT:0` is shown as it is.
 
-A row keeps its name, heaters, state and print progress whole; only the link column (the last one, where an error
-can be long) is shortened, with an ellipsis, to what the width leaves. A printer whose link is down shows no
-temperatures: its last ones would read as if they were current.
+A row keeps its number, heaters and state whole; the link column (the last one, where an error can be long) is
+shortened, with an ellipsis, to what the width leaves. At 40 columns and less a long name is cut, then the link and
+the print progress fold into the state, and the key line takes a shorter form that still says how to quit. A
+printer whose link is down shows no temperatures: its last ones would read as if they were current.
+
+Over 400 lines because the rows, the ways the table fits a width, the key lines and the keys' meaning are read
+together: what the narrow table folds into the state and what the key line keeps both answer "what is left at 40
+columns", and the keys the help names are the ones `FarmKeys` handles; the tests render and press them side by side.
 """
 
 from __future__ import annotations
@@ -28,10 +33,12 @@ from rich.text import Text
 
 from marlin_aio.farm.supervisor import FarmPrinter
 
-from ..common.model import WatchModel, heater_name
+from ..common.model import WatchModel, heater_name, target_text
 from ..common.render import watch_view
 
 __all__ = [
+    "DETAIL_KEYS_HELP",
+    "FARM_KEYS_HELP",
     "FarmKeys",
     "FarmRow",
     "HeaterCell",
@@ -46,6 +53,7 @@ __all__ = [
 
 _STATE_STYLE = {
     "heating": "bold red",
+    "heating?": "red",
     "cooling": "cyan",
     "holding": "green",
     "idle": "dim",
@@ -58,7 +66,7 @@ _ERROR_CHARS = 60  # of the last error in a plain line; the live view cuts it to
 
 @dataclass(frozen=True, slots=True)
 class HeaterCell:
-    """One heater of a row: its key (T, B, T0...), the name shown, actual and target (None or 0: off)."""
+    """One heater of a row: its key (T, B, T0...), the name shown, actual and target (0: off; None: unknown)."""
 
     key: str
     name: str
@@ -66,8 +74,9 @@ class HeaterCell:
     target: float | None
 
     def text(self, decimals: int = 1) -> str:
-        """`204.6/210`, or `25.0/off` with no target (`205/210` and `25/off` with no decimals)."""
-        return f"{self.actual:.{decimals}f}/{'off' if not self.target else f'{self.target:.0f}'}"
+        """`204.6/210`, `25.0/off` with a target of 0, `25.0/?` when the printer does not report its target
+        (`205/210` and `25/off` with no decimals)."""
+        return f"{self.actual:.{decimals}f}/{target_text(self.target)}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,7 +151,9 @@ def farm_row(number: int, farm_printer: FarmPrinter, model: WatchModel, now_s: f
         heaters = tuple(HeaterCell(s.key, s.name, s.actual, s.target) for s in statuses)
         states = {s.state for s in statuses}
         # The state that asks most of the user's attention names the printer.
-        state = next((name for name in ("heating", "cooling", "holding") if name in states), "idle")
+        # "heating?" (no target reported, power on) is not idle: a printer of Repetier-style reports heats unseen.
+        attention = ("heating", "heating?", "cooling", "holding")
+        state = next((name for name in attention if name in states), "idle")
         if print_state is not None:
             state = print_state
     return FarmRow(
@@ -193,58 +204,123 @@ def _cut(text: str, width: int) -> str:
     return text[: max(width - 1, 0)] + "…"
 
 
+@dataclass(frozen=True, slots=True)
+class _TableFit:
+    """One way to fit the farm table: `farm_table` takes the first that fits the width."""
+
+    link: bool  # the link column; without it a row whose link is down says so in its state
+    print: bool  # the print column; without it a printing row's state is its percent
+    name_min: int  # the fewest columns a long printer name is cut to (with an ellipsis)
+
+
+# Widest first: the whole name, then a cut name, then the link folded into the state, then the print progress.
+# The number (the key that opens a printer), the heaters and the state are never cut.
+_FITS = (_TableFit(True, True, 1_000), _TableFit(True, True, 6), _TableFit(False, True, 6), _TableFit(False, False, 4))
+
+
+def _state_cell(row: FarmRow, fit: _TableFit) -> str:
+    state = row.state
+    if not fit.link and not row.link_up:
+        state = "connecting" if row.link == "connecting" else "down"
+    if not fit.print and row.progress is not None and row.state in ("printing", "paused"):
+        state = row.progress if row.state == "printing" else f"paused {row.progress}"
+    return state
+
+
 def farm_table(rows: Sequence[FarmRow], width: int | None = None, selected: int | None = None) -> Table:
     """One row per printer: number, name, each heater's actual/target, state, print progress (when any), link.
 
     Given the `width` to fit, the link column gets what the others leave (at least 4 columns) and a long error
-    in it ends in an ellipsis; nothing else is cut. Below 80 columns the gaps are one space, temperatures whole
-    degrees without "°C" in the headers, and the link says "retry 8 s" for "reconnecting in 8 s". `selected` (an
-    index into `rows`) is shown in reverse video.
+    in it ends in an ellipsis. Below 80 columns the gaps are one space, temperatures whole degrees without "°C" in
+    the headers, and the link says "retry 8 s" for "reconnecting in 8 s". Narrower still (40 columns, 30), a long
+    printer name is cut, then the link column goes (a row whose link is down says "down" as its state), then the
+    print column (a printing row's state is its percent); the number, the heaters and the state are never cut.
+    `selected` (an index into `rows`) is shown in reverse video.
     """
     narrow = width is not None and width < 80
     keys = _heater_keys(rows)
     names = {key: heater_name(key) for key in keys}
-    with_print = any(row.progress is not None for row in rows)
-    columns: list[tuple[str, bool]] = [("#", True), ("printer", False)]
-    columns += [(names[key] if narrow else f"{names[key]} °C", True) for key in keys]
-    columns += [("state", False)]
-    if with_print:
-        columns.append(("print", True))
-    cells: list[list[str]] = []
-    for row in rows:
-        by_key = {cell.key: cell.text(0 if narrow else 1) for cell in row.heaters}
-        line = [str(row.number), row.name, *(by_key.get(key, "-") for key in keys), row.state]
-        if with_print:
-            line.append(row.progress or "-")
-        cells.append(line)
+    any_print = any(row.progress is not None for row in rows)
     gap = 1 if narrow else 2
-    link_width: int | None = None
-    if width is not None:
-        used = sum(
-            max([cell_len(header)] + [cell_len(line[index]) for line in cells])
-            for index, (header, _) in enumerate(columns)
-        )
-        link_width = max(width - used - gap * len(columns), 4)
+    fit, name_width, link_width = _FITS[0], None, None
+    for fit in _FITS:
+        fit_print = any_print and fit.print
+        headers = ["#", "printer", *(names[key] if narrow else f"{names[key]} °C" for key in keys), "state"]
+        headers += ["print"] if fit_print else []
+        cells = [
+            [
+                str(row.number),
+                row.name,
+                *(_heater_text(row, key, narrow) for key in keys),
+                _state_cell(row, fit),
+                *([row.progress or "-"] if fit_print else []),
+            ]
+            for row in rows
+        ]
+        widths = [max([cell_len(h)] + [cell_len(line[i]) for line in cells]) for i, h in enumerate(headers)]
+        if width is None:
+            break
+        others = sum(widths) - widths[1] + gap * (len(headers) - (0 if fit.link else 1)) + (4 if fit.link else 0)
+        name_width = min(widths[1], max(width - others, min(fit.name_min, widths[1])))
+        # The link takes what is left (its 4 columns are counted in `others`); a long error in it is cut.
+        link_width = width - others - name_width + 4 if fit.link else None
+        if others + name_width <= width:
+            break
+    fit_print = any_print and fit.print
     table = Table(box=None, padding=(0, gap, 0, 0), pad_edge=False, header_style="bold", expand=False)
-    for header, right in columns:
+    for header in headers:
+        right = header not in ("printer", "state")
         table.add_column(Text(header), justify="right" if right else "left", no_wrap=True)
-    table.add_column("link", no_wrap=True)
+    if fit.link:
+        table.add_column("link", no_wrap=True)
+    state_index = len(headers) - (2 if fit_print else 1)
     for index, (row, line) in enumerate(zip(rows, cells, strict=True)):
-        link = (
-            row.link if link_width is None else _fit_link(_compact_link(row.link) if narrow else row.link, link_width)
-        )
-        state_index = len(line) - (2 if with_print else 1)
         rendered: list[Text] = []  # Text, not str: a printer's name or a heater's must not be read as markup
         for position, cell in enumerate(line):
             if position == state_index:
-                rendered.append(Text(cell, style=_STATE_STYLE.get(cell, "")))
+                rendered.append(Text(cell, style=_STATE_STYLE.get(row.state, "")))
             elif position == 1:
-                rendered.append(Text(cell, style="bold"))
+                rendered.append(Text(cell if name_width is None else _cut(cell, name_width), style="bold"))
             else:
                 rendered.append(Text(cell))
-        rendered.append(Text(link, style="green" if row.link_up else "bold red"))
+        if fit.link:
+            link = row.link
+            if link_width is not None:
+                link = _fit_link(_compact_link(link) if narrow else link, link_width)
+            rendered.append(Text(link, style="green" if row.link_up else "bold red"))
         table.add_row(*rendered, style="reverse" if index == selected else None)
     return table
+
+
+def _heater_text(row: FarmRow, key: str, narrow: bool) -> str:
+    for cell in row.heaters:
+        if cell.key == key:
+            return cell.text(0 if narrow else 1)
+    return "-"
+
+
+#: The key help of the farm and of a printer's detail, longest first: the first that fits is shown, so the way to
+#: quit is never cut off.
+FARM_KEYS_HELP = (
+    "1-9 or ↑/↓ and Enter: one printer's details   q quits",
+    "1-9 ↑↓ Enter: details  q quits",
+    "1-9 details  q quit",
+    "q quit",
+)
+DETAIL_KEYS_HELP = (
+    "Esc or Backspace: back to the farm   1-9 another printer   q quits",
+    "Esc: back to the farm  1-9 another  q quits",
+    "Esc back  1-9 another  q quit",
+    "Esc back  q quit",
+    "q quit",
+)
+
+
+def _fit_help(variants: Sequence[str], width: int | None) -> str:
+    """The longest of `variants` that fits `width` (the shortest, cut, if none does)."""
+    if width is None:
+        return variants[0]
+    return next((text for text in variants if cell_len(text) <= width), _cut(variants[-1], width))
 
 
 def farm_view(
@@ -263,10 +339,8 @@ def farm_view(
         parts.append(Text(""))
         parts += [Text(_cut(event, width) if width else event, style="dim") for event in events]
     parts.append(Text(""))
-    if keys_enabled:
-        help_text = "1-9 or ↑/↓ and Enter: one printer's details   q quits"
-    else:
-        help_text = "Ctrl-C quits (keys need a terminal on stdin)"
+    no_keys = "Ctrl-C quits (keys need a terminal on stdin)"
+    help_text = _fit_help(FARM_KEYS_HELP, width) if keys_enabled else no_keys
     parts.append(Text(_cut(help_text, width) if width else help_text, style="dim"))
     return Group(*parts)
 
@@ -287,7 +361,7 @@ def detail_view(
     head.append(row.link, style="green" if row.link_up else "bold red")
     if row.progress is not None:
         head.append(f"  print {row.progress}")
-    keys = Text(_cut("Esc or Backspace: back to the farm   1-9 another printer   q quits", width), style="dim")
+    keys = Text(_fit_help(DETAIL_KEYS_HELP, width), style="dim")
     if not model.series:
         return Group(head, Text(""), Text("waiting for the first reading...", style="dim"), Text(""), keys)
     firmware = farm_printer.firmware or "unknown firmware"

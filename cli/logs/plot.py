@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timedelta
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.text import Text
@@ -23,7 +24,19 @@ from ..common.chart import Curve, time_chart
 from ..common.connect import UsageProblem
 from .files import LogContents, LogSession, read_log
 
-__all__ = ["PlotData", "Segment", "describe_span", "plot_data", "plot_log", "session_table", "terminal_plot"]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = [
+    "PlotData",
+    "Segment",
+    "describe_span",
+    "plot_data",
+    "plot_log",
+    "png_figure",
+    "session_table",
+    "terminal_plot",
+]
 
 _FIGURE_COLOURS = {"hotend": "tab:red", "bed": "tab:blue", "chamber": "tab:green"}
 _FIGURE_HOTENDS = ("tab:red", "tab:orange", "tab:brown", "tab:pink", "tab:olive", "tab:purple")
@@ -201,22 +214,46 @@ def plot_log(path: Path, output: Path | None, show: bool, console: Console, sess
     return f"wrote {output} ({data.describe()})"
 
 
+# matplotlib's dates are days since its epoch, read as the wall-clock time (local, as the axis is labelled).
+_EPOCH = datetime(1970, 1, 1)
+
+
+def _days(epoch_s: float) -> float:
+    """A time as matplotlib plots dates: days since 1970-01-01 of the local wall clock."""
+    return (datetime.fromtimestamp(epoch_s) - _EPOCH).total_seconds() / 86_400
+
+
 def _write_png(data: PlotData, path: Path, output: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    figure = png_figure(data, path)
+    figure.savefig(output)
+    plt.close(figure)
+
+
+def png_figure(data: PlotData, path: Path) -> Figure:
+    """The PNG's figure (matplotlib's Agg backend): actual (solid) and target (dashed) per heater and session.
+
+    The legend stands outside the axes, to their right: inside (even at `loc="best"`) it covered the bed's curve,
+    which runs low and flat across the whole width where the corners are. The caller closes the figure.
+
+    Raises:
+        UsageProblem: matplotlib is not installed.
+    """
     try:
         import matplotlib
 
         matplotlib.use("Agg")
-        import matplotlib.dates as mdates
         import matplotlib.pyplot as plt
     except ImportError:
         raise UsageProblem(
             "matplotlib is not installed: pip install 'marlin-aio[plot]' (or use --show for a terminal plot)"
         ) from None
-    figure, axes = plt.subplots(figsize=(10, 5.5), dpi=100)
+    figure, axes = plt.subplots(figsize=(11, 5.5), dpi=100)
     for index, name in enumerate(data.heaters):
         colour = _FIGURE_COLOURS.get(name, _FIGURE_HOTENDS[index % len(_FIGURE_HOTENDS)])
         for number, segment in enumerate(data.segments.get(name, [])):
-            times = [datetime.fromtimestamp(t) for t in segment.times_s]
+            times = [_days(t) for t in segment.times_s]
             actual = [math.nan if a is None else a for a in segment.actual_c]
             target = [math.nan if t is None else t for t in segment.target_c]
             # One line per session, labelled once: no line joins the end of one run to the start of the next.
@@ -225,15 +262,16 @@ def _write_png(data: PlotData, path: Path, output: Path) -> None:
                 times, target, color=colour, linestyle="--", alpha=0.6, label=f"{name} target" if number == 0 else None
             )
     for session in data.sessions[1:]:
-        axes.axvline(datetime.fromtimestamp(session.start_epoch_s), color="grey", linestyle=":", linewidth=1)
-    axes.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M:%S"))
+        axes.axvline(_days(session.start_epoch_s), color="grey", linestyle=":", linewidth=1)
+    axes.xaxis_date()  # matplotlib's date ticks, labelled with the clock time
+    axes.xaxis.set_major_formatter(lambda days, _position: f"{_EPOCH + timedelta(days=days):%H:%M:%S}")
     axes.set_xlabel(f"local time, {describe_span(data.start_epoch_s, data.end_epoch_s)}")
     axes.set_ylabel("temperature (°C)")
     sessions = "" if len(data.sessions) == 1 else f", {len(data.sessions)} sessions (dotted: where each starts)"
     axes.set_title(f"Temperature tracking: {path.name}{sessions}")
     axes.grid(True, alpha=0.3)
-    axes.legend(loc="lower right")
+    # Outside the axes, right of them; tight_layout counts the legend in and narrows the axes to make room.
+    axes.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     figure.autofmt_xdate()
     figure.tight_layout()
-    figure.savefig(output)
-    plt.close(figure)
+    return figure

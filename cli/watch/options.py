@@ -60,6 +60,8 @@ WATCH_HELP = "\n\n".join(
         "one plain line per refresh instead (or JSON lines with --json), and q is the only key.",
         "The footer's latency is of the recent round trips, polls included: the median and the worst of the "
         "last 10 s, so a slow command (G28) stops being the worst 10 s after it.",
+        "A target the printer does not report (Repetier-style reports, set by another program) shows as ?, and "
+        "its heater as heating? while it draws power, else unknown: never off.",
         "The footer counts timeouts and errors (failed commands, board resets) from the moment the connection is "
         "established: a board that resets when the port opens, printing 'start' and its banner during the "
         "handshake, is starting up, not failing.",
