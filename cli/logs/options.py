@@ -46,7 +46,13 @@ def log(
     output: Annotated[Path, typer.Option("--output", "-o", help="File to write (appended to if it exists).")],
     interval: Annotated[float, typer.Option("--interval", help="Seconds between rows (at least 0.005).")] = 1.0,
     duration: Annotated[
-        float | None, typer.Option("--duration", help="Stop after this many seconds (more than 0).")
+        float | None,
+        typer.Option(
+            "--duration",
+            help="Stop after this many seconds of rows (more than 0), counted from the first row: connecting and "
+            "--hotend/--bed come first. Default: until Ctrl-C.",
+            show_default=False,
+        ),
     ] = None,
     fmt: Annotated[str, typer.Option("--format", help="csv or jsonl.")] = "csv",
     hotend: Annotated[
