@@ -9,10 +9,12 @@ refused while nothing has been sent that changes anything; only then are `--hote
 readings are followed from before the first poll goes out, so a heat-up is recorded from its first reading
 with its target already in the row. With `--reconnect` each connection is a new session of the same file, and
 targets are not sent again: a board that reset has turned its heaters off, and re-heating a printer nobody is
-watching is not this command's call. `--duration` counts from the first session's recording, not from the
-command's start: a handshake that took seconds (a board that resets when opened) no longer shortens the log; until
-then it bounds the wait for a printer, so a `--reconnect` run that never finds one still ends. The reconnecting is the library's (`marlin_aio.aio.keep_connected`); what is
+watching is not this command's call. The reconnecting is the library's (`marlin_aio.aio.keep_connected`); what is
 here is which failures it may retry.
+
+`--duration` counts from the first session's recording, not from the command's start: a handshake that took
+seconds (a board that resets when opened) no longer shortens the log. Until then it bounds the wait for a
+printer, so a `--reconnect` run that never finds one still ends.
 
 A log the file system stops (disk full, the file size limit) ends the run at once with one line, the rows on
 disk counted in it, and exit code 1: logging is all this command does.
