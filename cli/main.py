@@ -97,6 +97,8 @@ app = typer.Typer(
     help="Watch, set and log the temperatures of a Marlin 3D printer. Try it with --sim: no printer needed.",
     epilog=EXIT_CODES_HELP,
     no_args_is_help=True,
+    # -h as well as --help, on every command (sim's options are marlin-sim's, which has both).
+    context_settings={"help_option_names": ["-h", "--help"]},
     add_completion=True,
     pretty_exceptions_enable=False,
 )
@@ -129,5 +131,5 @@ app.command("serve", help=serve.SERVE_HELP, epilog=EXIT_CODES_HELP)(serve.serve)
 app.command("farm", help=farm.FARM_HELP, epilog=EXIT_CODES_HELP)(farm.farm)
 app.command("bench", help=bench.BENCH_HELP, epilog=EXIT_CODES_HELP)(bench.bench)
 app.command("plot", epilog=EXIT_CODES_HELP)(logs.plot)
-app.command("ports")(ports.ports)
-app.command("sim", context_settings=ports.SIM_CONTEXT, add_help_option=False)(ports.simulate)
+app.command("ports", help=ports.PORTS_HELP)(ports.ports)
+app.command("sim", help=ports.SIM_HELP, epilog=ports.SIM_EPILOG)(ports.simulate)
