@@ -10,6 +10,8 @@ from __future__ import annotations
 import asyncio
 import csv
 import json
+import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -149,3 +151,182 @@ def test_a_port_in_json_has_its_usb_ids_and_whether_it_looks_like_a_printer() ->
     onboard = port_record(marlin_aio.PortInfo("/dev/ttyS0", "ttyS0", None, None))
     assert (onboard["vid"], onboard["pid"], onboard["likely_printer"]) == (None, None, False)
     json.dumps(onboard)  # plain JSON values
+
+
+# ------------------------------------------------------------------------------------------- one way to ask for JSON
+
+
+def test_log_json_is_format_jsonl(tmp_path: Path) -> None:
+    fast = ["--sim", "--sim-speed", "50", "--interval", "0.1", "--duration", "0.5"]
+    by_flag, by_format = tmp_path / "flag.jsonl", tmp_path / "format.jsonl"
+    assert runner.invoke(app, ["log", *fast, "-o", str(by_flag), "--json"]).exit_code == 0
+    assert runner.invoke(app, ["log", *fast, "-o", str(by_format), "--format", "jsonl"]).exit_code == 0
+    keys = [
+        {tuple(sorted(json.loads(line))) for line in path.read_text().splitlines()} for path in (by_flag, by_format)
+    ]
+    assert keys[0] == keys[1] and len(keys[0]) == 1  # the same records, one shape
+    assert "heaters" in next(iter(keys[0]))
+
+
+def test_log_json_with_another_format_is_refused_before_anything_is_made(tmp_path: Path) -> None:
+    output = tmp_path / "t.csv"
+    result = runner.invoke(app, ["log", "--sim", "-o", str(output), "--json", "--format", "csv"])
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and "--json" in lines[0] and "--format csv" in lines[0], result.output
+    assert not output.exists()
+
+
+def test_every_interval_says_what_it_paces_and_its_default() -> None:
+    meanings = {"watch": "M105 polls", "log": "rows", "terminal": "polls", "serve": "M105 polls", "farm": "M105 polls"}
+    for command, meaning in meanings.items():
+        shown = help_options(command)["--interval"]
+        assert meaning in shown, (command, shown)
+        assert default_in(shown) is not None, f"marlin-temp {command} --help: --interval states no default: {shown}"
+
+
+# ------------------------------------------------------------------------------------ the README and --help agree
+
+README = Path(__file__).resolve().parent.parent / "README.md"
+COMMANDS = ("watch", "set", "log", "plot", "print", "send", "terminal", "serve", "farm", "bench", "ports", "sim")
+_help_cache: dict[str, dict[str, str]] = {}
+
+
+def help_options(command: str) -> dict[str, str]:
+    """Each option `marlin-temp COMMAND --help` lists (every name of it, short ones too), with its whole row: names,
+    value, help text and the default typer adds."""
+    if command not in _help_cache:
+        args = [command, "--help"] if command else ["--help"]
+        result = runner.invoke(app, args, env={"COLUMNS": "1000"})  # one row per option, nothing wrapped
+        assert result.exit_code == 0, (command, result.output)
+        rows: list[str] = []
+        for line in result.output.splitlines():
+            content = line.strip().strip("│").strip()
+            if not line.strip().startswith("│") or not content:
+                continue
+            if re.match(r"(\*\s+)?-", content):
+                rows.append(content)
+            elif rows:
+                rows[-1] += " " + content  # a wrapped row goes on
+        _help_cache[command] = {
+            name: row for row in rows for name in re.findall(r"(?<![\w-])(--?[\w-]+)", row.split("  ")[0] + " " + row)
+        }
+    return _help_cache[command]
+
+
+def default_in(help_row: str) -> str | None:
+    """The default a help row states: typer's `[default: 1.0]`, or the text's own `default 0.01` / `Default: 250000`."""
+    found = re.search(r"\[default: ([^\]]+)\]", help_row) or re.search(r"\b[Dd]efault:? ([\w.]+)", help_row)
+    return found.group(1) if found else None
+
+
+def same_value(readme: str, shown: str) -> bool:
+    try:
+        return float(readme) == float(shown)
+    except ValueError:
+        return readme == shown
+
+
+def readme_commands() -> list[tuple[str, list[str], str]]:
+    """(command, its options, the line) for every `marlin-temp COMMAND ...` the README shows: the lines of its code
+    blocks and its inline code."""
+    text = README.read_text()
+    lines: list[str] = []
+    for block in re.findall(r"```[^\n]*\n(.*?)```", text, flags=re.S):
+        lines += [line.split(" #")[0].strip() for line in block.splitlines()]
+    lines += re.findall(r"(?<!`)`(marlin-temp [^`]+)`", text)
+    found = []
+    for line in lines:
+        if not line.startswith("marlin-temp "):
+            continue
+        words = shlex.split(line)
+        command = words[1]
+        if command.startswith("-"):
+            command = ""  # an option of marlin-temp itself
+        found.append((command, [word.split("=")[0] for word in words[2:] if word.startswith("-")], line))
+    return found
+
+
+def readme_defaults() -> list[tuple[str, str, str, str]]:
+    """(command, option, default, the words) for every default the README states next to an option: "`--baud`
+    (default 250000)", "(`--interval`, default 1 s", "`--interval` (1 s by default)". The command is the one the
+    text last named (`marlin-temp log`, or `terminal` alone); "" for the common options, which every command that
+    has them must agree with."""
+    text = " ".join(README.read_text().split())
+    named = r"`(?:marlin-temp )?(" + "|".join(COMMANDS) + r")(?: [^`]*)?`"
+    patterns = (
+        r"`(--[\w-]+)`[^`().;]{0,20}\(default ([^\s;,)]+)",
+        r"\(`(--[\w-]+)`, default ([^\s;,)]+)",
+        r"`(--[\w-]+)` \(([\d.]+)(?: \w+)? by default",
+    )
+    found = []
+    for pattern in patterns:
+        for match in re.finditer(pattern, text):
+            before = text[: match.start()]
+            commands = re.findall(named, before)
+            last_named = max((m.start() for m in re.finditer(named, before)), default=-1)
+            command = "" if before.rfind("Common options:") > last_named or not commands else commands[-1]
+            found.append((command, match.group(1), match.group(2), match.group(0)))
+    return found
+
+
+def test_every_option_the_readme_shows_is_in_that_commands_help() -> None:
+    shown = readme_commands()
+    assert len(shown) > 20  # the parsing found the README's commands
+    problems = []
+    for command, options, line in shown:
+        if command and command not in COMMANDS:
+            problems.append(f"README shows `{line}`, but marlin-temp has no command {command!r}")
+            continue
+        listed = help_options(command)
+        problems += [
+            f"README shows `{line}`, but `marlin-temp {command} --help` has no {option}"
+            for option in options
+            if option not in listed
+        ]
+    assert not problems, "\n".join(problems)
+
+
+def test_every_default_the_readme_states_is_the_one_help_shows() -> None:
+    stated = readme_defaults()
+    assert len(stated) >= 4  # the parsing found the README's defaults
+    problems = []
+    for command, option, value, words in stated:
+        # The common options are the printer's: sim's --baud is the simulated wire's, a command of its own.
+        commands = [command] if command else [c for c in COMMANDS if c != "sim" and option in help_options(c)]
+        if not commands:
+            problems.append(f"README says {words!r}, but no command's --help has {option}")
+        for name in commands:
+            row = help_options(name).get(option)
+            if row is None:
+                problems.append(f"README says {words!r} (of marlin-temp {name}), but its --help has no {option}")
+            elif default_in(row) is None or not same_value(value, default_in(row) or ""):
+                problems.append(
+                    f"README says {words!r}, but `marlin-temp {name} --help` shows {option} with default "
+                    f"{default_in(row)}: {row}"
+                )
+    assert not problems, "\n".join(problems)
+
+
+#: Options the README names that no --help lists, and why.
+UNLISTED = {"--password": "hidden on purpose: the README says `--password VALUE` is refused"}
+
+
+def test_every_option_the_readme_names_for_marlin_temp_is_in_some_help() -> None:
+    # The prose of the marlin-temp sections names options alone (`--refresh`, `--cool-to`): each must be one that
+    # some command (or marlin-temp itself) lists, so a renamed or removed option cannot linger in the README.
+    text = README.read_text()
+    sections = text[text.index("\n## marlin-temp\n") : text.index("\n## Layout\n")]
+    spans = re.findall(r"(?<!`)`([^`\n]+)`", sections)
+    named = {
+        option
+        for span in spans
+        if span.startswith(("-", "marlin-temp ", *(f"{command} " for command in COMMANDS)))  # not systemctl's
+        for option in re.findall(r"(?<![\w-])(--[a-z][\w-]*)", span)
+    }
+    assert len(named) > 30, named  # the parsing found them
+    listed = set(help_options(""))
+    for command in COMMANDS:
+        listed |= set(help_options(command))
+    missing = sorted(named - listed - UNLISTED.keys())
+    assert not missing, f"README.md names {missing}, but no `marlin-temp [COMMAND] --help` lists them"

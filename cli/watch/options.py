@@ -92,7 +92,8 @@ def watch(
         float | None,
         typer.Option(
             "--interval",
-            help="Seconds between M105 polls (default 0.01; with several printers 0.1 for each).",
+            help="Seconds between M105 polls (default 0.01; with several printers 0.1 for each): every reading is "
+            "shown and logged; --refresh paces the screen.",
             min=0.001,
             show_default=False,
         ),
