@@ -185,6 +185,12 @@ def test_every_interval_says_what_it_paces_and_its_default() -> None:
         assert default_in(shown) is not None, f"marlin-temp {command} --help: --interval states no default: {shown}"
 
 
+def test_every_duration_says_what_happens_without_it() -> None:
+    for command in ("watch", "log", "serve", "farm", "bench"):
+        shown = help_options(command)["--duration"]
+        assert re.search(r"\b[Dd]efault", shown), f"marlin-temp {command} --help: --duration states no default: {shown}"
+
+
 # ------------------------------------------------------------------------------------ the README and --help agree
 
 README = Path(__file__).resolve().parent.parent / "README.md"

@@ -107,7 +107,9 @@ def watch(
         Path | None, typer.Option("--log", help="Also record every reading to this CSV file (on disk within a second).")
     ] = None,
     json_lines: Annotated[bool, typer.Option("--json", help="Print JSON lines instead of the live view.")] = False,
-    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Stop after this many seconds. Default: until q or Ctrl-C.")
+    ] = None,
     reconnect: Annotated[
         bool,
         typer.Option("--reconnect", help="When the printer goes away, keep retrying (after 1 s, doubling up to 30 s)."),
