@@ -17,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from conftest import until
 from typer.testing import CliRunner
 
 import marlin_aio
@@ -48,6 +49,27 @@ async def test_log_duration_counts_from_the_first_row_not_from_before_the_handsh
     # The last row is at most one interval short of the duration; one more interval of slack for a loaded machine.
     assert epochs[-1] - epochs[0] >= duration_s - 2 * interval_s, epochs
     assert len(rows) >= duration_s / interval_s - 2, epochs
+
+
+async def test_log_reconnect_goes_on_until_the_duration_counted_from_the_first_row(tmp_path: Path) -> None:
+    # A 3 s handshake, then 2.8 s of rows: the link is lost after the first rows, already past 2.8 s from the start.
+    # The reconnect must still come, and log until 2.8 s after the first row.
+    output = tmp_path / "t.csv"
+    args = ["log", "-o", str(output), "--reconnect", "--duration", "2.8", "--interval", "0.1"]
+
+    def sessions() -> list[str]:
+        return list(dict.fromkeys(row["session"] for row in rows_on_disk(output))) if output.exists() else []
+
+    async with serve_tcp(SimulatorConfig(boot_delay_s=3.0), time_scale=1.0) as sim:
+        port = sim.url.rsplit(":", 1)[1]
+        logging = asyncio.create_task(asyncio.to_thread(runner.invoke, app, [*args, "--port", sim.url]))
+        await until(lambda: len(rows_on_disk(output)) >= 3 if output.exists() else False, "rows of the first session")
+    # The simulator is gone (the log's reconnect attempts are refused meanwhile); then it is back, quick to answer.
+    async with serve_tcp(SimulatorConfig(), port=int(port), time_scale=1.0):
+        result = await logging
+    assert result.exit_code == 0, result.output
+    assert "reconnecting in" in result.stderr
+    assert len(sessions()) == 2, result.stderr  # the second connection logged too
 
 
 # ------------------------------------------------------------------------------------ sim, a command like the others
