@@ -48,12 +48,14 @@ class _Commands(TyperGroup):
         return params
 
     def get_command(self, ctx: Any, cmd_name: str) -> Any:  # Any: click's types differ between typer releases
-        command = super().get_command(ctx, cmd_name)
-        if command is not None:
-            for param in command.get_params(ctx):
-                if getattr(param, "is_flag", False) and getattr(param, "metavar", "") is None:
-                    param.metavar = ""
-        return command
+        return _bare_flags(ctx, super().get_command(ctx, cmd_name))
+
+    def resolve_command(self, ctx: Any, args: Any) -> Any:
+        """The command `args` call; one made on use (`_MADE_ON_USE`) in place of the stand-in that lists it."""
+        name, command, rest = super().resolve_command(ctx, args)
+        if name in _MADE_ON_USE:
+            command = _bare_flags(ctx, _MADE_ON_USE[name]())
+        return name, command, rest
 
     def main(
         self,
@@ -86,6 +88,18 @@ class _Commands(TyperGroup):
             sys.exit(1)
         sys.exit(outcome if isinstance(outcome, int) else 0)
 
+
+def _bare_flags(ctx: Any, command: Any) -> Any:
+    if command is not None:
+        for param in command.get_params(ctx):
+            if getattr(param, "is_flag", False) and getattr(param, "metavar", "") is None:
+                param.metavar = ""
+    return command
+
+
+#: Commands made when they are called, not at every start: `sim`'s options come from the simulator, whose import
+#: costs the other commands a tenth of a second. `--help` lists a stand-in with the same help text.
+_MADE_ON_USE = {"sim": ports.sim_command}
 
 # typer 0.29 carries its own copy of click and older releases use click itself: its ClickException either way.
 _CLICK_EXCEPTION: type[Exception] = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")

@@ -91,6 +91,17 @@ def test_sim_help_is_typer_help_with_every_simulator_option_and_its_default() ->
     assert "Exit codes: 0 stopped" in text
 
 
+def test_only_sim_imports_the_simulator() -> None:
+    # sim's options come from the simulator's table; the other commands (and the list of them) start without it.
+    script = (
+        "import sys; from typer.testing import CliRunner; from marlin_temp.main import app; "
+        "results = [CliRunner().invoke(app, args) for args in (['--help'], ['ports', '--json'])]; "
+        "print([r.exit_code for r in results], 'marlin_aio.simulator' in sys.modules)"
+    )
+    completed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert completed.stdout.split() == ["[0,", "0]", "False"], completed.stdout + completed.stderr
+
+
 def test_every_command_takes_h_for_help() -> None:
     for command in ([], ["watch"], ["log"], ["sim"], ["ports"]):
         short = runner.invoke(app, [*command, "-h"], env={"COLUMNS": "200"})

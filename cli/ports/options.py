@@ -6,11 +6,13 @@ simulated printer, for other programs).
 text with its default (`option_help`), and the function that reads its value, here run as a typer callback so a
 bad value is a usage error like any other command's (one line, exit 2). A row added to that table shows up in
 both commands with nothing to change here. The values given go through `settings_from_values`, as marlin-sim's do.
+The command is made when `sim` is called (`sim_command`), so the other commands never import the simulator.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import inspect
 import json
 from collections.abc import Callable
@@ -21,14 +23,15 @@ from rich.console import Console
 
 import marlin_aio
 
+from ..common.connect import Exit
 from ..common.options import fail
 
-__all__ = ["PORTS_HELP", "SIM_EPILOG", "SIM_HELP", "port_record", "ports", "simulate"]
+__all__ = ["PORTS_HELP", "SIM_EPILOG", "SIM_HELP", "port_record", "ports", "sim_command", "simulate"]
 
 PORTS_HELP = (
-    "List serial ports, marking the USB bridges printer boards use (CH340, CP2102, FTDI, STM32, Mega). --json prints "
-    'them as one JSON object: {"ports": [{"device", "description", "vid", "pid", "usb_id", "bridge", '
-    '"likely_printer"}, ...]}.'
+    "List serial ports, marking the USB bridges printer boards use (CH340, CP2102, FTDI, STM32, Mega).\n\n--json "
+    'prints them as one JSON object: {"ports": [{"device", "description", "vid", "pid", "usb_id", "bridge", '
+    '"likely_printer"}, ...]}, the USB ids in hex as lsusb shows them (null for a port that is not USB).'
 )
 
 
@@ -86,12 +89,12 @@ SIM_EPILOG = "Exit codes: 0 stopped (Ctrl-C or SIGTERM); 1 could not serve (no p
 def _simulator_parameters() -> tuple[list[inspect.Parameter], dict[str, str]]:
     """The typer parameters of `sim`, one per option of the simulator's table (and a hidden one per older name),
     and which option each parameter's name stands for (its `dest`)."""
-    from marlin_aio.simulator.__main__ import SIMULATOR_OPTIONS, option_help
+    from marlin_aio.simulator.__main__ import GROUP_DESCRIPTIONS, SIMULATOR_OPTIONS, option_help
 
     parameters: list[inspect.Parameter] = []
     dests: dict[str, str] = {}
     for option in SIMULATOR_OPTIONS:
-        panel = f"Dialects: {_GROUPS.get(option.group, option.group)}" if option.group else None
+        panel = f"{option.group.capitalize()}: {GROUP_DESCRIPTIONS[option.group]}" if option.group else None
         for index, flag in enumerate((option.flag, *option.aliases)):
             name = option.dest if index == 0 else f"{option.dest}__{index}"
             dests[name] = option.dest
@@ -111,9 +114,6 @@ def _simulator_parameters() -> tuple[list[inspect.Parameter], dict[str, str]]:
                 inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=annotation)
             )
     return parameters, dests
-
-
-_GROUPS = {"dialects": "firmware variants and options a host meets in the field"}
 
 
 def _reader(parse: Callable[[str], object], choices: object) -> Callable[[object], object]:
@@ -143,34 +143,43 @@ def _choices_text(choices: object) -> str:
     return ", ".join(str(choice) for choice in choices)  # type: ignore[attr-defined]
 
 
-def _simulate(**values: object) -> None:
+def _run(values: dict[str, object], dests: dict[str, str]) -> None:
     from marlin_aio.simulator.__main__ import SIMULATOR_OPTIONS, serve_until_stopped, settings_from_values
 
     given: dict[str, object] = {}
     for name, value in values.items():
-        # A flag not given and a value not given stay out: their fields keep the defaults (the names' older
-        # aliases give the same dest).
+        # A flag not given and a value not given stay out: their fields keep the defaults (an older name of an
+        # option gives the same dest).
         if value is not None and value is not False:
-            given[_DESTS[name]] = value
+            given[dests[name]] = value
     for option in SIMULATOR_OPTIONS:
         if option.negated and option.dest in given:
             given[option.dest] = False  # --no-bed: has_bed off
     try:
         settings = settings_from_values(given)
     except ValueError as exc:
-        fail(str(exc), 2)
+        fail(str(exc), Exit.USAGE)
     raise typer.Exit(serve_until_stopped(settings, prog="marlin-temp sim"))
 
 
-_PARAMETERS, _DESTS = _simulator_parameters()
+@functools.cache
+def sim_command() -> Any:  # Any: click's types differ between typer releases
+    """The `sim` command, made the first time it runs: its options are read from the simulator's table, and
+    importing the simulator (a tenth of a second) is for `sim` alone, not for the start of every other command."""
+    parameters, dests = _simulator_parameters()
 
+    def simulate(**values: object) -> None:
+        _run(values, dests)
 
-def _with_signature(function: Callable[..., None]) -> Callable[..., None]:
     # Typer reads a command's options from its signature: this one is made from the table.
-    function.__signature__ = inspect.Signature(_PARAMETERS)  # type: ignore[attr-defined]
-    function.__annotations__ = {parameter.name: parameter.annotation for parameter in _PARAMETERS}
-    return function
+    simulate.__signature__ = inspect.Signature(parameters)  # type: ignore[attr-defined]
+    simulate.__annotations__ = {parameter.name: parameter.annotation for parameter in parameters}
+    made = typer.Typer(add_completion=False)
+    made.command("sim", help=SIM_HELP, epilog=SIM_EPILOG)(simulate)
+    return typer.main.get_command(made)
 
 
-simulate = _with_signature(_simulate)
-"""`marlin-temp sim`: the simulated printer with marlin-sim's options (the help text is `SIM_HELP`)."""
+def simulate() -> None:
+    """`marlin-temp sim` as `marlin-temp --help` lists it, with no options: the command that runs is
+    `sim_command()`, which the command group puts in its place when `sim` is called."""
+    sim_command().main(args=[], prog_name="marlin-temp sim")  # the simulator with its defaults, if ever called

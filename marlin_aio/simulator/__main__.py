@@ -27,6 +27,7 @@ from collections.abc import Sequence
 from marlin_aio.simulator._config import Faults, SimulatorConfig
 from marlin_aio.simulator._options import (
     DIALECT_SWITCHES,
+    GROUP_DESCRIPTIONS,
     SIMULATOR_OPTIONS,
     SimulatorSettings,
     build_parser,
@@ -36,7 +37,15 @@ from marlin_aio.simulator._options import (
 )
 
 # The options' table and its readers too: another command line (marlin-temp sim) makes its options of them.
-__all__ = ["SIMULATOR_OPTIONS", "main", "option_help", "run_simulator", "serve_until_stopped", "settings_from_values"]
+__all__ = [
+    "GROUP_DESCRIPTIONS",
+    "SIMULATOR_OPTIONS",
+    "main",
+    "option_help",
+    "run_simulator",
+    "serve_until_stopped",
+    "settings_from_values",
+]
 
 
 def _build_parser() -> argparse.ArgumentParser:

@@ -25,6 +25,7 @@ from marlin_aio.simulator._serve import SimulatorServer, serve_pty, serve_tcp
 
 __all__ = [
     "DIALECT_SWITCHES",
+    "GROUP_DESCRIPTIONS",
     "SIMULATOR_OPTIONS",
     "SimulatorOption",
     "SimulatorSettings",
@@ -121,7 +122,8 @@ DIALECT_SWITCHES: tuple[tuple[str, str], ...] = (
 )
 
 _DIALECTS = "dialects"
-_GROUP_DESCRIPTIONS = {_DIALECTS: "firmware variants and options a host meets in the field"}
+#: What each help section (`SimulatorOption.group`) holds.
+GROUP_DESCRIPTIONS = {_DIALECTS: "firmware variants and options a host meets in the field"}
 
 #: Every option of `marlin-sim`, in the order `--help` lists them.
 SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
@@ -278,7 +280,7 @@ def add_simulator_options(parser: argparse.ArgumentParser) -> None:
     groups: dict[str | None, argparse.ArgumentParser | argparse._ArgumentGroup] = {None: parser}
     for option in SIMULATOR_OPTIONS:
         if option.group is not None and option.group not in groups:
-            groups[option.group] = parser.add_argument_group(option.group, _GROUP_DESCRIPTIONS[option.group])
+            groups[option.group] = parser.add_argument_group(option.group, GROUP_DESCRIPTIONS[option.group])
         # Printer and fault options not given stay out of the namespace, so their fields keep the default.
         default = option.default if option.target == "serve" else argparse.SUPPRESS
         # argparse formats help with %: the text is final already.
