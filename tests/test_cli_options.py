@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import csv
+import itertools
 import json
 import re
 import shlex
@@ -238,18 +239,22 @@ def help_options(command: str) -> dict[str, str]:
         args = [command, "--help"] if command else ["--help"]
         result = runner.invoke(app, args, env={"COLUMNS": "1000"})  # one row per option, nothing wrapped
         assert result.exit_code == 0, (command, result.output)
-        rows: list[str] = []
+        rows: list[list[str]] = []  # each option's row, as words
+        in_row = False
         for line in result.output.splitlines():
             content = line.strip().strip("│").strip()
-            if not line.strip().startswith("│") or not content:
-                continue
-            if re.match(r"(\*\s+)?-", content):
-                rows.append(content)
-            elif rows:
-                rows[-1] += " " + content  # a wrapped row goes on
-        _help_cache[command] = {
-            name: row for row in rows for name in re.findall(r"(?<![\w-])(--?[\w-]+)", row.split("  ")[0] + " " + row)
-        }
+            if not line.strip().startswith("│"):
+                in_row = False  # a panel's border or the text around: a row never goes on across it
+            elif re.match(r"(\*\s+)?-", content):
+                rows.append(content.removeprefix("*").split())
+                in_row = True
+            elif content and in_row:
+                rows[-1] += content.split()  # a wrapped row goes on
+        listed: dict[str, str] = {}
+        for words in rows:
+            names = list(itertools.takewhile(lambda word: re.fullmatch(r"--?[\w-]+", word), words))
+            listed.update((name, " ".join(words)) for name in names)  # the names column, not the help text
+        _help_cache[command] = listed
     return _help_cache[command]
 
 
