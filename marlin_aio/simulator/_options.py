@@ -1,5 +1,5 @@
 """The simulator's command-line options, defined once: `marlin-sim` builds its parser from them, and any other
-command that serves the simulator (`marlin-temp sim`) can hand its arguments to the same definition.
+command that serves the simulator (`marlin-temp sim`) makes its options of the same definition.
 
 `SIMULATOR_OPTIONS` is the table: each row is one flag with its help text and the field it sets, in
 `SimulatorConfig`, in `Faults`, or in how it is served (`SimulatorSettings`). Options of the printer and its
@@ -10,6 +10,9 @@ defaults live in one place. `simulator_settings()` turns the parsed options into
 argparse keeps this dependency-free and quick to start; `marlin-temp sim` makes typer options of the same rows,
 with the same help (`option_help()`, which states the default) and `settings_from_values()`. So a new flag is a
 row here (and its field): both commands list it, check it with its `parse` and pass it on.
+
+Over 400 lines because the table is one list on purpose, one row an option: split, a flag could go missing from
+one of the two command lines.
 """
 
 from __future__ import annotations
