@@ -245,6 +245,6 @@ async def _keep_logging(
             before_wait=new_session,
         )
         # The reconnecting gives up at the deadline it was given; the first session may have moved the run's
-        # later since (it counts from the first row), and then a lost link is retried until that one.
+        # later since (it counts from the first poll), and then a lost link is retried until that one.
         if stop.is_set() or run.deadline is None or run.deadline == deadline or loop.time() >= run.deadline:
             return

@@ -56,8 +56,8 @@ def log(
         float | None,
         typer.Option(
             "--duration",
-            help="Stop after this many seconds of rows (more than 0), counted from the first row: connecting and "
-            "--hotend/--bed come first. Default: until Ctrl-C.",
+            help="Stop after this many seconds of rows (more than 0), counted from the first poll (its answer is the "
+            "first row): connecting and --hotend/--bed come first. Default: until Ctrl-C.",
             show_default=False,
         ),
     ] = None,
