@@ -49,12 +49,14 @@ class _Commands(TyperGroup):
         return params
 
     def get_command(self, ctx: Any, cmd_name: str) -> Any:  # Any: click's types differ between typer releases
-        command = super().get_command(ctx, cmd_name)
-        if command is not None:
-            for param in command.get_params(ctx):
-                if getattr(param, "is_flag", False) and getattr(param, "metavar", "") is None:
-                    param.metavar = ""
-        return command
+        return _bare_flags(ctx, super().get_command(ctx, cmd_name))
+
+    def resolve_command(self, ctx: Any, args: Any) -> Any:
+        """The command `args` call; one made on use (`_MADE_ON_USE`) in place of the stand-in that lists it."""
+        name, command, rest = super().resolve_command(ctx, args)
+        if name in _MADE_ON_USE:
+            command = _bare_flags(ctx, _MADE_ON_USE[name]())
+        return name, command, rest
 
     def main(
         self,
@@ -88,6 +90,18 @@ class _Commands(TyperGroup):
         sys.exit(outcome if isinstance(outcome, int) else 0)
 
 
+def _bare_flags(ctx: Any, command: Any) -> Any:
+    if command is not None:
+        for param in command.get_params(ctx):
+            if getattr(param, "is_flag", False) and getattr(param, "metavar", "") is None:
+                param.metavar = ""
+    return command
+
+
+#: Commands made when they are called, not at every start: `sim`'s options come from the simulator, whose import
+#: costs the other commands a tenth of a second. `--help` lists a stand-in with the same help text.
+_MADE_ON_USE = {"sim": ports.sim_command}
+
 # typer 0.29 carries its own copy of click and older releases use click itself: its ClickException either way.
 _CLICK_EXCEPTION: type[Exception] = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
 
@@ -98,6 +112,8 @@ app = typer.Typer(
     help="Watch, set and log the temperatures of a Marlin 3D printer. Try it with --sim: no printer needed.",
     epilog=EXIT_CODES_HELP,
     no_args_is_help=True,
+    # -h as well as --help, on every command (sim's options are marlin-sim's, which has both).
+    context_settings={"help_option_names": ["-h", "--help"]},
     add_completion=True,
     pretty_exceptions_enable=False,
 )
@@ -131,5 +147,5 @@ app.command("serve", help=serve.SERVE_HELP, epilog=EXIT_CODES_HELP)(serve.serve)
 app.command("farm", help=farm.FARM_HELP, epilog=EXIT_CODES_HELP)(farm.farm)
 app.command("bench", help=bench.BENCH_HELP, epilog=EXIT_CODES_HELP)(bench.bench)
 app.command("plot", epilog=EXIT_CODES_HELP)(logs.plot)
-app.command("ports")(ports.ports)
-app.command("sim", context_settings=ports.SIM_CONTEXT, add_help_option=False)(ports.simulate)
+app.command("ports", help=ports.PORTS_HELP)(ports.ports)
+app.command("sim", help=ports.SIM_HELP, epilog=ports.SIM_EPILOG)(ports.simulate)

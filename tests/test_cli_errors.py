@@ -170,7 +170,7 @@ async def test_watch_reconnect_keeps_retrying_and_resumes(tmp_path: Path) -> Non
 
 @pytest.mark.parametrize(
     ("args", "message"),
-    [(["sim", "--drop-ok", "2"], "between 0 and 1"), (["sim", "--bogus"], "unrecognized arguments: --bogus")],
+    [(["sim", "--drop-ok", "2"], "between 0 and 1"), (["sim", "--bogus"], "No such option: --bogus")],
 )
 def test_sim_takes_marlin_sims_options_and_rejects_bad_ones_in_one_line(args: list[str], message: str) -> None:
     result = runner.invoke(app, args)

@@ -49,7 +49,11 @@ def bench(
     ] = 1000,
     duration: Annotated[
         float | None,
-        typer.Option("--duration", help="Run each of the three parts this many seconds instead.", min=0.01),
+        typer.Option(
+            "--duration",
+            help="Run each of the three parts this many seconds instead (default: --count and --lines).",
+            min=0.01,
+        ),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of the table.")] = False,
     *,

@@ -70,7 +70,7 @@ def terminal(
     *,
     options: ConnectOptions,
     interval: Annotated[
-        float, typer.Option("--interval", help="Seconds between the (hidden) temperature polls.", min=0.05)
+        float, typer.Option("--interval", help="Seconds between the (hidden) M105 temperature polls.", min=0.05)
     ] = 1.0,
     temperatures_every: Annotated[
         float,

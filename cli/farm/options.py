@@ -105,7 +105,9 @@ def farm(
             "reaches them as --port serve:NAME.",
         ),
     ] = None,
-    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Stop after this many seconds. Default: until Ctrl-C or SIGTERM.")
+    ] = None,
     presets_file: PresetsOption = None,
 ) -> None:
     """Bridge many printers to an MQTT broker (the help text is `FARM_HELP`)."""

@@ -64,7 +64,10 @@ def set_targets(
     ] = False,
     tolerance: Annotated[float, typer.Option("--tolerance", help="With --wait: how close counts (C).", min=0)] = 2.0,
     wait_timeout: Annotated[
-        float | None, typer.Option("--wait-timeout", help="With --wait: give up after this many seconds.", min=0.1)
+        float | None,
+        typer.Option(
+            "--wait-timeout", help="With --wait: give up after this many seconds. Default: no limit.", min=0.1
+        ),
     ] = None,
     cool_to: Annotated[
         float,

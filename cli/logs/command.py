@@ -12,6 +12,10 @@ targets are not sent again: a board that reset has turned its heaters off, and r
 watching is not this command's call. The reconnecting is the library's (`marlin_aio.aio.keep_connected`); what is
 here is which failures it may retry.
 
+`--duration` counts from the first session's recording, not from the command's start: a handshake that took
+seconds (a board that resets when opened) no longer shortens the log. Until then it bounds the wait for a
+printer, so a `--reconnect` run that never finds one still ends.
+
 A log the file system stops (disk full, the file size limit) ends the run at once with one line, the rows on
 disk counted in it, and exit code 1: logging is all this command does.
 
@@ -113,6 +117,11 @@ class _Run:
     targets_pending: bool
     targets_sent: bool = False
     latest: marlin_aio.TemperatureReading | None = None  # the last reading of the last session: what is on
+    deadline: float | None = None
+    """When --duration ends the run (the event loop's time): counted from the start of the first session's
+    recording; until then, from the command's start, so a --reconnect run that never reaches a printer still ends."""
+    recording: bool = False
+    """Whether a session has started recording (and so moved the deadline)."""
 
 
 async def _log_session(
@@ -121,7 +130,6 @@ async def _log_session(
     settings: LogSettings,
     log: TemperatureLog,
     stop: asyncio.Event,
-    deadline: float | None,
     run: _Run,
     errors: Console,
 ) -> None:
@@ -138,8 +146,13 @@ async def _log_session(
         markup=False,
         emoji=False,
     )
-    # Counted from here: opening the port and the handshake may have taken a while.
-    remaining_s = None if deadline is None else max(deadline - asyncio.get_running_loop().time(), 0.0)
+    now = asyncio.get_running_loop().time()
+    if not run.recording and settings.duration_s is not None:
+        # --duration counts from here, not from the command's start: opening the port, the handshake (seconds on
+        # a board that resets when opened) and the targets took part of it, and the rows spanned less (issue 25).
+        run.deadline = now + settings.duration_s
+    run.recording = True
+    remaining_s = None if run.deadline is None else max(run.deadline - now, 0.0)
     await record_temperatures(printer, log, settings.interval_s, remaining_s, stop)
 
 
@@ -155,12 +168,13 @@ async def log_temperatures(options: ConnectOptions, settings: LogSettings, error
             message counts them.
     """
     loop = asyncio.get_running_loop()
-    deadline = None if settings.duration_s is None else loop.time() + settings.duration_s
     stop = asyncio.Event()
     run = _Run(targets_pending=settings.hotend is not None or settings.bed is not None)
+    if settings.duration_s is not None:
+        run.deadline = loop.time() + settings.duration_s  # until the first session records (see _Run.deadline)
     with on_stop_signals(stop.set):
         try:
-            await _log_until_done(options, settings, stop, deadline, run, errors)
+            await _log_until_done(options, settings, stop, run, errors)
         except BaseException as exc:
             if run.targets_sent:
                 say_heaters_left_on(errors, run.latest, exc)
@@ -174,14 +188,13 @@ async def _log_until_done(
     options: ConnectOptions,
     settings: LogSettings,
     stop: asyncio.Event,
-    deadline: float | None,
     run: _Run,
     errors: Console,
 ) -> None:
     """The sessions of one run, into one file, and its summary line (see `log_temperatures`)."""
     async with TemperatureLog(settings.output, settings.fmt, interval_s=settings.interval_s) as log:
         try:
-            await _keep_logging(options, settings, log, stop, deadline, run, errors)
+            await _keep_logging(options, settings, log, stop, run, errors)
         except LogWriteError:
             raise  # its one line counts the rows on disk
         except BaseException:
@@ -198,7 +211,6 @@ async def _keep_logging(
     settings: LogSettings,
     log: TemperatureLog,
     stop: asyncio.Event,
-    deadline: float | None,
     run: _Run,
     errors: Console,
 ) -> None:
@@ -208,7 +220,7 @@ async def _keep_logging(
 
     async def session(printer: marlin_aio.Printer, label: str) -> None:
         try:
-            await _log_session(printer, label, settings, log, stop, deadline, run, errors)
+            await _log_session(printer, label, settings, log, stop, run, errors)
         finally:
             run.latest = printer.latest
 
@@ -218,14 +230,21 @@ async def _keep_logging(
             rows_before = log.summary.rows
             log.new_session()  # the next connection's rows are a session of their own, whatever the printer did
 
-    await run_sessions(
-        options,
-        errors,
-        session,
-        reconnect=settings.reconnect,
-        retried=_RECONNECTABLE,
-        goal="keep logging",
-        stop=stop,
-        deadline=deadline,
-        before_wait=new_session,
-    )
+    loop = asyncio.get_running_loop()
+    while True:
+        deadline = run.deadline
+        await run_sessions(
+            options,
+            errors,
+            session,
+            reconnect=settings.reconnect,
+            retried=_RECONNECTABLE,
+            goal="keep logging",
+            stop=stop,
+            deadline=deadline,
+            before_wait=new_session,
+        )
+        # The reconnecting gives up at the deadline it was given; the first session may have moved the run's
+        # later since (it counts from the first poll), and then a lost link is retried until that one.
+        if stop.is_set() or run.deadline is None or run.deadline == deadline or loop.time() >= run.deadline:
+            return

@@ -24,8 +24,8 @@ LOG_HELP = "\n\n".join(
         "Columns: time (ISO 8601, local time with its UTC offset), epoch_s, session (a new id for each run and each "
         "reconnect), session_elapsed_s (seconds since that session's first row: it starts again with each session), "
         "source, then for each heater (hotend, bed, chamber; hotend_0, hotend_1 with several hotends) actual_c, "
-        "target_c, power_percent, and power_raw (Marlin's 0-127). --format jsonl writes the same fields, heaters by "
-        "name.",
+        "target_c, power_percent, and power_raw (Marlin's 0-127). --json (or --format jsonl) writes the same fields "
+        "as JSON lines, heaters by name.",
         "An existing file is appended to when it is a log of this format with the same heaters. Anything else (a log "
         "of an older marlin-temp, the other format, another printer's heaters, not a log) is refused with one line "
         "before anything is sent to the printer: choose another --output. plot reads old and new logs alike.",
@@ -44,11 +44,30 @@ LOG_HELP = "\n\n".join(
 @with_connect_options("hotend", "bed")
 def log(
     output: Annotated[Path, typer.Option("--output", "-o", help="File to write (appended to if it exists).")],
-    interval: Annotated[float, typer.Option("--interval", help="Seconds between rows (at least 0.005).")] = 1.0,
+    interval: Annotated[
+        float,
+        typer.Option(
+            "--interval",
+            help="Seconds between rows, and between the M105 polls that make them (at least 0.005); not watch's "
+            "--interval, which is the poll alone.",
+        ),
+    ] = 1.0,
     duration: Annotated[
-        float | None, typer.Option("--duration", help="Stop after this many seconds (more than 0).")
+        float | None,
+        typer.Option(
+            "--duration",
+            help="Stop after this many seconds of rows (more than 0), counted from the first poll (its answer is the "
+            "first row): connecting and --hotend/--bed come first. Default: until Ctrl-C.",
+            show_default=False,
+        ),
     ] = None,
-    fmt: Annotated[str, typer.Option("--format", help="csv or jsonl.")] = "csv",
+    fmt: Annotated[
+        str | None,
+        typer.Option("--format", help="csv or jsonl. Default: csv, or jsonl with --json.", show_default=False),
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Write JSON lines: the same as --format jsonl (--json as in watch, bench).")
+    ] = False,
     hotend: Annotated[
         str | None, typer.Option("--hotend", help="Set this hotend target (C) first, then log the heat-up.")
     ] = None,
@@ -64,8 +83,12 @@ def log(
 
     from .command import LogSettings, log_temperatures
 
+    if fmt is None:
+        fmt = "jsonl" if as_json else "csv"
     if fmt not in ("csv", "jsonl"):
         fail(f"unknown --format {fmt!r}: use csv or jsonl", Exit.USAGE)
+    if as_json and fmt != "jsonl":
+        fail(f"--json writes JSON lines, --format {fmt} asks otherwise: give one of them", Exit.USAGE)
     if not (math.isfinite(interval) and interval >= 0.005):
         fail(f"--interval must be at least 0.005 seconds, got {interval:g}", Exit.USAGE)
     if duration is not None and not (math.isfinite(duration) and duration > 0):

@@ -88,7 +88,9 @@ def serve(
         float, typer.Option("--log-interval", help="Seconds between logged rows of each printer.", min=0.01)
     ] = 1.0,
     no_log: Annotated[bool, typer.Option("--no-log", help="Write no temperature log.")] = False,
-    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Stop after this many seconds. Default: until Ctrl-C or SIGTERM.")
+    ] = None,
 ) -> None:
     """Own the printers and share them on a local socket (the help text is `SERVE_HELP`)."""
     from marlin_aio.farm.supervisor import PrinterSpec

@@ -104,7 +104,8 @@ def watch(
         float | None,
         typer.Option(
             "--interval",
-            help="Seconds between M105 polls (default 0.01; with several printers 0.1 for each).",
+            help="Seconds between M105 polls (default 0.01; with several printers 0.1 for each): every reading is "
+            "shown and logged; --refresh paces the screen.",
             min=0.001,
             show_default=False,
         ),
@@ -128,7 +129,9 @@ def watch(
         Path | None, typer.Option("--log", help="Also record every reading to this CSV file (on disk within a second).")
     ] = None,
     json_lines: Annotated[bool, typer.Option("--json", help="Print JSON lines instead of the live view.")] = False,
-    duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Stop after this many seconds. Default: until q or Ctrl-C.")
+    ] = None,
     reconnect: Annotated[
         bool,
         typer.Option("--reconnect", help="When the printer goes away, keep retrying (after 1 s, doubling up to 30 s)."),

@@ -3,7 +3,8 @@
 The first line on stdout is the URL to open (a device path such as `/dev/pts/3`, or `socket://127.0.0.1:PORT`),
 flushed at once so a script can read it; everything meant for people goes to stderr. Runs until SIGINT or
 SIGTERM and then exits 0. The options are defined once, in `_options`, for this command and any other that
-serves the simulator (`main(argv, prog=...)` runs it under another name).
+serves the simulator (`marlin-temp sim` makes its typer options of `SIMULATOR_OPTIONS` and serves with
+`serve_until_stopped`).
 
 With `--printers N` it serves N independent printers from one process, one URL per line.
 
@@ -24,9 +25,27 @@ import sys
 from collections.abc import Sequence
 
 from marlin_aio.simulator._config import Faults, SimulatorConfig
-from marlin_aio.simulator._options import DIALECT_SWITCHES, SimulatorSettings, build_parser, simulator_settings
+from marlin_aio.simulator._options import (
+    DIALECT_SWITCHES,
+    GROUP_DESCRIPTIONS,
+    SIMULATOR_OPTIONS,
+    SimulatorSettings,
+    build_parser,
+    option_help,
+    settings_from_values,
+    simulator_settings,
+)
 
-__all__ = ["main", "run_simulator"]
+# The options' table and its readers too: another command line (marlin-temp sim) makes its options of them.
+__all__ = [
+    "GROUP_DESCRIPTIONS",
+    "SIMULATOR_OPTIONS",
+    "main",
+    "option_help",
+    "run_simulator",
+    "serve_until_stopped",
+    "settings_from_values",
+]
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -87,9 +106,21 @@ def _new_loop() -> asyncio.AbstractEventLoop:
 def main(argv: Sequence[str] | None = None, *, prog: str = "marlin-sim") -> int:
     """Run the simulator command line `argv` (default: this process's) as `prog`; return the exit status.
 
-    Bad options print the usage and exit 2, `--help` prints it and exits 0 (argparse's SystemExit).
+    Bad options print one line and exit 2, `--help` prints the options and exits 0 (argparse's SystemExit).
     """
-    settings = simulator_settings(build_parser(prog).parse_args(argv))
+    parser = build_parser(prog)
+    arguments = parser.parse_args(argv)
+    try:
+        settings = simulator_settings(arguments)
+    except ValueError as exc:  # options the configuration refuses (--rx-buffer 0): a usage error too
+        parser.error(str(exc))
+    return serve_until_stopped(settings, prog=prog)
+
+
+def serve_until_stopped(settings: SimulatorSettings, *, prog: str = "marlin-sim") -> int:
+    """Serve the simulator as `settings` say (`run_simulator`) until SIGINT or SIGTERM; return the exit status:
+    0 when stopped, 1 when it could not serve (one line on stderr). Any command line that reads the simulator's
+    options (`marlin-sim`, `marlin-temp sim`) ends here."""
     try:
         with asyncio.Runner(loop_factory=_new_loop) as runner:
             runner.run(run_simulator(settings, prog=prog))

@@ -1,5 +1,5 @@
 """The simulator's command-line options, defined once: `marlin-sim` builds its parser from them, and any other
-command that serves the simulator (`marlin-temp sim`) can hand its arguments to the same definition.
+command that serves the simulator (`marlin-temp sim`) makes its options of the same definition.
 
 `SIMULATOR_OPTIONS` is the table: each row is one flag with its help text and the field it sets, in
 `SimulatorConfig`, in `Faults`, or in how it is served (`SimulatorSettings`). Options of the printer and its
@@ -7,14 +7,19 @@ faults have no default of their own: an option not given leaves its field at the
 defaults live in one place. `simulator_settings()` turns the parsed options into the settings, and
 `SimulatorSettings.server()` into a server ready to start.
 
-argparse keeps this dependency-free and quick to start (the Typer CLI can forward its arguments here).
+argparse keeps this dependency-free and quick to start; `marlin-temp sim` makes typer options of the same rows,
+with the same help (`option_help()`, which states the default) and `settings_from_values()`. So a new flag is a
+row here (and its field): both commands list it, check it with its `parse` and pass it on.
+
+Over 400 lines because the table is one list on purpose, one row an option: split, a flag could go missing from
+one of the two command lines.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, NoReturn
 
@@ -23,11 +28,15 @@ from marlin_aio.simulator._serve import SimulatorServer, serve_pty, serve_tcp
 
 __all__ = [
     "DIALECT_SWITCHES",
+    "GROUP_DESCRIPTIONS",
     "SIMULATOR_OPTIONS",
     "SimulatorOption",
     "SimulatorSettings",
     "add_simulator_options",
     "build_parser",
+    "option_default",
+    "option_help",
+    "settings_from_values",
     "simulator_settings",
 ]
 
@@ -116,7 +125,8 @@ DIALECT_SWITCHES: tuple[tuple[str, str], ...] = (
 )
 
 _DIALECTS = "dialects"
-_GROUP_DESCRIPTIONS = {_DIALECTS: "firmware variants and options a host meets in the field"}
+#: What each help section (`SimulatorOption.group`) holds.
+GROUP_DESCRIPTIONS = {_DIALECTS: "firmware variants and options a host meets in the field"}
 
 #: Every option of `marlin-sim`, in the order `--help` lists them.
 SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
@@ -249,15 +259,39 @@ SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
 )
 
 
+def option_default(option: SimulatorOption) -> object:
+    """The value `option` has when it is not given: the table's for a serve option, else its field's default in
+    `SimulatorConfig` or `Faults` (None for a field whose default means "off")."""
+    if option.target == "serve":
+        return option.default
+    return getattr(SimulatorConfig() if option.target == "config" else Faults(), option.dest)
+
+
+def option_help(option: SimulatorOption) -> str:
+    """`option`'s help text as `marlin-sim --help` and `marlin-temp sim --help` show it: with its default, unless it
+    is an on/off flag (off unless given), has none, or its text already says it."""
+    default = option_default(option)
+    text = option.help.replace("%(default)s", str(default))
+    if option.parse is None or default is None or "default" in text:
+        return text
+    shown = f"{default:g}" if isinstance(default, float) else str(default)
+    return f"{text} (default {shown})"
+
+
 def add_simulator_options(parser: argparse.ArgumentParser) -> None:
     """Add every option of `SIMULATOR_OPTIONS` to `parser` (the dialects in a section of their own)."""
     groups: dict[str | None, argparse.ArgumentParser | argparse._ArgumentGroup] = {None: parser}
     for option in SIMULATOR_OPTIONS:
         if option.group is not None and option.group not in groups:
-            groups[option.group] = parser.add_argument_group(option.group, _GROUP_DESCRIPTIONS[option.group])
+            groups[option.group] = parser.add_argument_group(option.group, GROUP_DESCRIPTIONS[option.group])
         # Printer and fault options not given stay out of the namespace, so their fields keep the default.
         default = option.default if option.target == "serve" else argparse.SUPPRESS
-        arguments: dict[str, Any] = {"dest": option.dest, "default": default, "help": option.help}
+        # argparse formats help with %: the text is final already.
+        arguments: dict[str, Any] = {
+            "dest": option.dest,
+            "default": default,
+            "help": option_help(option).replace("%", "%%"),
+        }
         if option.parse is None:
             arguments["action"] = "store_false" if option.negated else "store_true"
         else:
@@ -334,10 +368,32 @@ class SimulatorSettings:
         )
 
 
-def simulator_settings(arguments: argparse.Namespace) -> SimulatorSettings:
-    """The settings that options parsed by a parser with `add_simulator_options()` ask for."""
-    values: dict[str, dict[str, Any]] = {"serve": {}, "config": {}, "faults": {}}
+def settings_from_values(values: Mapping[str, object]) -> SimulatorSettings:
+    """The settings for the options in `values`, keyed by their `dest` and already read by their `parse` (a negated
+    flag's value is its field's: False for `--no-bed`); an option left out keeps its default.
+
+    Raises:
+        ValueError: values the printer's configuration refuses together or alone (`SimulatorConfig`'s checks).
+    """
+    parts: dict[str, dict[str, Any]] = {"serve": {}, "config": {}, "faults": {}}
     for option in SIMULATOR_OPTIONS:
-        if hasattr(arguments, option.dest):
-            values[option.target][option.dest] = getattr(arguments, option.dest)
-    return SimulatorSettings(SimulatorConfig(**values["config"]), Faults(**values["faults"]), **values["serve"])
+        if option.dest in values:
+            parts[option.target][option.dest] = values[option.dest]
+    try:
+        return SimulatorSettings(SimulatorConfig(**parts["config"]), Faults(**parts["faults"]), **parts["serve"])
+    except ValueError as exc:
+        # The checks name the field ("rx_buffer_size must be at least 1"); the user typed the flag.
+        message = str(exc)
+        for option in SIMULATOR_OPTIONS:
+            if option.dest in values and message.startswith(option.dest + " "):
+                message = option.flag + message[len(option.dest) :]
+        raise ValueError(message) from exc
+
+
+def simulator_settings(arguments: argparse.Namespace) -> SimulatorSettings:
+    """The settings that options parsed by a parser with `add_simulator_options()` ask for.
+
+    Raises:
+        ValueError: values the printer's configuration refuses (`settings_from_values`).
+    """
+    return settings_from_values(vars(arguments))
