@@ -26,6 +26,7 @@ from ..common.options import (
     SimOption,
     SimSpeedOption,
     TimeoutOption,
+    WireLogOption,
     checked_log_path,
     connect_options,
     error_console,
@@ -113,6 +114,7 @@ def watch(
     ] = False,
     max_hotend: MaxHotendOption = DEFAULT_LIMITS.hotend,
     max_bed: MaxBedOption = DEFAULT_LIMITS.bed,
+    wire_log: WireLogOption = None,
 ) -> None:
     """Live view of every heater, with keys to set targets; the farm view for several printers (the help text
     is `WATCH_HELP`)."""
@@ -128,6 +130,7 @@ def watch(
         ask_password=ask_password,
         max_hotend=max_hotend,
         max_bed=max_bed,
+        wire_log=wire_log,
     )
     from .command import WatchSettings, watch_farm, watch_printer
 
