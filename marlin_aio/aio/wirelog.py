@@ -1,7 +1,7 @@
 """A wire log: every line sent to and read from a printer, with its wall-clock time, in a text file (what
 OctoPrint's serial.log and Printrun's "debug communications" give).
 
-    2026-11-28T04:10:00.100 # /dev/ttyUSB0 at 250000 baud: opened (local time, UTC+01:00)
+    2026-11-28T04:10:00.100 # /dev/ttyUSB0 at 250000 baud: opening (local time, UTC+01:00)
     2026-11-28T04:10:00.412 > N1 M110 N0*125
     2026-11-28T04:10:00.431 < ok
     2026-11-28T04:10:09.870 # /dev/ttyUSB0: closed (the connection to /dev/ttyUSB0 was closed)
@@ -13,8 +13,9 @@ pays one test against None per line for it.
 
 One `WireLog` can serve several connections at once and one after another (reconnects, a farm): `named(name)` gives
 a view of the same file whose lines start with the printer's name. The file is opened for appending (a day's
-sessions stay in one file) when the first connection starts, and closed when the last one ends, so a run that
-never connects leaves no file. Lines go through a buffer (a 100 Hz poll is 200 lines a second) flushed at least
+sessions stay in one file) when the first connection starts, and closed when the last one ends. A port that could
+not be opened is logged too (`# ...: not opened (...)`), as is a handshake that failed: the log says why a
+connection never came. Lines go through a buffer (a 100 Hz poll is 200 lines a second) flushed at least
 once a second and when the last connection ends, so a crash loses little. A write that fails (a full disk) stops
 the log, never the link: `error` says why.
 """
@@ -134,7 +135,7 @@ class WireSession:
         file.acquire()
         offset = time.strftime("%z")
         utc = f"UTC{offset[:3]}:{offset[3:]}" if len(offset) == 5 else "local time"
-        file.write(f"{file.stamp()} {self._prefix}# {port} at {baudrate} baud: opened (local time, {utc})\n")
+        file.write(f"{file.stamp()} {self._prefix}# {port} at {baudrate} baud: opening (local time, {utc})\n")
 
     def line(self, time_s: float, direction: Literal["sent", "received"], text: str) -> None:
         """Write one line of the wire (`>` sent, `<` received); `time_s` (the link's clock) is not used: the log
