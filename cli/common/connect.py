@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import getpass
 import os
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -19,6 +20,7 @@ from marlin_aio.protocol import DEFAULT_LIMITS
 
 __all__ = [
     "EXIT_CODES_HELP",
+    "OPENED_PORT",
     "PASSWORD_ENV",
     "ConnectOptions",
     "Exit",
@@ -28,6 +30,9 @@ __all__ = [
     "printer_password",
     "run_sessions",
 ]
+
+#: The port the latest `open_printer` of this task opened (as a path or URL, without a note): `--on-done` tells it.
+OPENED_PORT: contextvars.ContextVar[str] = contextvars.ContextVar("opened_port", default="")
 
 #: The environment variable a locked printer's password (M511) is read from.
 PASSWORD_ENV = "MARLIN_PASSWORD"
@@ -181,6 +186,7 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
             serve_pty(SimulatorConfig(), time_scale=options.sim_speed) as server,
             options.printer(server.url, options.baud or marlin_aio.DEFAULT_BAUDRATE) as printer,
         ):
+            OPENED_PORT.set(server.url)
             yield printer, f"{server.url} (simulated)"
         _say_wire_log_error(options, console)
         return
@@ -224,6 +230,7 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
                     step=exc.step,
                 ) from exc
             raise
+        OPENED_PORT.set(port)
         if served_port:
             port = f"{port} (served)"
         elif printer.reset_on_open:
