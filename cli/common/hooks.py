@@ -90,6 +90,7 @@ async def run_on_done(command: str, done: Done, errors: Console, *, timeout_s: f
             code = await process.wait()
     except TimeoutError:
         _kill(process)
+        await process.wait()  # reaped: SIGKILL cannot be ignored, so this is at once
         _warn(errors, f"--on-done was still running after {timeout_s:g} s: stopped")
         return
     except BaseException:  # Ctrl-C or a cancel while it runs: it must not outlive marlin-temp
