@@ -10,6 +10,7 @@ from datetime import datetime
 from pathlib import Path
 
 import pytest
+from test_serve import serving
 from typer.testing import CliRunner
 
 import marlin_aio
@@ -153,3 +154,29 @@ async def test_two_printers_share_one_file_each_line_named(tmp_path: Path) -> No
     assert re.search(r"\.\d{3} left > N\d+ M114\*\d+$", text, re.MULTILINE), text
     assert re.search(r"\.\d{3} right > N\d+ M119\*\d+$", text, re.MULTILINE), text
     assert not re.search(r"\.\d{3} left > N\d+ M119", text) and not re.search(r"\.\d{3} right > N\d+ M114", text)
+
+
+async def test_a_served_printers_wire_is_the_services_to_log(tmp_path: Path) -> None:
+    service_log = tmp_path / "service-wire.log"
+    client_log = tmp_path / "client-wire.log"
+    args = ("--sim", "--sim-speed", "50", "--interval", "0.05", "--wire-log", str(service_log))
+    async with serving(tmp_path, *args) as served:
+        result = await asyncio.to_thread(
+            runner.invoke, app, ["send", "--port", served.url(), "--wire-log", str(client_log), "M118 hello"]
+        )
+    assert result.exit_code == 0, result.output
+    assert "wire belongs to marlin-temp serve" in result.output
+    assert not client_log.exists()
+    # The service's log has the command the client sent through it, named after its printer.
+    text = service_log.read_text(encoding="utf-8")
+    assert re.search(r"\.\d{3} sim > N\d+ M118 hello\*\d+$", text, re.MULTILINE), text[-2000:]
+
+
+def test_the_farm_view_logs_every_printer_in_one_file_each_line_named(tmp_path: Path) -> None:
+    log = tmp_path / "wire.log"
+    result = runner.invoke(app, ["watch", "--sims", "2", "--json", "--duration", "1", "--wire-log", str(log)])
+    assert result.exit_code == 0, result.output
+    names = {raw.split(" ")[1] for raw in log.read_text(encoding="utf-8").splitlines()}
+    assert names == {"sim1", "sim2"}
+    for name in names:
+        assert re.search(rf"\.\d{{3}} {name} < ok T:", log.read_text(encoding="utf-8")), name

@@ -33,6 +33,7 @@ from .connect import PASSWORD_ENV, ConnectOptions, Exit, UsageProblem, exit_code
 __all__ = [
     "AskPasswordOption",
     "BaudOption",
+    "FarmWireLogOption",
     "MaxBedOption",
     "MaxChamberOption",
     "MaxHotendOption",
@@ -179,6 +180,17 @@ WireLogOption = Annotated[
         "--wire-log",
         help="Append every line sent to and received from the printer, with times, to this file (passwords "
         "redacted). Default: no wire log.",
+        show_default=False,
+    ),
+]
+
+#: `--wire-log` of the commands that run several printers (serve, farm): one file, each line with the printer's name.
+FarmWireLogOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--wire-log",
+        help="Append every line sent to and received from the printers, with times and each printer's name, to "
+        "this file (passwords redacted). Default: no wire log.",
         show_default=False,
     ),
 ]

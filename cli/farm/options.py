@@ -14,7 +14,15 @@ from typing import Annotated
 import typer
 
 from ..common.connect import Exit, UsageProblem
-from ..common.options import BaudOption, SimSpeedOption, error_console, fail, run
+from ..common.options import (
+    BaudOption,
+    FarmWireLogOption,
+    SimSpeedOption,
+    checked_wire_log,
+    error_console,
+    fail,
+    run,
+)
 from ..common.printers import ConfigOption, IntervalOption, PortsOption, SimsOption, printer_specs
 
 __all__ = ["FARM_HELP", "farm"]
@@ -102,6 +110,7 @@ def farm(
         ),
     ] = None,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
+    wire_log: FarmWireLogOption = None,
 ) -> None:
     """Bridge many printers to an MQTT broker (the help text is `FARM_HELP`)."""
     if importlib.util.find_spec("aiomqtt") is None:
@@ -153,6 +162,7 @@ def farm(
         allow_commands=allow_commands,
         allowed_dir=allowed_dir,
     )
-    bridge = run(run_farm(specs, broker_at, settings, FarmOptions(duration_s=duration, socket=socket), error_console()))
+    farm_options = FarmOptions(duration_s=duration, socket=socket, wire_log=checked_wire_log(wire_log))
+    bridge = run(run_farm(specs, broker_at, settings, farm_options, error_console()))
     if bridge.connections == 0:
         fail(f"never reached the MQTT broker at {broker_at.address}: is it running (and the address right)?")

@@ -34,6 +34,7 @@ from rich.text import Text
 
 import marlin_aio
 import marlin_aio.protocol
+from marlin_aio.aio import WireLog
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
 from ..common.connect import ConnectOptions, Exit, run_sessions
@@ -69,6 +70,8 @@ class WatchSettings:
     json_lines: bool = False
     duration_s: float | None = None
     reconnect: bool = False
+    wire_log: WireLog | None = None
+    """The farm view's wire log (--wire-log with several printers); one printer's is in its `ConnectOptions`."""
 
 
 @dataclass(frozen=True)
@@ -393,6 +396,7 @@ async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console:
             errors.print(line, style="dim", markup=False, emoji=False)
 
     farm = Farm(specs, on_event)
+    farm.wire_log = settings.wire_log
     printers = list(farm.printers.values())
     models = {name: WatchModel(settings.window_s, settings.tolerance_c) for name in farm.printers}
     for farm_printer in printers:

@@ -148,6 +148,7 @@ def watch(
         json_lines=json_lines,
         duration_s=duration,
         reconnect=reconnect,
+        wire_log=options.wire_log,
     )
     if farm_specs:
         if log is not None:
