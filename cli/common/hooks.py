@@ -33,7 +33,7 @@ import marlin_aio
 
 from .connect import Exit, UsageProblem, exit_code_for
 
-__all__ = ["HOOK_TIMEOUT_S", "Done", "run_on_done", "with_on_done"]
+__all__ = ["HOOK_TIMEOUT_S", "Done", "outcome_of_error", "run_on_done", "with_on_done"]
 
 #: How long marlin-temp waits for an --on-done command before killing it.
 HOOK_TIMEOUT_S = 60.0

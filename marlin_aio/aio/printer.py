@@ -122,7 +122,8 @@ class Printer:
         password: unlocks a printer with Marlin's PASSWORD_FEATURE during the handshake (M511); without it, a
             locked printer fails the handshake with `PrinterLockedError`.
         wire_log: write every line sent and received, with times, to this log (`marlin_aio.aio.WireLog`), from
-            the handshake on; passwords redacted.
+            the handshake on; passwords redacted. A `serve:NAME` printer's wire is the service's: nothing is
+            written for it here.
 
     Attributes:
         firmware: the M115 identity line, once the handshake asked for it.
