@@ -10,6 +10,7 @@ from datetime import datetime
 from pathlib import Path
 
 import pytest
+from conftest import until
 from test_serve import serving
 from typer.testing import CliRunner
 
@@ -180,3 +181,14 @@ def test_the_farm_view_logs_every_printer_in_one_file_each_line_named(tmp_path: 
     assert names == {"sim1", "sim2"}
     for name in names:
         assert re.search(rf"\.\d{{3}} {name} < ok T:", log.read_text(encoding="utf-8")), name
+
+
+async def test_lines_reach_the_file_while_the_printer_stays_open(tmp_path: Path) -> None:
+    # Buffered, yet on disk within about a second: a crash loses little. Read while still connected, so no close
+    # has flushed it.
+    path = tmp_path / "wire.log"
+    wire_log = WireLog(path)
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim, marlin_aio.Printer(sim.url, wire_log=wire_log) as p:
+        await p.send("M118 E1 flushed")
+        await until(lambda: "M118 E1 flushed" in path.read_text(encoding="utf-8"), "the line on disk")
+        assert p.is_connected
