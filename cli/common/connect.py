@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import getpass
 import os
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -14,11 +15,12 @@ from pathlib import Path
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio.aio import Backoff, Retry, keep_connected
+from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
 from marlin_aio.protocol import DEFAULT_LIMITS
 
 __all__ = [
     "EXIT_CODES_HELP",
+    "OPENED_PORT",
     "PASSWORD_ENV",
     "ConnectOptions",
     "Exit",
@@ -28,6 +30,9 @@ __all__ = [
     "printer_password",
     "run_sessions",
 ]
+
+#: The port the latest `open_printer` of this task opened (as a path or URL, without a note): `--on-done` tells it.
+OPENED_PORT: contextvars.ContextVar[str] = contextvars.ContextVar("opened_port", default="")
 
 #: The environment variable a locked printer's password (M511) is read from.
 PASSWORD_ENV = "MARLIN_PASSWORD"
@@ -130,6 +135,8 @@ class ConnectOptions:
     limits: marlin_aio.HeaterLimits = DEFAULT_LIMITS
     """The highest targets any command may set (--max-hotend, --max-bed, --max-chamber)."""
     password: str | None = None
+    wire_log: WireLog | None = None
+    """Where every line on the wire goes (--wire-log), or None."""
 
     def printer(self, port: str, baud: int) -> marlin_aio.Printer:
         """A client for `port` with these options."""
@@ -141,6 +148,7 @@ class ConnectOptions:
             max_bed_celsius=self.limits.bed,
             max_chamber_celsius=self.limits.chamber,
             password=self.password,
+            wire_log=self.wire_log,
         )
 
 
@@ -178,7 +186,9 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
             serve_pty(SimulatorConfig(), time_scale=options.sim_speed) as server,
             options.printer(server.url, options.baud or marlin_aio.DEFAULT_BAUDRATE) as printer,
         ):
+            OPENED_PORT.set(server.url)
             yield printer, f"{server.url} (simulated)"
+        _say_wire_log_error(options, console)
         return
     if options.port is not None and not options.port.strip():
         raise UsageProblem("--port is empty: give a device path or URL, or leave --port out to find the printer")
@@ -192,6 +202,14 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
             console.print(f"{port} is held by marlin-temp serve: using it ({served})", style="dim")
             port = served
     served_port = port.startswith("serve:")
+    if served_port and options.wire_log is not None:
+        # The client speaks to the service, not to the printer: the serial lines are the service's to log.
+        console.print(
+            f"--wire-log: {port}'s wire belongs to marlin-temp serve, nothing is written here "
+            "(give serve --wire-log instead)",
+            style="yellow",
+            markup=False,
+        )
     rates = (
         [options.baud or marlin_aio.DEFAULT_BAUDRATE] if served_port or options.baud else list(marlin_aio.BAUD_RATES)
     )
@@ -212,6 +230,7 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
                     step=exc.step,
                 ) from exc
             raise
+        OPENED_PORT.set(port)
         if served_port:
             port = f"{port} (served)"
         elif printer.reset_on_open:
@@ -223,7 +242,19 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
             yield printer, port
         finally:
             await printer.close()
+            _say_wire_log_error(options, console)
         return
+
+
+def _say_wire_log_error(options: ConnectOptions, console: Console) -> None:
+    """Say once that the wire log stopped (a full disk, a file that cannot be opened): it never stops the command."""
+    error = options.wire_log.take_error() if options.wire_log is not None else None
+    if error is not None and options.wire_log is not None:
+        console.print(
+            f"warning: --wire-log {options.wire_log.path} stopped: {error.strerror or error}",
+            style="yellow",
+            markup=False,
+        )
 
 
 async def run_sessions(

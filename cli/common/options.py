@@ -25,6 +25,7 @@ from rich.console import Console
 from rich.markup import escape
 
 import marlin_aio
+from marlin_aio.aio import WireLog
 from marlin_aio.protocol import DEFAULT_LIMITS, check_target
 
 from .connect import PASSWORD_ENV, ConnectOptions, Exit, UsageProblem, exit_code_for, printer_password
@@ -32,6 +33,7 @@ from .connect import PASSWORD_ENV, ConnectOptions, Exit, UsageProblem, exit_code
 __all__ = [
     "AskPasswordOption",
     "BaudOption",
+    "FarmWireLogOption",
     "MaxBedOption",
     "MaxChamberOption",
     "MaxHotendOption",
@@ -41,8 +43,10 @@ __all__ = [
     "SimOption",
     "SimSpeedOption",
     "TimeoutOption",
+    "WireLogOption",
     "checked_log_path",
     "checked_target",
+    "checked_wire_log",
     "connect_options",
     "error_console",
     "fail",
@@ -170,6 +174,38 @@ MaxBedOption = Annotated[float, typer.Option("--max-bed", help="Highest bed targ
 MaxChamberOption = Annotated[
     float, typer.Option("--max-chamber", help="Highest chamber target allowed (C).", min=1, max=1000)
 ]
+WireLogOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--wire-log",
+        help="Append every line sent to and received from the printer, with times, to this file (passwords "
+        "redacted). Default: no wire log.",
+        show_default=False,
+    ),
+]
+
+#: `--wire-log` of the commands that run several printers (serve, farm): one file, each line with the printer's name.
+FarmWireLogOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--wire-log",
+        help="Append every line sent to and received from the printers, with times and each printer's name, to "
+        "this file (passwords redacted). Default: no wire log.",
+        show_default=False,
+    ),
+]
+
+
+def checked_wire_log(path: Path | None) -> WireLog | None:
+    """The wire log `--wire-log` names, checked before anything connects as `checked_log_path` checks a log (and
+    that it can be written): exit code 2 with one line otherwise. The file itself is made by the first connection."""
+    if path is None:
+        return None
+    checked_log_path(path, "--wire-log")
+    target = path if path.exists() else path.parent
+    if not os.access(target, os.W_OK):
+        fail(f"--wire-log {path}: cannot write to {target.resolve()} (permission denied)", Exit.USAGE)
+    return WireLog(path)
 
 
 def connect_options(
@@ -184,6 +220,7 @@ def connect_options(
     max_hotend: MaxHotendOption = DEFAULT_LIMITS.hotend,
     max_bed: MaxBedOption = DEFAULT_LIMITS.bed,
     max_chamber: MaxChamberOption = DEFAULT_LIMITS.chamber,
+    wire_log: WireLogOption = None,
 ) -> ConnectOptions:
     """The `ConnectOptions` of the shared options, with the printer's password read as `printer_password` says:
     a `--password` on the command line, two sources, or an unreadable file fails with one line (exit code 2).
@@ -202,6 +239,7 @@ def connect_options(
         timeout_s=timeout,
         limits=marlin_aio.HeaterLimits(max_hotend, max_bed, max_chamber),
         password=secret,
+        wire_log=checked_wire_log(wire_log),
     )
 
 

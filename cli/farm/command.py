@@ -19,6 +19,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
+from marlin_aio.aio import WireLog
 from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
 from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
 from marlin_aio.service import Service, ServiceRunningError
@@ -39,6 +40,8 @@ class FarmOptions:
     quiet: bool = False
     socket: Path | None = None
     """Where the farm's printers are shared (`marlin-temp serve`'s socket; None: the default)."""
+    wire_log: WireLog | None = None
+    """Every printer's serial lines, each with the printer's name (--wire-log), or None."""
 
 
 def broker_settings(
@@ -112,6 +115,7 @@ async def run_farm(
     # printers through the socket too (`--port serve:NAME`), and a print is one print whoever started it.
     service = Service(specs, options.socket, on_event=show)
     farm = service.farm
+    farm.wire_log = options.wire_log
     bridge = Bridge(farm, broker, settings)
     try:
         await service.check_socket()

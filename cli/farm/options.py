@@ -14,7 +14,15 @@ from typing import Annotated
 import typer
 
 from ..common.connect import Exit, UsageProblem
-from ..common.options import BaudOption, SimSpeedOption, error_console, fail, run
+from ..common.options import (
+    BaudOption,
+    FarmWireLogOption,
+    SimSpeedOption,
+    checked_wire_log,
+    error_console,
+    fail,
+    run,
+)
 from ..common.presets import PresetsOption, load_presets_file
 from ..common.printers import ConfigOption, IntervalOption, PortsOption, SimsOption, printer_specs
 
@@ -109,6 +117,7 @@ def farm(
         float | None, typer.Option("--duration", help="Stop after this many seconds. Default: until Ctrl-C or SIGTERM.")
     ] = None,
     presets_file: PresetsOption = None,
+    wire_log: FarmWireLogOption = None,
 ) -> None:
     """Bridge many printers to an MQTT broker (the help text is `FARM_HELP`)."""
     if importlib.util.find_spec("aiomqtt") is None:
@@ -162,6 +171,7 @@ def farm(
         # Only commands use the presets: without them a bad presets file need not stop the farm.
         presets=load_presets_file(presets_file).presets if allow_commands else (),
     )
-    bridge = run(run_farm(specs, broker_at, settings, FarmOptions(duration_s=duration, socket=socket), error_console()))
+    farm_options = FarmOptions(duration_s=duration, socket=socket, wire_log=checked_wire_log(wire_log))
+    bridge = run(run_farm(specs, broker_at, settings, farm_options, error_console()))
     if bridge.connections == 0:
         fail(f"never reached the MQTT broker at {broker_at.address}: is it running (and the address right)?")

@@ -26,7 +26,8 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedCo
 
 import marlin_aio
 
-from ..common.connect import ConnectOptions, Exit, UsageProblem, open_printer
+from ..common.connect import OPENED_PORT, ConnectOptions, Exit, UsageProblem, open_printer
+from ..common.hooks import Done, outcome_of_error, with_on_done
 from ..common.model import heater_name
 from ..printing.view import heaters_on
 
@@ -58,6 +59,8 @@ class SetRequest:
     cool_to_c: float = SAFE_CELSIUS
     preset: str | None = None
     """The preset the targets came from (said in the confirmation line)."""
+    on_done: str | None = None
+    """With `wait`: the shell command run when the wait ends (`--on-done`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -303,12 +306,42 @@ async def _wait_until_cool(
 
 
 async def set_printer_targets(options: ConnectOptions, request: SetRequest, console: Console, errors: Console) -> Exit:
-    """Set the targets, print what the printer confirmed, and wait if asked; return the exit code.
+    """Set the targets, print what the printer confirmed, and wait if asked; return the exit code. With
+    `request.on_done`, run that command when it ends (`common.hooks`), whatever the end but a bad target.
 
     Raises:
         UsageProblem: a target names a heater the printer does not have (nothing is sent).
         MarlinError: opening, sending or waiting failed (TemperatureTimeoutError after --wait-timeout).
     """
+
+    def describe(code: Exit | None, error: BaseException | None, elapsed_s: float) -> Done:
+        port = OPENED_PORT.get()
+        if error is None:
+            outcome, exit_code = ("cool" if _only_cooling(request) else "reached"), int(code or 0)
+            message = f"{_wanted(request)} on {port or 'the printer'}"
+        else:
+            outcome, exit_code = outcome_of_error(error)
+            message = f"set --wait on {port or 'the printer'}: {outcome}" + (f": {error}" if str(error) else "")
+        return Done("set", outcome, exit_code, message, port=port, elapsed_s=elapsed_s)
+
+    body = _set_printer_targets(options, request, console, errors)
+    return await with_on_done(body, request.on_done, errors, describe)
+
+
+def _only_cooling(request: SetRequest) -> bool:
+    return request.off or not any((request.hotend, request.bed, request.chamber))
+
+
+def _wanted(request: SetRequest) -> str:
+    """What the wait waited for, for --on-done's message: "hotend 200 C, bed 60 C reached"."""
+    if _only_cooling(request):
+        return f"heaters below {request.cool_to_c:g} C"
+    asked = (("hotend", request.hotend), ("bed", request.bed), ("chamber", request.chamber))
+    parts = [f"{name} {celsius:g} C" if celsius else f"{name} off" for name, celsius in asked if celsius is not None]
+    return ", ".join(parts) + " reached"
+
+
+async def _set_printer_targets(options: ConnectOptions, request: SetRequest, console: Console, errors: Console) -> Exit:
     async with open_printer(options, errors) as (printer, label):
         heaters = PrinterHeaters.of(await printer.read_temperatures())
         targets = _targets(request, heaters)

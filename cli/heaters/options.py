@@ -73,6 +73,17 @@ def set_targets(
         float,
         typer.Option("--cool-to", help="With --off --wait (or a target of 0): wait until below this (C).", min=0),
     ] = 50.0,
+    on_done: Annotated[
+        str | None,
+        typer.Option(
+            "--on-done",
+            metavar="CMD",
+            help="With --wait: run CMD through sh -c when the wait ends (reached, timed out, failed), with the outcome "
+            "in $MARLIN_TEMP_OUTCOME, $MARLIN_TEMP_MESSAGE, $MARLIN_TEMP_EXIT ... (see the README); waited for up to "
+            "60 s. Default: none.",
+            show_default=False,
+        ),
+    ] = None,
     *,
     options: ConnectOptions,
 ) -> None:
@@ -83,6 +94,10 @@ def set_targets(
         fail("--off turns every heater off; do not combine it with targets", Exit.USAGE)
     if off and preset is not None:
         fail("--off turns every heater off; do not combine it with --preset", Exit.USAGE)
+    if on_done is not None and not wait:
+        fail("--on-done runs when a --wait ends; without --wait set ends at once: give --wait too", Exit.USAGE)
+    if on_done is not None and not on_done.strip():
+        fail("--on-done is empty: give a shell command", Exit.USAGE)
     limits = options.limits
     # The preset's targets, less those --hotend or --bed replaces.
     given = {"hotend": checked_target("hotend", hotend, limits.hotend), "bed": checked_target("bed", bed, limits.bed)}
@@ -102,6 +117,7 @@ def set_targets(
         timeout_s=wait_timeout,
         cool_to_c=cool_to,
         preset=preset_name,
+        on_done=on_done,
     )
     if not off and request.hotend is None and request.bed is None and request.chamber is None:
         fail("nothing to set: give --hotend, --bed, --chamber, --preset or --off", Exit.USAGE)

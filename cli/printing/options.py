@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Annotated
 
@@ -96,11 +97,24 @@ def print_file(
             min=0.05,
         ),
     ] = 2.0,
+    on_done: Annotated[
+        str | None,
+        typer.Option(
+            "--on-done",
+            metavar="CMD",
+            help="Run CMD through sh -c when the print ends (done, cancelled, failed, halted), with the outcome in "
+            "$MARLIN_TEMP_OUTCOME, $MARLIN_TEMP_MESSAGE, $MARLIN_TEMP_FILE ... (see the README); waited for up to "
+            "60 s. Default: none.",
+            show_default=False,
+        ),
+    ] = None,
     *,
     options: ConnectOptions,
 ) -> None:
     """Stream a G-code file with a progress view, keys and --from-line (the help text is `PRINT_HELP`)."""
+    from ..common.hooks import with_on_done
     from .command import PrintSettings, print_gcode
+    from .done import print_done
     from .plan import plan_print
 
     if path.is_dir():
@@ -119,5 +133,9 @@ def print_file(
     settings = PrintSettings(
         plan=plan, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters, plain_every_s=refresh
     )
-    code = run(print_gcode(options, settings, Console(highlight=False, emoji=False), error_console()))
+    if on_done is not None and not on_done.strip():
+        fail("--on-done is empty: give a shell command", Exit.USAGE)
+    errors = error_console()
+    body = print_gcode(options, settings, Console(highlight=False, emoji=False), errors)
+    code = run(with_on_done(body, on_done, errors, functools.partial(print_done, path)))
     raise typer.Exit(int(code))

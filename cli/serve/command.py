@@ -15,6 +15,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
+from marlin_aio.aio import WireLog
 from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
 from marlin_aio.service import (
     TOKEN_ENV,
@@ -71,6 +72,8 @@ class ServeOptions:
     token_file: Path | None = None
     log_dir: Path | None = None
     log_interval_s: float = 1.0
+    wire_log: WireLog | None = None
+    """Every printer's serial lines, each with the printer's name (--wire-log), or None."""
 
 
 def default_log_dir() -> Path:
@@ -115,6 +118,7 @@ async def run_serve(
         service = Service(specs, socket_path, on_event=show, octoprint=octoprint, tcp=tcp)
     except ValueError as exc:
         raise UsageProblem(str(exc)) from None
+    service.farm.wire_log = options.wire_log
     stopped = asyncio.Event()
     loop = asyncio.get_running_loop()
     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):  # not the main thread, or no signals

@@ -8,7 +8,15 @@ from typing import Annotated
 import typer
 
 from ..common.connect import Exit
-from ..common.options import BaudOption, SimSpeedOption, error_console, fail, run
+from ..common.options import (
+    BaudOption,
+    FarmWireLogOption,
+    SimSpeedOption,
+    checked_wire_log,
+    error_console,
+    fail,
+    run,
+)
 from ..common.printers import ConfigOption, IntervalOption, PortsOption, SimsOption, printer_specs
 
 __all__ = ["SERVE_HELP", "serve"]
@@ -91,6 +99,7 @@ def serve(
     duration: Annotated[
         float | None, typer.Option("--duration", help="Stop after this many seconds. Default: until Ctrl-C or SIGTERM.")
     ] = None,
+    wire_log: FarmWireLogOption = None,
 ) -> None:
     """Own the printers and share them on a local socket (the help text is `SERVE_HELP`)."""
     from marlin_aio.farm.supervisor import PrinterSpec
@@ -129,6 +138,7 @@ def serve(
         token_file=token_file,
         log_dir=None if no_log else (log_dir or default_log_dir()),
         log_interval_s=log_interval,
+        wire_log=checked_wire_log(wire_log),
     )
     run(run_serve(specs, socket, duration, error_console(), options))
 

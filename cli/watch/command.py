@@ -34,6 +34,7 @@ from rich.text import Text
 
 import marlin_aio
 import marlin_aio.protocol
+from marlin_aio.aio import WireLog
 from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
 from marlin_aio.farm.supervisor import Farm, FarmEvent, PrinterSpec
 
@@ -72,6 +73,8 @@ class WatchSettings:
     reconnect: bool = False
     presets: tuple[Preset, ...] = DEFAULT_PRESETS
     """The presets file's presets: the keys 1-9 of one printer's view."""
+    wire_log: WireLog | None = None
+    """The farm view's wire log (--wire-log with several printers); one printer's is in its `ConnectOptions`."""
 
 
 @dataclass(frozen=True)
@@ -404,6 +407,7 @@ async def watch_farm(specs: list[PrinterSpec], settings: WatchSettings, console:
             errors.print(line, style="dim", markup=False, emoji=False)
 
     farm = Farm(specs, on_event)
+    farm.wire_log = settings.wire_log
     printers = list(farm.printers.values())
     models = {name: WatchModel(settings.window_s, settings.tolerance_c) for name in farm.printers}
     for farm_printer in printers:

@@ -27,6 +27,7 @@ from ..common.options import (
     SimOption,
     SimSpeedOption,
     TimeoutOption,
+    WireLogOption,
     checked_log_path,
     connect_options,
     error_console,
@@ -139,6 +140,7 @@ def watch(
     max_hotend: MaxHotendOption = DEFAULT_LIMITS.hotend,
     max_bed: MaxBedOption = DEFAULT_LIMITS.bed,
     presets_file: PresetsOption = None,
+    wire_log: WireLogOption = None,
 ) -> None:
     """Live view of every heater, with keys to set targets; the farm view for several printers (the help text
     is `WATCH_HELP`)."""
@@ -154,6 +156,7 @@ def watch(
         ask_password=ask_password,
         max_hotend=max_hotend,
         max_bed=max_bed,
+        wire_log=wire_log,
     )
     from .command import WatchSettings, watch_farm, watch_printer
 
@@ -173,6 +176,7 @@ def watch(
         reconnect=reconnect,
         # One printer's view only: the farm view's keys 1-9 choose a printer.
         presets=() if farm_specs else load_presets_file(presets_file).presets,
+        wire_log=options.wire_log,
     )
     if farm_specs:
         if log is not None:

@@ -5,10 +5,11 @@ prints in progress (`printhandle`) and G-code files read for printing (`gcodefil
 An application needs only `marlin_aio`'s own names. Exported here: keeping a printer connected across unplugs,
 halts and silences (`keep_connected`, with its `Backoff` and the `Retry` it reports), and, for tools that stream
 files their own way, reading a G-code file as the printer will be fed it, checked whole first and watched for
-changes while it prints.
+changes while it prints. And the `WireLog` a `Printer` writes every line of its wire to (`wire_log=`).
 """
 
 from marlin_aio.aio.gcodefile import file_lines, job_from_path, scan_gcode
 from marlin_aio.aio.reconnect import Backoff, Retry, keep_connected
+from marlin_aio.aio.wirelog import WireLog
 
-__all__ = ["Backoff", "Retry", "file_lines", "job_from_path", "keep_connected", "scan_gcode"]
+__all__ = ["Backoff", "Retry", "WireLog", "file_lines", "job_from_path", "keep_connected", "scan_gcode"]

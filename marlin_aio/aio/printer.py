@@ -31,6 +31,7 @@ from marlin_aio.aio.handshake import BAUD_RATES, handshake, send_until_processed
 from marlin_aio.aio.link import Link
 from marlin_aio.aio.poller import Poller
 from marlin_aio.aio.printhandle import PrintHandle
+from marlin_aio.aio.wirelog import WireLog, WireSession
 from marlin_aio.errors import ConnectionLostError, MarlinError, PrinterHaltedError, TemperatureTimeoutError
 from marlin_aio.protocol.commands import (
     DEFAULT_MAX_BED_CELSIUS,
@@ -120,6 +121,9 @@ class Printer:
         max_chamber_celsius: the highest chamber target accepted.
         password: unlocks a printer with Marlin's PASSWORD_FEATURE during the handshake (M511); without it, a
             locked printer fails the handshake with `PrinterLockedError`.
+        wire_log: write every line sent and received, with times, to this log (`marlin_aio.aio.WireLog`), from
+            the handshake on; passwords redacted. A `serve:NAME` printer's wire is the service's: nothing is
+            written for it here.
 
     Attributes:
         firmware: the M115 identity line, once the handshake asked for it.
@@ -154,6 +158,7 @@ class Printer:
         max_bed_celsius: float = DEFAULT_MAX_BED_CELSIUS,
         max_chamber_celsius: float = DEFAULT_MAX_CHAMBER_CELSIUS,
         password: str | None = None,
+        wire_log: WireLog | None = None,
     ) -> None:
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be positive, got {timeout_s}")
@@ -175,6 +180,8 @@ class Printer:
         self._password = password
         self._window = (max_in_flight, rx_buffer_bytes)
         self._numbered = numbered
+        self._wire_log = wire_log
+        self._wire: WireSession | None = None
         self.firmware: FirmwareInfo | None = None
         self.capabilities: dict[str, bool] = {}
         self.print_poll_interval_s = 1.0
@@ -307,8 +314,16 @@ class Printer:
         # Connecting from before the port opens: a boot banner read the moment it is open is the handshake's, never
         # a reset of a connected printer.
         self._connecting = self._handshake_enabled
+        if self._wire_log is not None:
+            self._end_wire("closed")  # a session of an earlier open that was never closed
+            self._wire = self._wire_log.connection(self.port, self.baudrate)
+            self._connection.trace.tap = self._wire.line
         try:
-            await self._link.open()
+            try:
+                await self._link.open()
+            except BaseException as exc:
+                self._end_wire(f"not opened ({exc})")
+                raise
             _log.info("opened %s at %d baud", self.port, self.baudrate)
             if not self._handshake_enabled:
                 return
@@ -316,7 +331,8 @@ class Printer:
                 self._reset_on_open = await handshake(
                     self._link, timeout_s=self.timeout_s, boot_quiet_s=self._boot_quiet_s, password=self._password
                 )
-            except BaseException:
+            except BaseException as exc:
+                self._end_wire(f"closed: the handshake failed ({exc})")
                 await self.close()
                 raise
         finally:
@@ -342,6 +358,14 @@ class Printer:
         """Close the port. Commands still waiting fail with `ConnectionLostError`; safe to call twice."""
         self._poller.cancel()
         await self._link.close()
+        lost = self._link.lost
+        self._end_wire("closed" if lost is None or "was closed" in str(lost) else f"closed after: {lost}")
+
+    def _end_wire(self, reason: str) -> None:
+        wire, self._wire = self._wire, None
+        if wire is not None:
+            self._connection.trace.tap = None
+            wire.end(reason)
 
     # ------------------------------------------------------------------------------------------- commands
 

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import marlin_aio
-from marlin_aio.aio import Backoff, Retry, keep_connected
+from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
 
 if TYPE_CHECKING:
     from marlin_aio.simulator import SimulatorServer
@@ -225,6 +225,8 @@ class Farm:
         self._backoff_max_s = backoff_max_s
         self.sims: dict[str, SimulatorServer] = {}
         """The simulated printers' servers, by printer name (tests reach in to unplug one)."""
+        self.wire_log: WireLog | None = None
+        """Where every printer's wire goes, each line with the printer's name (set before `run`), or None."""
         self._group: asyncio.TaskGroup | None = None
 
     async def run(self) -> None:
@@ -354,6 +356,7 @@ class Farm:
                 max_bed_celsius=spec.max_bed_celsius,
                 max_chamber_celsius=spec.max_chamber_celsius,
                 password=spec.password,
+                wire_log=None if self.wire_log is None else self.wire_log.named(spec.name),
             )
             await stack.enter_async_context(printer)
             farm_printer.printer = printer

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import logging
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
 from marlin_aio.protocol.secrets import redact
 
-__all__ = ["Trace", "TraceEntry"]
+__all__ = ["Tap", "Trace", "TraceEntry"]
 
 #: Every line on the wire, at DEBUG (`logging.getLogger("marlin_aio.wire").setLevel(logging.DEBUG)` to see them).
 _wire_log = logging.getLogger("marlin_aio.wire")
@@ -30,20 +31,28 @@ class TraceEntry:
 
 _Line = tuple[float, Literal["sent", "received"], str]
 
+#: What `Trace.tap` is called with: each line's time (the connection's clock), its direction and its redacted text.
+Tap = Callable[[float, Literal["sent", "received"], str], None]
+
 
 class Trace:
     """The last `size` lines sent and received, oldest first, plus when each direction last saw traffic.
 
     Lines are kept as plain tuples and turned into `TraceEntry` values only when read: two lines are recorded for
     every poll, a hundred times a second, and read only when something went wrong.
+
+    Attributes:
+        tap: called with every line as it is recorded (a wire log: `marlin_aio.aio.WireLog`), or None. It runs
+            inside the link's read handler, so it must not raise.
     """
 
-    __slots__ = ("_entries", "_last_received", "_last_sent")
+    __slots__ = ("_entries", "_last_received", "_last_sent", "tap")
 
     def __init__(self, size: int = 64) -> None:
         self._entries: deque[_Line] = deque(maxlen=size)
         self._last_sent: _Line | None = None
         self._last_received: _Line | None = None
+        self.tap: Tap | None = None
 
     def sent(self, time_s: float, text: str) -> None:
         """Record a line written to the printer (redacted: see the module's docstring)."""
@@ -51,6 +60,8 @@ class Trace:
         entry: _Line = (time_s, "sent", text)
         self._entries.append(entry)
         self._last_sent = entry
+        if self.tap is not None:
+            self.tap(time_s, "sent", text)
         if _wire_log.isEnabledFor(logging.DEBUG):
             _wire_log.debug(">> %s", text)
 
@@ -61,6 +72,8 @@ class Trace:
         entry: _Line = (time_s, "received", text)
         self._entries.append(entry)
         self._last_received = entry
+        if self.tap is not None:
+            self.tap(time_s, "received", text)
         if _wire_log.isEnabledFor(logging.DEBUG):
             _wire_log.debug("<< %s", text)
 
