@@ -220,6 +220,8 @@ def footer(port: str, firmware: str, link: LinkHealth, width: int | None = None,
 def controls_view(controls: WatchControls, width: int | None = None) -> Text:
     """Under the chart: the last action's outcome (a reply, or an error in red), the input line, the key help."""
     text = Text()
+    if controls.printer_prompt_text is not None:
+        text.append(controls.printer_prompt_text + "\n", style="bold yellow")
     notice = controls.notice
     if notice is not None:
         style = "bold red" if notice.error else "bold"

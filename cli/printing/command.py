@@ -27,6 +27,7 @@ import marlin_aio
 
 from ..common.connect import ConnectOptions, Exit, exit_code_for, open_printer
 from ..common.keys import key_presses, on_stop_signals
+from ..common.prompts import answer_index, prompt_text
 from .plan import GcodePlan
 from .view import (
     KEYS_HELP,
@@ -79,6 +80,7 @@ def print_status(
     keys: str | None = None,
     cancelling: bool = False,
     note: str | None = None,
+    prompt: str | None = None,
 ) -> PrintStatus:
     """One frame of the view from the print's progress, the file's plan and the latest reading."""
     in_flight = progress.lines_sent > progress.lines_acked
@@ -102,7 +104,20 @@ def print_status(
         keys=keys,
         message=plan.display_text(progress.last_source_line),
         note=note,
+        paused_by=progress.paused_by,
+        prompt=prompt,
     )
+
+
+async def _answer(printer: marlin_aio.Printer, index: int) -> str:
+    """Answer the printer's prompt with button `index`; what to tell the user."""
+    prompt = printer.prompt
+    try:
+        await printer.answer_prompt(index)
+    except (ValueError, marlin_aio.MarlinError) as exc:
+        return f"the answer was not sent: {exc}"
+    label = prompt.buttons[index] if prompt is not None else str(index + 1)
+    return f"answered the printer: {label} (M876 S{index})"
 
 
 def _say(console: Console, label: str, style: str, text: str) -> None:
@@ -291,6 +306,7 @@ async def _follow(
     done = asyncio.create_task(handle.wait())
     last_plain = -plain_every_s
     last_message: str | None = None
+    last_said: tuple[str | None, str | None] = (None, None)  # the pause reason and prompt last printed plainly
     live = Live(console=console, auto_refresh=False) if console.is_terminal else None
 
     def frame(keys_help: str | None) -> PrintStatus:
@@ -307,6 +323,7 @@ async def _follow(
             keys=keys_help,
             cancelling=cancelling,
             note=note,
+            prompt=prompt_text(printer.prompt, printer.waiting_for_user),
         )
         if status.state == "printing":
             rate.add(time.monotonic(), progress.lines_acked)
@@ -364,6 +381,8 @@ async def _follow(
                 elif key is not None and asking:
                     asking = False
                     cancel = key == "y" and not ending.done()
+                elif isinstance(key, str) and (index := answer_index(key, printer.prompt)) is not None:
+                    note = await _answer(printer, index)
                 elif key == "p" and not cancelling:
                     handle.pause()
                 elif key == "r" and not cancelling:
@@ -388,6 +407,12 @@ async def _follow(
                 if status.message is not None and status.message != last_message:
                     last_message = status.message
                     print(f"printer: {status.message}", flush=True)
+                said = (status.paused_by if status.state == "paused" else None, status.prompt)
+                if said != last_said:
+                    last_said = said
+                    for text in said:
+                        if text is not None:
+                            print(text if text is status.prompt else f"paused: {text}", flush=True)
                 if status.question is not None and signalled:
                     print(status.question, flush=True)  # keys on a terminal, output to a pipe: ask plainly
                 elif time.monotonic() - last_plain >= plain_every_s:

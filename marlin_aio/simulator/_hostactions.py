@@ -50,13 +50,15 @@ def open_prompt(board: Board, message: str, buttons: Sequence[str]) -> None:
     board.prompt = (message, tuple(buttons))
 
 
-def answer_prompt(board: Board, index: int) -> None:
-    """M876 S<index>: close the open prompt and end a wait for the user (an answer with no prompt open, or past
-    its buttons, is ignored, as Marlin's response handler does when no prompt reason is set)."""
+def answer_prompt(board: Board, index: int, *, by_host: bool = True) -> None:
+    """M876 S<index> (`by_host`) or a click on the screen: close the open prompt and end a wait for the user (an
+    answer with no prompt open, or past its buttons, is ignored, as Marlin's response handler does when no prompt
+    reason is set). The host's answers are recorded in `board.answers`."""
     prompt = board.prompt
     if prompt is None or not 0 <= index < max(len(prompt[1]), 1):
         return
-    board.answers.append(index)
+    if by_host:
+        board.answers.append(index)
     board.prompt = None
     board.emit("//action:prompt_end")
     board.wait_for_user = False

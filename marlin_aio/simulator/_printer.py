@@ -53,6 +53,8 @@ __all__ = ["Faults", "SimulatedPrinter", "SimulatorConfig"]
 
 _LOCKED = "echo:Printer locked! (Unlock with M511 or LCD)"  # STR_PRINTER_LOCKED, as SERIAL_ECHO_MSG prints it
 _LOST_MCU = "!! Lost communication with MCU 'mcu'"
+#: Numbered lines a host sends beside a print's own (polls, renumbering): a runout waits for a print line.
+_NOT_PRINTING = frozenset({"M105", "M110"})
 
 
 class SimulatedPrinter:
@@ -261,6 +263,17 @@ class SimulatedPrinter:
             return
         self._emit(f"//action:{action} {argument}" if argument else f"//action:{action}")
 
+    def answer_on_screen(self, now: float, index: int = 0) -> None:
+        """A person at the printer picks button `index` of the open prompt on its screen at `now` (a click that
+        ends M600's wait), as M876 S<index> would; with no prompt open, the click ends a wait for the user."""
+        self._run_until(to_us(now))
+        board = self._board
+        if board.prompt is not None:
+            answer_prompt(board, index, by_host=False)
+        elif board.wait_for_user:
+            board.wait_for_user = False
+            board.poked = True
+
     @property
     def prompt(self) -> tuple[str, tuple[str, ...]] | None:
         """The prompt shown to the host and not yet answered (its message and buttons), or None."""
@@ -451,7 +464,13 @@ class SimulatedPrinter:
         handler = self._handlers.get(command.code)
         if handler is None:
             handler = tool_change if command.code[:1] == "T" else unknown
-        if command.line_number is not None and command.line_number == self.faults.runout_at_line:
+        runout = self.faults.runout_at_line
+        if (
+            runout is not None
+            and command.line_number is not None
+            and command.line_number >= runout
+            and command.code not in _NOT_PRINTING
+        ):
             self.faults.runout_at_line = None  # it strikes once
             task: Task | None = runout_then(board, command, handler)
         else:
