@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import AsyncIterator, Callable, Iterator
@@ -142,6 +143,35 @@ async def test_print_says_why_the_printer_paused_it_and_what_it_asks(
     assert "done: 40 commands" in errors.decode()
     assert moves(runout_sim) == [f"G1 X{index} Y{index % 9}" for index in range(40)]
     assert runout_sim.printer.prompt_answers == []  # answered on the printer, not by the host
+
+
+async def test_ctrl_c_during_a_filament_change_ends_the_wait_and_cancels(
+    runout_sim: SimulatorServer, tmp_path: Path
+) -> None:
+    gcode = write_gcode(tmp_path / "part.gcode")
+    process = await asyncio.create_subprocess_exec(
+        *(sys.executable, "-m", "marlin_temp", "print", str(gcode), "--port", runout_sim.url),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    assert process.stdout is not None
+    try:
+        async with asyncio.timeout(60):
+            while FILAMENT_CHANGE not in (await process.stdout.readline()).decode():
+                assert not process.stdout.at_eof()
+        process.send_signal(signal.SIGINT)  # no terminal to ask on: Ctrl-C cancels at once
+        _, errors = await asyncio.wait_for(process.communicate(), 60)
+    finally:
+        if process.returncode is None:
+            process.kill()
+            await process.wait()
+    text = errors.decode()
+    assert process.returncode == Exit.INTERRUPTED, text
+    assert "M108 sent: the printer's wait for the user ended" in text
+    assert "cancelled after line" in text
+    assert not runout_sim.printer.waiting_for_user
+    executed = moves(runout_sim)
+    assert executed == [f"G1 X{index} Y{index % 9}" for index in range(len(executed))] and len(executed) < 40
 
 
 async def test_watch_answers_the_prompt_it_shows(runout_sim: SimulatorServer) -> None:

@@ -47,6 +47,8 @@ _QUESTION = "cancel the print? y = yes, any other key = go on"
 _ENDED_QUESTION = "the print has ended: press any key"
 _FRESH_READING_S = 2.0  # a reading for the closing message: longer and the latest one says it as well
 _M108_SENT = "M108 sent: the heat-up wait ended"
+_M108_USER = "M108 sent: the printer's wait for the user ended"
+_NO_EMERGENCY_PARSER_USER = "the printer waits for the user: answer on its screen, and the cancel takes effect"
 _NO_EMERGENCY_PARSER = (
     "the firmware has no emergency parser (M108 cannot end the heat-up wait), so the cancel takes effect when "
     "the heat-up ends"
@@ -335,6 +337,13 @@ async def _follow(
         """Cancel the print; end a heater wait of the file the printer is in, where the firmware can. Returns
         what to tell the user about that wait."""
         progress = handle.progress
+        if printer.waiting_for_user:
+            # A filament change (M600, a runout) holds the line in flight until someone answers: M108 ends it, so
+            # the cancel need not wait for a person.
+            try:
+                return _M108_USER if printer.interrupt_wait() else _NO_EMERGENCY_PARSER_USER
+            except marlin_aio.MarlinError:
+                return None
         wait = plan.heat_wait_running(progress.last_source_line, progress.lines_sent > progress.lines_acked)
         try:
             interrupted_wait = wait is not None and printer.interrupt_wait()
