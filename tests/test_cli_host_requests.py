@@ -255,3 +255,24 @@ async def test_terminal_prints_the_prompt_and_answer_n_answers_it(
     await until(lambda: pty_sim.printer.prompt_answers == [1], "the answer at the printer")
     tmux.run("send-keys", "-t", "w", "C-d")
     await wait_for(tmux, lambda s: "MARLIN-EXIT=0" in s, "the console to quit")
+
+
+@needs_tmux
+async def test_watch_shows_the_prompt_and_its_digit_answers_it_not_the_preset(tmux: Tmux) -> None:
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim:
+        command = f"{sys.executable} -m marlin_temp watch --port {sim.url} --refresh 0.3; echo MARLIN-EXIT=$?"
+        command += "; sleep 600"  # keep the pane alive to read the exit code
+        tmux.run("new-session", "-d", "-s", "w", "-x", "100", "-y", "40", command)
+        await wait_for(tmux, lambda s: "h hotend" in s and "°C" in s, "the live view")
+        sim.printer.open_prompt(sim.now(), "Door open", ["Continue", "Cancel"])
+        sim.poke()
+        await wait_for(tmux, lambda s: "printer asks: Door open  press 1 Continue  2 Cancel" in s, "the prompt")
+        tmux.run("send-keys", "-t", "w", "2")  # PETG's preset otherwise
+        await wait_for(tmux, lambda s: "answered the printer: Cancel (M876 S1)" in s, "the answer")
+        await until(lambda: sim.printer.prompt_answers == [1], "the answer at the printer")
+        await wait_for(tmux, lambda s: "printer asks" not in s, "the prompt to close")
+        tmux.run("send-keys", "-t", "w", "q")
+        after = await wait_for(tmux, lambda s: "MARLIN-EXIT=" in s, "watch to exit")
+        assert "MARLIN-EXIT=0" in after
+        executed = list(sim.printer.executed)
+    assert not [c for c in executed if c.startswith(("M104", "M140"))]  # no preset was set
