@@ -203,3 +203,14 @@ async def test_m600_waits_for_the_user_until_answered(pty_sim: SimulatorServer) 
         await asyncio.wait_for(change, 10)
         assert not printer.waiting_for_user
         assert printer.last_host_request == HostRequest("resumed")
+
+
+def test_the_simulator_command_line_sets_the_runout_line() -> None:
+    from marlin_aio.simulator._options import build_parser, simulator_settings
+
+    settings = simulator_settings(build_parser().parse_args(["--runout-at-line", "12"]))
+    assert settings.faults.runout_at_line == 12
+    assert simulator_settings(build_parser().parse_args([])).faults.runout_at_line is None
+    with pytest.raises(SystemExit) as exited:
+        build_parser().parse_args(["--runout-at-line", "0"])
+    assert exited.value.code == 2
