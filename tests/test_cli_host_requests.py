@@ -21,6 +21,7 @@ import pytest
 from conftest import until
 from rich.console import Console
 from test_cli_terminal import Tmux
+from typer.testing import CliRunner
 
 import marlin_aio
 from marlin_aio.protocol import Prompt
@@ -29,6 +30,7 @@ from marlin_temp.common.connect import Exit
 from marlin_temp.common.model import AnswerPrompt, SetTargets, WatchControls, WatchModel
 from marlin_temp.common.prompts import answer_index, prompt_text
 from marlin_temp.common.render import controls_view
+from marlin_temp.main import app
 from marlin_temp.printing.view import PrintStatus, plain_status, print_view
 from marlin_temp.watch.command import _outcome
 
@@ -276,3 +278,14 @@ async def test_watch_shows_the_prompt_and_its_digit_answers_it_not_the_preset(tm
         assert "MARLIN-EXIT=0" in after
         executed = list(sim.printer.executed)
     assert not [c for c in executed if c.startswith(("M104", "M140"))]  # no preset was set
+
+
+async def test_watch_piped_prints_the_printers_question_once(pty_sim: SimulatorServer) -> None:
+    args = ["watch", "--port", pty_sim.url, "--refresh", "0.2", "--duration", "4"]
+    watching = asyncio.ensure_future(asyncio.to_thread(CliRunner().invoke, app, args))
+    await until(lambda: pty_sim.printer.executed_count > 20 or watching.done(), "watch to poll")
+    pty_sim.printer.open_prompt(pty_sim.now(), "Door open", ["Continue"])
+    pty_sim.poke()
+    result = await asyncio.wait_for(watching, 60)
+    assert result.exit_code == Exit.OK, result.output
+    assert result.output.count("printer asks: Door open  press 1 Continue") == 1, result.output
