@@ -176,6 +176,29 @@ async def test_ctrl_c_during_a_filament_change_ends_the_wait_and_cancels(
     assert executed == [f"G1 X{index} Y{index % 9}" for index in range(len(executed))] and len(executed) < 40
 
 
+async def test_print_cancelled_by_the_printer_says_so_and_turns_the_heaters_off(
+    runout_sim: SimulatorServer, tmp_path: Path
+) -> None:
+    gcode = write_gcode(tmp_path / "part.gcode")
+    args = ["print", str(gcode), "--port", runout_sim.url]
+    printing = asyncio.ensure_future(asyncio.to_thread(CliRunner().invoke, app, args))
+    await until(lambda: runout_sim.printer.waiting_for_user or printing.done(), "the runout's filament change")
+    # Someone at the printer cancels on its screen, then the filament change ends.
+    runout_sim.printer.host_action(runout_sim.now(), "cancel")
+    runout_sim.printer.answer_on_screen(runout_sim.now())
+    runout_sim.poke()
+    result = await asyncio.wait_for(printing, 60)
+    assert result.exit_code == Exit.INTERRUPTED, result.output
+    text = " ".join(result.output.split())
+    assert "the printer cancelled the print after line" in text
+    assert "printer asked: cancel); heaters and fan turned off" in text
+    executed = list(runout_sim.printer.executed)
+    last_move = max(index for index, command in enumerate(executed) if command.startswith("G1 "))
+    after = [command for command in executed[last_move:] if command in ("M104 S0", "M140 S0", "M107")]
+    assert after == ["M104 S0", "M140 S0", "M107"]
+    assert len(moves(runout_sim)) < 40
+
+
 async def test_watch_answers_the_prompt_it_shows(runout_sim: SimulatorServer) -> None:
     async with marlin_aio.connect(runout_sim.url, timeout_s=5.0) as printer:
         runout_sim.printer.open_prompt(runout_sim.now(), "Door open", ["Continue", "Cancel"])

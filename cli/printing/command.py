@@ -192,6 +192,14 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                     highlight=False,
                 )
                 return Exit.HALTED
+            if outcome is _Outcome.DONE and final.state is marlin_aio.PrintState.CANCELLED:
+                # The printer asked (//action:cancel, from its screen): a cancel like ours, the heaters with it.
+                said = await _cool_down(printer, script)
+                errors.print(
+                    f"the printer cancelled the print after line {final.last_source_line} ({final.lines_acked} "
+                    f"commands done; {final.cancelled_by}); {said}"
+                )
+                return Exit.INTERRUPTED
             if outcome is _Outcome.CANCELLED:
                 done = f"cancelled after line {final.last_source_line} ({final.lines_acked} commands done)"
                 if not settings.keep_heaters:
