@@ -174,8 +174,9 @@ def test_the_public_faces() -> None:
 #: The G-code handlers and the board they are written against: the simulator's modules each of them may import.
 HANDLER_MODULES = {
     "_board": {"_config", "_intake", "_thermal"},
-    "_gcode": {"_board", "_config", "_heating", "_intake"},
+    "_gcode": {"_board", "_config", "_heating", "_hostactions", "_intake"},
     "_heating": {"_board", "_config", "_intake", "_thermal"},
+    "_hostactions": {"_board", "_config", "_intake"},
 }
 
 

@@ -21,10 +21,11 @@ from dataclasses import dataclass
 
 from marlin_aio import HeaterLimits, TemperatureReading
 from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
-from marlin_aio.protocol import DEFAULT_LIMITS, HEATER_NAMES, check_target, command_code, heater_name
+from marlin_aio.protocol import DEFAULT_LIMITS, HEATER_NAMES, Prompt, check_target, command_code, heater_name
 
 from .history import HeaterHistory, Point
 from .keys import PASTE
+from .prompts import answer_index
 
 __all__ = [
     "HEATER_NAMES",
@@ -33,6 +34,7 @@ __all__ = [
     "STEP_CELSIUS",
     "WINDOWS_S",
     "Action",
+    "AnswerPrompt",
     "HeaterStatus",
     "LinkHealth",
     "Notice",
@@ -281,7 +283,15 @@ class Quit:
     """Leave `watch`."""
 
 
-Action = SetTargets | TurnOff | SetFan | SendCommand | Quit
+@dataclass(frozen=True, slots=True)
+class AnswerPrompt:
+    """Answer the printer's prompt with its button `index` (0 the first, as `M876 S<index>` counts)."""
+
+    index: int
+    label: str
+
+
+Action = SetTargets | TurnOff | SetFan | SendCommand | Quit | AnswerPrompt
 
 
 @dataclass(frozen=True, slots=True)
@@ -376,6 +386,12 @@ class WatchControls:
 
     # ------------------------------------------------------------------ keys in
 
+    #: The printer's open prompt (`Printer.prompt`), set by the view each frame: while there is one, its digit keys
+    #: answer it, before anything else they mean.
+    printer_prompt: Prompt | None = None
+    #: What the view says about it (`common.prompts.prompt_text`), or None.
+    printer_prompt_text: str | None = None
+
     def press(self, key: str, model: WatchModel) -> Action | None:
         """Handle one key (a character, or a whole escape sequence) or a paste (`PASTE` and its text); return the
         action it asks for, if any."""
@@ -383,6 +399,8 @@ class WatchControls:
             return self._paste(key[len(PASTE) :])
         if self._prompt is not None:
             return self._edit(key)
+        if self.printer_prompt is not None and (index := answer_index(key, self.printer_prompt)) is not None:
+            return AnswerPrompt(index, self.printer_prompt.buttons[index])  # the printer's question wins
         if key == _ESCAPE:
             self.notice = None
             return None

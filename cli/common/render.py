@@ -274,6 +274,8 @@ def _notice_and_prompt(controls: WatchControls, notice_lines: int | None = None)
     """The last action's outcome and the open input line, each line ended; of a reply's lines, the last
     `notice_lines` only (None: all of them)."""
     text = Text()
+    if controls.printer_prompt_text is not None:
+        text.append(controls.printer_prompt_text + "\n", style="bold yellow")
     notice = controls.notice
     if notice is not None:
         style = "bold red" if notice.error else "bold"

@@ -52,6 +52,7 @@ from marlin_aio import TemperatureReading
 from marlin_aio.protocol import command_code, command_timeout_s, heater_name
 
 from ..common.connect import ConnectOptions, Exit, open_printer
+from ..common.prompts import buttons_text, prompt_text, request_text
 from .send import check_command, emergency_stop_notes, reply_lines, unknown_command
 
 __all__ = [
@@ -120,6 +121,7 @@ GCODES: dict[str, str] = {
 _LOCAL = {
     "help": "what the console understands",
     "temps": "the temperatures now",
+    "answer": "answer N: pick button N of the printer's prompt (M876)",
     "quit": "leave (as Ctrl-D does)",
     "exit": "leave (as Ctrl-D does)",
 }
@@ -131,6 +133,7 @@ _HELP = (
     "F12 sends the emergency stop at once, ahead of anything queued; M112 (or !) and Enter asks first.",
     "M112 is never completed or kept in the history.",
     "temps: the temperatures now (the bar at the bottom follows them; a line is added when they change).",
+    "answer N: pick button N (from 1) of the prompt the printer shows (a filament change); M876 goes at once.",
 )
 
 _STYLE = Style.from_dict(
@@ -408,6 +411,8 @@ class _Console:
                 self.say(help_line, "class:note")
         elif word == "temps":
             self.show_temperatures(self.printer.latest)
+        elif word.split()[0] == "answer":
+            await self.answer(word.split()[1:])
         else:
             try:
                 command = check_command(line, limits=self.limits)
@@ -419,6 +424,32 @@ class _Console:
             )
             self.running.add(task)
             task.add_done_callback(self.running.discard)
+
+    async def answer(self, words: list[str]) -> None:
+        """`answer N`: pick button N (from 1) of the printer's open prompt; a wrong N is one line, nothing sent."""
+        prompt = self.printer.prompt
+        if prompt is None:
+            self.say("error: the printer shows no prompt to answer (not sent)", "class:error")
+            return
+        if len(words) != 1 or not words[0].isdigit() or not 1 <= int(words[0]) <= len(prompt.buttons):
+            self.say(f"error: answer takes one of {buttons_text(prompt)} (not sent)", "class:error")
+            return
+        index = int(words[0]) - 1
+        try:
+            await self.printer.answer_prompt(index)
+        except (ValueError, marlin_aio.MarlinError) as exc:
+            self.say(f"error: {_one_line(exc)}", "class:error")
+            return
+        self.say(f"answered the printer: {prompt.buttons[index]} (M876 S{index})", "class:note")
+
+    def on_request(self, request: marlin_aio.HostRequest) -> None:
+        """Put what the printer asks into the scrollback as it asks it (`Printer.on_host_request`)."""
+        if request.action in ("prompt", "paused_for_user"):
+            text = prompt_text(self.printer.prompt, self.printer.waiting_for_user, press="type answer")
+        else:
+            text = request_text(request.action, request.argument)
+        if text is not None:
+            self.say(text, "class:note")
 
     async def guarded(self, work: Awaitable[None], what: str) -> None:
         """Run a background task's work: whatever it raises becomes one error line, never an exception in
@@ -501,6 +532,7 @@ class _Console:
             style=_STYLE,
         )
         polling = contextlib.AsyncExitStack()
+        polling.callback(self.printer.on_host_request(self.on_request))
         await polling.enter_async_context(self.printer.poll_temperatures(self.settings.poll_interval_s))
         follower = asyncio.create_task(
             self.guarded(self.follow_temperatures(), "following the temperatures"), name="console temperatures"

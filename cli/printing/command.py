@@ -27,6 +27,7 @@ import marlin_aio
 
 from ..common.connect import ConnectOptions, Exit, exit_code_for, open_printer
 from ..common.keys import key_presses, on_stop_signals
+from ..common.prompts import answer_index, prompt_text
 from .plan import GcodePlan
 from .view import (
     KEYS_HELP,
@@ -46,6 +47,8 @@ _QUESTION = "cancel the print? y = yes, any other key = go on"
 _ENDED_QUESTION = "the print has ended: press any key"
 _FRESH_READING_S = 2.0  # a reading for the closing message: longer and the latest one says it as well
 _M108_SENT = "M108 sent: the heat-up wait ended"
+_M108_USER = "M108 sent: the printer's wait for the user ended"
+_NO_EMERGENCY_PARSER_USER = "the printer waits for the user: answer on its screen, and the cancel takes effect"
 _NO_EMERGENCY_PARSER = (
     "the firmware has no emergency parser (M108 cannot end the heat-up wait), so the cancel takes effect when "
     "the heat-up ends"
@@ -79,6 +82,7 @@ def print_status(
     keys: str | None = None,
     cancelling: bool = False,
     note: str | None = None,
+    prompt: str | None = None,
 ) -> PrintStatus:
     """One frame of the view from the print's progress, the file's plan and the latest reading."""
     in_flight = progress.lines_sent > progress.lines_acked
@@ -102,7 +106,20 @@ def print_status(
         keys=keys,
         message=plan.display_text(progress.last_source_line),
         note=note,
+        paused_by=progress.paused_by,
+        prompt=prompt,
     )
+
+
+async def _answer(printer: marlin_aio.Printer, index: int) -> str:
+    """Answer the printer's prompt with button `index`; what to tell the user."""
+    prompt = printer.prompt
+    try:
+        await printer.answer_prompt(index)
+    except (ValueError, marlin_aio.MarlinError) as exc:
+        return f"the answer was not sent: {exc}"
+    label = prompt.buttons[index] if prompt is not None else str(index + 1)
+    return f"answered the printer: {label} (M876 S{index})"
 
 
 def _say(console: Console, label: str, style: str, text: str) -> None:
@@ -175,6 +192,14 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                     highlight=False,
                 )
                 return Exit.HALTED
+            if outcome is _Outcome.DONE and final.state is marlin_aio.PrintState.CANCELLED:
+                # The printer asked (//action:cancel, from its screen): a cancel like ours, the heaters with it.
+                said = await _cool_down(printer, script)
+                errors.print(
+                    f"the printer cancelled the print after line {final.last_source_line} ({final.lines_acked} "
+                    f"commands done; {final.cancelled_by}); {said}"
+                )
+                return Exit.INTERRUPTED
             if outcome is _Outcome.CANCELLED:
                 done = f"cancelled after line {final.last_source_line} ({final.lines_acked} commands done)"
                 if not settings.keep_heaters:
@@ -291,6 +316,7 @@ async def _follow(
     done = asyncio.create_task(handle.wait())
     last_plain = -plain_every_s
     last_message: str | None = None
+    last_said: tuple[str | None, str | None] = (None, None)  # the pause reason and prompt last printed plainly
     live = Live(console=console, auto_refresh=False) if console.is_terminal else None
 
     def frame(keys_help: str | None) -> PrintStatus:
@@ -307,6 +333,7 @@ async def _follow(
             keys=keys_help,
             cancelling=cancelling,
             note=note,
+            prompt=prompt_text(printer.prompt, printer.waiting_for_user),
         )
         if status.state == "printing":
             rate.add(time.monotonic(), progress.lines_acked)
@@ -318,6 +345,13 @@ async def _follow(
         """Cancel the print; end a heater wait of the file the printer is in, where the firmware can. Returns
         what to tell the user about that wait."""
         progress = handle.progress
+        if printer.waiting_for_user:
+            # A filament change (M600, a runout) holds the line in flight until someone answers: M108 ends it, so
+            # the cancel need not wait for a person.
+            try:
+                return _M108_USER if printer.interrupt_wait() else _NO_EMERGENCY_PARSER_USER
+            except marlin_aio.MarlinError:
+                return None
         wait = plan.heat_wait_running(progress.last_source_line, progress.lines_sent > progress.lines_acked)
         try:
             interrupted_wait = wait is not None and printer.interrupt_wait()
@@ -364,6 +398,8 @@ async def _follow(
                 elif key is not None and asking:
                     asking = False
                     cancel = key == "y" and not ending.done()
+                elif isinstance(key, str) and (index := answer_index(key, printer.prompt)) is not None:
+                    note = await _answer(printer, index)
                 elif key == "p" and not cancelling:
                     handle.pause()
                 elif key == "r" and not cancelling:
@@ -388,6 +424,12 @@ async def _follow(
                 if status.message is not None and status.message != last_message:
                     last_message = status.message
                     print(f"printer: {status.message}", flush=True)
+                said = (status.paused_by if status.state == "paused" else None, status.prompt)
+                if said != last_said:
+                    last_said = said
+                    for text in said:
+                        if text is not None:
+                            print(text if text is status.prompt else f"paused: {text}", flush=True)
                 if status.question is not None and signalled:
                     print(status.question, flush=True)  # keys on a terminal, output to a pipe: ask plainly
                 elif time.monotonic() - last_plain >= plain_every_s:

@@ -32,6 +32,10 @@ PRINT_HELP = "\n\n".join(
         "reset (exit code 7). Ctrl-C asks whether to cancel; a cancel lets the printer finish what it has, then "
         "turns the heaters and fan off. If the printer stops answering, the print fails with a diagnosis of who "
         "went silent.",
+        "The printer's own requests (Marlin's host actions): a filament runout or //action:pause pauses the print "
+        "and the view says why; //action:resume resumes it, //action:cancel cancels it. A prompt the printer opens "
+        "(a filament change: 'load filament, then press 1 Continue') is shown with its buttons; the digit keys "
+        "1-9 answer it (M876, sent at once). Without a terminal, answer on the printer's screen.",
         "--from-line N: when a print stops, the message gives the last line the printer answered. Before resuming, "
         "check: the part is still stuck to the bed (keep the bed hot meanwhile); homing in the header (G28) will "
         "not hit the part (printers that home Z on the bed bring the nozzle down on it: raise Z or edit the "

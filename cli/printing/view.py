@@ -89,6 +89,8 @@ class PrintStatus:
     keys: str | None = None  # the keys help, when there is a terminal to press them in
     message: str | None = None  # the printer's text (M117/M118 of the file, firmware messages), shown verbatim
     note: str | None = None  # what the command did about the print ("M108 sent: the heat-up wait ended")
+    paused_by: str | None = None  # the printer's own pause request ("printer asked: filament_runout 0")
+    prompt: str | None = None  # the printer's prompt and the keys that answer it (`common.prompts.prompt_text`)
 
     @property
     def fraction(self) -> float:
@@ -278,6 +280,10 @@ def print_view(status: PrintStatus, width: int | None = None) -> RenderableType:
         parts.append(Text.assemble(("  printer: ", "dim"), status.message))
     if status.note is not None:
         parts.append(Text(status.note, style="yellow"))
+    if status.paused_by is not None and status.state == "paused":
+        parts.append(Text(f"  paused: {status.paused_by}", style="bold yellow"))
+    if status.prompt is not None:
+        parts.append(Text(f"  {status.prompt}", style="bold yellow"))
     if status.question is not None:
         parts.append(Text(status.question, style="bold yellow"))
     elif status.keys is not None:

@@ -42,6 +42,7 @@ from ..common.connect import ConnectOptions, Exit, run_sessions
 from ..common.keys import key_presses, on_stop_signals
 from ..common.model import (
     Action,
+    AnswerPrompt,
     Notice,
     Quit,
     SendCommand,
@@ -51,6 +52,7 @@ from ..common.model import (
     WatchControls,
     WatchModel,
 )
+from ..common.prompts import prompt_text
 from ..common.render import plain_line, watch_view
 from ..farm.view import FarmKeys, detail_view, farm_row, farm_view, json_lines, plain_lines
 from ..heaters.command import say_heaters_left_on
@@ -183,6 +185,9 @@ async def _perform(printer: marlin_aio.Printer, action: Action, model: WatchMode
     if isinstance(action, SetFan):
         await printer.set_fan(action.percent / 100)
         return Notice("fan off" if action.percent == 0 else f"fan {action.percent:g} %")
+    if isinstance(action, AnswerPrompt):
+        await printer.answer_prompt(action.index)
+        return Notice(f"answered the printer: {action.label} (M876 S{action.index})")
     if isinstance(action, SendCommand):
         reply = await printer.send(action.text)
         lines = list(reply.lines)
@@ -255,6 +260,13 @@ async def _session(
             actions.put_nowait(action)
         wake.set()
 
+    def show_prompt() -> None:
+        controls.printer_prompt = printer.prompt
+        text = prompt_text(printer.prompt, printer.waiting_for_user)
+        if text != controls.printer_prompt_text and text is not None and not live_view:
+            print(text, flush=True)  # piped: the printer's question once, as it comes
+        controls.printer_prompt_text = text
+
     def view() -> Text | object:
         if not model.series:
             return Text(f"{label}: waiting for the first reading...")
@@ -262,6 +274,7 @@ async def _session(
 
     since = 0.0
     baseline = _Baseline.now(model, printer)  # after the handshake: `open_printer` has run it
+    stop_requests = printer.on_host_request(lambda _request: wake.set())  # a prompt shows at once
     async with printer.poll_temperatures(settings.interval_s):
         consumer = asyncio.create_task(consume(), name="marlin-temp readings")
         performer = asyncio.create_task(perform(), name="marlin-temp key actions")
@@ -299,6 +312,7 @@ async def _session(
                     if scheduled:
                         next_refresh = loop.time() + settings.refresh_s
                     since = _update_link_stats(model, printer, since, baseline)
+                    show_prompt()
                     if live is not None:
                         live.update(view(), refresh=True)  # type: ignore[arg-type]
                     elif model.series and (scheduled or (deadline is not None and loop.time() >= deadline)):
@@ -309,6 +323,7 @@ async def _session(
             tasks: list[asyncio.Task[object]] = [consumer, performer, stopper, waker]
             if first_reading is not None:
                 tasks.append(first_reading)
+            stop_requests()
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)

@@ -56,6 +56,8 @@ WATCH_HELP = "\n\n".join(
         "against --max-hotend and --max-bed as in set; one refused is shown in the view and nothing is sent. "
         "Narrow terminals (down to 40 columns) get a compact table; short ones lose the chart first, then the "
         "footer and the key help shorten (down to 30x12 the keys stay on screen).",
+        "A prompt the printer opens (a filament change, a runout) is shown under the chart with its buttons; "
+        "while it is open, its digit keys answer it (M876) instead of choosing a preset.",
         "With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and "
         "power, and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints "
         "one plain line per refresh instead (or JSON lines with --json), and q is the only key.",

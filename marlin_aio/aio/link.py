@@ -266,6 +266,29 @@ class Link:
             raise ConnectionLostError(f"cannot send M108: {reason}")
         self._transport.write(self._conn.emergency("M108", now=self.now()))
 
+    def write_emergency(self, text: str) -> None:
+        """Write an emergency command (`M876 S1`) at once, ahead of anything queued, with no place in the FIFO
+        (see `Connection.emergency`).
+
+        Raises:
+            ValueError: it is not an emergency command.
+            ConnectionLostError: the port is closed or lost.
+        """
+        if self._transport is None or self._lost is not None:
+            reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
+            raise ConnectionLostError(f"cannot send {text}: {reason}")
+        self._transport.write(self._conn.emergency(text, now=self.now()))
+
+    def drop(self, error: MarlinError) -> None:
+        """End the link now with `error` (everything waiting fails with it) and close the port, without waiting
+        for it to close (`close()` still waits, if called)."""
+        self._cancel_timer()
+        if self._lost is None:
+            self._fail(error)
+        transport = self._transport
+        if transport is not None and not transport.is_closing():
+            transport.close()
+
     def attach(self, job: PrintJob, *, timeout_s: float) -> None:
         """Stream `job` (see `Connection.attach`)."""
         self._conn.attach(job, timeout_s=timeout_s)

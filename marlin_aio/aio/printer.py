@@ -39,13 +39,21 @@ from marlin_aio.protocol.commands import (
     DEFAULT_MAX_HOTEND_CELSIUS,
 )
 from marlin_aio.protocol.connection import Connection, Reply
-from marlin_aio.protocol.events import Capability, Event, FirmwareInfo, Ok, Start
+from marlin_aio.protocol.events import BusyKeepalive, Capability, Event, FirmwareInfo, HostAction, Ok, Start
 from marlin_aio.protocol.heaters import (
     HeaterLimits,
     describe_heaters,
     target_commands,
     targets_reached,
     wanted_targets,
+)
+from marlin_aio.protocol.hostrequests import (
+    PRINT_CANCELS,
+    PRINT_PAUSES,
+    PRINT_RESUMES,
+    HostRequest,
+    HostRequests,
+    Prompt,
 )
 from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.motion import (
@@ -193,6 +201,9 @@ class Printer:
         self._reset_on_open = False
         self._failure_waiters: list[asyncio.Future[MarlinError]] = []
         self._link_listeners: list[Callable[[LinkEvent], None]] = []
+        self._requests = HostRequests()
+        self._request_listeners: list[Callable[[HostRequest], None]] = []
+        self._request_queues: list[asyncio.Queue[HostRequest | MarlinError]] = []  # of `host_requests()` readers
 
     @property
     def heater_limits(self) -> HeaterLimits:
@@ -257,6 +268,9 @@ class Printer:
                 waiter.set_result(error)
         kind: Literal["halted", "disconnected"] = "halted" if isinstance(error, PrinterHaltedError) else "disconnected"
         self._link_event(LinkEvent(kind, str(error), error))
+        for queue in self._request_queues:
+            # After the requests already scheduled (a disconnect request comes before the loss it causes).
+            self._link.loop.call_soon(queue.put_nowait, error)
 
     def on_link_event(self, callback: Callable[[LinkEvent], None]) -> Callable[[], None]:
         """Call `callback` with each `LinkEvent` from now on (connected, reset, halted, disconnected); return the
@@ -311,6 +325,7 @@ class Printer:
             self._link = self._new_link()
             self._poller = Poller(self._link, self.timeout_s, self._poll_slow_down)
             self._print = None
+            self._requests = HostRequests()
         # Connecting from before the port opens: a boot banner read the moment it is open is the handshake's, never
         # a reset of a connected printer.
         self._connecting = self._handshake_enabled
@@ -844,12 +859,128 @@ class Printer:
         """Why the printer can take no more commands (the link lost, the printer halted), or None."""
         return self._link.lost if self._link.lost is not None else self._link.halted
 
+    # ------------------------------------------------------------------------------------------- firmware requests
+
+    @property
+    def prompt(self) -> Prompt | None:
+        """The prompt the firmware shows for a person (HOST_PROMPT_SUPPORT), with its buttons, or None.
+
+        Answer it with `answer_prompt(index)`; the firmware closes it with `//action:prompt_end`.
+        """
+        return self._requests.prompt
+
+    @property
+    def waiting_for_user(self) -> bool:
+        """True while a command waits for a person (`echo:busy: paused for user`: M600, M0/M1), until it ends."""
+        return self._requests.waiting_for_user
+
+    @property
+    def last_host_request(self) -> HostRequest | None:
+        """The firmware's last pause, paused, resume, resumed, cancel or disconnect request, or None."""
+        return self._requests.last
+
+    def on_host_request(self, callback: Callable[[HostRequest], None]) -> Callable[[], None]:
+        """Call `callback` with each `HostRequest` from now on (prompts shown and closed, pause, resume, cancel,
+        disconnect, `paused for user`); return the function that stops the calls.
+
+        It is called on the event loop soon after the line that asked (never inside the link's read handler); if
+        it raises, the error is logged (logger "marlin_aio") and the link and the other listeners go on.
+        """
+        self._request_listeners.append(callback)
+
+        def stop() -> None:
+            if callback in self._request_listeners:
+                self._request_listeners.remove(callback)
+
+        return stop
+
+    async def host_requests(self) -> AsyncGenerator[HostRequest, None]:
+        """Yield each `HostRequest` from now on (see `on_host_request`), until the link ends.
+
+        Raises:
+            MarlinError: the link was lost or closed, or the printer halted (at once if it already was).
+        """
+        queue: asyncio.Queue[HostRequest | MarlinError] = asyncio.Queue()
+        stop = self.on_host_request(queue.put_nowait)
+        self._request_queues.append(queue)
+        try:
+            failure = self._failure()
+            if failure is not None:
+                raise failure
+            while True:
+                item = await queue.get()
+                if isinstance(item, MarlinError):
+                    raise item
+                yield item
+        finally:
+            stop()
+            self._request_queues.remove(queue)
+
+    async def answer_prompt(self, index: int) -> None:
+        """Answer the open prompt with its button `index` (0 the first): `M876 S<index>`.
+
+        With the firmware's EMERGENCY_PARSER (its M115 says so) it is written at once, ahead of anything queued,
+        as a printer waiting for a person (M600) reads nothing else; without, it is sent like any command.
+
+        Raises:
+            ValueError: no prompt is open, or it has no button `index` (nothing is written).
+            MarlinError: as `send`.
+        """
+        prompt = self._requests.prompt
+        if prompt is None:
+            raise ValueError("no prompt is open: there is nothing to answer")
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < len(prompt.buttons):
+            buttons = ", ".join(f"{number} {label}" for number, label in enumerate(prompt.buttons)) or "none"
+            raise ValueError(f"the prompt {prompt.message!r} has no button {index!r} (its buttons: {buttons})")
+        command = f"M876 S{index}"
+        if self.capabilities.get("EMERGENCY_PARSER"):
+            self._link.write_emergency(command)
+        else:
+            await self.send(command)
+        self._requests.answered()
+
+    def _host_request(self, request: HostRequest, now: float) -> None:
+        """Act on a request of the firmware (in the read path: only state changes here, the rest is scheduled)."""
+        _log.info("the printer asked: //action:%s %s", request.action, request.argument)
+        handle = self._print
+        if handle is not None and not handle.finished:
+            job = handle.job
+            if request.action in PRINT_PAUSES:
+                job.pause(request.reason)
+            elif request.action in PRINT_RESUMES:
+                # Resuming writes the next line: from the loop, not from inside this read's step.
+                self._link.loop.call_soon(handle.resume)
+            elif request.action in PRINT_CANCELS:
+                job.cancel(now, request.reason)
+        if request.action == "disconnect":
+            self._link.loop.call_soon(self._disconnect_requested, request)
+        if self._request_listeners:
+            self._link.loop.call_soon(self._tell_request_listeners, request)
+
+    def _disconnect_requested(self, request: HostRequest) -> None:
+        self._poller.cancel()
+        extra = f" ({request.argument})" if request.argument else ""
+        self._link.drop(ConnectionLostError(f"the printer asked the host to disconnect (//action:disconnect{extra})"))
+
+    def _tell_request_listeners(self, request: HostRequest) -> None:
+        for listener in list(self._request_listeners):
+            try:
+                listener(request)
+            except Exception:  # a listener's bug must not reach the link
+                _log.exception("a host request listener failed on %s", request.action)
+
     # ------------------------------------------------------------------------------------------- events
 
     def _on_event(self, event: Event, now: float) -> None:
         if type(event) is Ok:  # most events are oks (a hundred polls a second): no pattern to try first
             self._feed.on_event(event, now)
+            if self._requests.waiting_for_user:
+                self._requests.receive(event)
             return
+        if isinstance(event, HostAction | BusyKeepalive):
+            request = self._requests.receive(event)
+            if request is not None:
+                self._host_request(request, now)
         match event:
             case Capability(name=name, enabled=enabled):
                 self.capabilities[name] = enabled
@@ -858,6 +989,7 @@ class Printer:
             case Start() if not self._connecting:
                 # The boot banner during the handshake is the handshake's; after it, the board restarted.
                 self._link_event(LinkEvent("reset", "the printer reset (it printed 'start'); its targets were cleared"))
+                self._requests.clear()
                 self._feed.on_event(event, now)
             case _:
                 self._feed.on_event(event, now)

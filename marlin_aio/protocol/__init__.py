@@ -49,6 +49,7 @@ from marlin_aio.protocol.events import (
 from marlin_aio.protocol.framing import LineSplitter
 from marlin_aio.protocol.gcode import GCodeLine, parse_gcode
 from marlin_aio.protocol.heaters import DEFAULT_LIMITS, HeaterLimits, check_gcode_targets
+from marlin_aio.protocol.hostrequests import HostRequest, HostRequests, Prompt
 from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.motion import (
     LONG_COMMAND_TIMEOUT_S,
@@ -101,6 +102,8 @@ __all__ = [
     "HeaterLimits",
     "HeaterReading",
     "HostAction",
+    "HostRequest",
+    "HostRequests",
     "LineSplitter",
     "LinkState",
     "LinkStats",
@@ -111,6 +114,7 @@ __all__ = [
     "PrintProgress",
     "PrintState",
     "PrinterLocked",
+    "Prompt",
     "ReadingSource",
     "Reply",
     "ResendRequest",

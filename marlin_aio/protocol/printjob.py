@@ -54,6 +54,11 @@ class PrintProgress:
     elapsed_s: float
     resends: int
     last_source_line: int  # the file line of the last command acknowledged
+    paused_by: str | None = None
+    """Why the printer itself paused the print (`printer asked: filament_runout 0`); None when it runs, or when
+    the caller paused it."""
+    cancelled_by: str | None = None
+    """Why the printer itself cancelled the print (`printer asked: cancel`); None otherwise."""
 
     @property
     def fraction(self) -> float | None:
@@ -160,6 +165,8 @@ class PrintJob:
         self.resends = 0
         self.in_flight = 0
         self.last_source_line = 0
+        self.paused_by: str | None = None  # the firmware's request that paused it (see PrintProgress.paused_by)
+        self.cancelled_by: str | None = None
 
     @property
     def active(self) -> bool:
@@ -242,20 +249,26 @@ class PrintJob:
             self.state = PrintState.FAILED
             self.end_s = now
 
-    def pause(self) -> None:
-        """Stop feeding new lines; what is in flight still completes."""
+    def pause(self, reason: str | None = None) -> None:
+        """Stop feeding new lines; what is in flight still completes. `reason`: the firmware's request that
+        paused it (None: the caller did)."""
         if self.state is PrintState.RUNNING:
             self.state = PrintState.PAUSED
+            self.paused_by = reason
 
     def resume(self, now: float = 0.0) -> None:
         """Feed lines again after `pause()`."""
         if self.state is PrintState.PAUSED:
             self.state = PrintState.RUNNING
+            self.paused_by = None
             self.finish_if_idle(now)
 
-    def cancel(self, now: float) -> None:
-        """Stop feeding for good; the job ends (CANCELLED) once what is in flight has been answered."""
+    def cancel(self, now: float, reason: str | None = None) -> None:
+        """Stop feeding for good; the job ends (CANCELLED) once what is in flight has been answered. `reason`: the
+        firmware's request that cancelled it (None: the caller did)."""
         if self.active:
+            if reason is not None and not self.cancelling:
+                self.cancelled_by = reason
             self.cancelling = True
             self.exhausted = True
             self.finish_if_idle(now)
@@ -274,4 +287,6 @@ class PrintJob:
             elapsed_s=max(end - self.start_s, 0.0),
             resends=self.resends,
             last_source_line=self.last_source_line,
+            paused_by=self.paused_by,
+            cancelled_by=self.cancelled_by,
         )

@@ -37,6 +37,8 @@ class Board:
 
     __slots__ = (
         "active_extruder",
+        "answers",
+        "busy_reason",
         "config",
         "emit",
         "feedrate_mm_s",
@@ -49,12 +51,14 @@ class Board:
         "planner",
         "poked",
         "position",
+        "prompt",
         "relative_e",
         "relative_xyz",
         "report_interval_us",
         "skip_ok",
         "stepper_position",
         "wait_for_heatup",
+        "wait_for_user",
     )
 
     config: SimulatorConfig
@@ -83,6 +87,14 @@ class Board:
     """M83 or G91: E of moves is relative (M82 or G90 makes it absolute)."""
     wait_for_heatup: bool
     """True while a heater wait runs; M108 clears it to end the wait."""
+    wait_for_user: bool
+    """True while M600 waits for a person; M876 or M108 clears it to end the wait."""
+    busy_reason: str
+    """What the keepalive of a busy command says: `processing`, or `paused for user` while it waits for a person."""
+    prompt: tuple[str, tuple[str, ...]] | None
+    """The prompt shown to the host (its message and buttons) until M876 answers it, or None."""
+    answers: list[int]
+    """The button of each prompt answered with M876, in order (for tests)."""
     poked: bool
     """M108 or M410 came in: the running task resumes at once rather than when it asked to."""
     keepalive_interval_us: int
@@ -104,6 +116,7 @@ class Board:
         self.now_us = now_us
         self.emit = emit
         self.kill = kill
+        self.answers = []
         self.heaters = Heaters(
             config.extruders,
             has_bed=config.has_bed,
@@ -123,6 +136,9 @@ class Board:
         self.relative_xyz = False
         self.relative_e = False
         self.wait_for_heatup = False
+        self.wait_for_user = False
+        self.busy_reason = "processing"
+        self.prompt = None
         self.poked = False
         self.keepalive_interval_us = to_us(self.config.keepalive_interval_s)
         self.report_interval_us = 0

@@ -243,6 +243,11 @@ class Faults:
     another byte joins two lines; a `*` turned into `\\n` splits one). Which bytes are hit depends only on the
     seed and each byte's place in the host's stream, never on how the bytes were split into `receive()` calls.
     `SimulatedPrinter.bits_flipped` counts the flips."""
+    runout_at_line: int | None = None
+    """A filament runout just before the numbered line with this number runs (a print's line N, counted from its
+    `M110 N0`; or the first numbered line after it that is not a poll's M105 or an M110): the runout prompt and
+    `//action:paused filament_runout 0`, then an M600 that holds the line until the host answers its prompt
+    (`M876 S0`) or sends M108. It strikes once, then this is set back to None."""
     flip_once: list[tuple[str, int, int]] = field(default_factory=list)
     """Targeted flips for tests, each `(substring, byte_offset, bit)`: flip bit `bit` (0-7) of byte
     `byte_offset` of the first line the host sends that contains `substring` (matched on the line as sent,

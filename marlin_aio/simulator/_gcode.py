@@ -35,6 +35,7 @@ from marlin_aio.simulator._config import (
     to_us,
 )
 from marlin_aio.simulator._heating import m104, m105, m109, m140, m141, m155, m190, m191
+from marlin_aio.simulator._hostactions import m600, m876
 from marlin_aio.simulator._intake import Command
 
 __all__ = ["handler_table", "tool_change", "unknown"]
@@ -76,6 +77,8 @@ def handler_table(config: SimulatorConfig) -> dict[str, Handler]:
         "M400": _m400,
         "M410": _m410,
         "M503": _m503,
+        "M600": m600,
+        "M876": m876,
     }
     for code in _NO_OPS:
         handlers[code] = _no_op
@@ -186,6 +189,7 @@ def _m27(board: Board, command: Command) -> None:
 def _m108(board: Board, command: Command) -> None:
     if not board.config.emergency_parser:
         board.wait_for_heatup = False  # nothing waits while this runs, so it only matters for M0/M1
+        board.wait_for_user = False
 
 
 def _m112(board: Board, command: Command) -> None:

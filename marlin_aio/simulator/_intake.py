@@ -76,8 +76,8 @@ _TO_UPPER = str.maketrans("abcdefghijklmnopqrstuvwxyz", "ABCDEFGHIJKLMNOPQRSTUVW
 # number on Marlin, a word here, so it keeps its case too.
 _STRING_ARGUMENT_CODES = gcode.STRING_ARGUMENT_CODES | {"M511"}
 # What Marlin's emergency parser (feature/e_parser.h) recognises at the start of a line.
-_EMERGENCY_LINE = re.compile(rb" *(?:N[-0-9 ]*)?M *(108|112|410)")
-_EMERGENCY_HINT = re.compile(rb"1[01][028]|410")
+_EMERGENCY_LINE = re.compile(rb" *(?:N[-0-9 ]*)?M *(108|112|410|876 *S *[0-9]+)")
+_EMERGENCY_HINT = re.compile(rb"1[01][028]|410|876")
 _EMERGENCY_TAIL_MAX = 64
 
 
@@ -362,8 +362,8 @@ class LineReader:
         return max(len(data) - max(room, 0), 0)
 
     def emergency_codes(self, data: bytes) -> Sequence[bytes]:
-        """What the emergency parser finds in `data` as it arrives: `b"108"`, `b"112"` or `b"410"` for each line
-        that `data` completes starting with such a command, in order (e_parser.h)."""
+        """What the emergency parser finds in `data` as it arrives: `b"108"`, `b"112"`, `b"410"` or `b"876 S1"` for
+        each line that `data` completes starting with such a command, in order (e_parser.h)."""
         buffer = self._emergency_tail + data
         end = max(buffer.rfind(b"\n"), buffer.rfind(b"\r"))
         if end < 0:

@@ -243,6 +243,16 @@ SIMULATOR_OPTIONS: tuple[SimulatorOption, ...] = (
         parse=_ratio,
         metavar="RATIO",
     ),
+    SimulatorOption(
+        "--runout-at-line",
+        "faults",
+        "runout_at_line",
+        "a filament runout just before numbered line N runs (a print's line N): the runout prompt,"
+        " '//action:paused filament_runout 0', then M600 holds the line until the host answers (M876) or sends"
+        " M108 (default: none)",
+        parse=_positive_int,
+        metavar="N",
+    ),
     *(
         SimulatorOption("--" + name.replace("_", "-"), "config", name, help_text, group=_DIALECTS)
         for name, help_text in DIALECT_SWITCHES

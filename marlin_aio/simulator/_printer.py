@@ -38,11 +38,13 @@ from __future__ import annotations
 
 import random
 from collections import deque
+from collections.abc import Sequence
 
 from marlin_aio.simulator._board import Board, Task
 from marlin_aio.simulator._config import BUILD_DATE, SETTINGS_LINES, US_PER_S, Faults, SimulatorConfig, to_us
 from marlin_aio.simulator._gcode import handler_table, tool_change, unknown
 from marlin_aio.simulator._heating import heater_states
+from marlin_aio.simulator._hostactions import answer_prompt, check_line, open_prompt, runout_then
 from marlin_aio.simulator._intake import Command, LineReader, WireFlips
 from marlin_aio.simulator._record import BoundedRecord
 
@@ -51,6 +53,8 @@ __all__ = ["Faults", "SimulatedPrinter", "SimulatorConfig"]
 
 _LOCKED = "echo:Printer locked! (Unlock with M511 or LCD)"  # STR_PRINTER_LOCKED, as SERIAL_ECHO_MSG prints it
 _LOST_MCU = "!! Lost communication with MCU 'mcu'"
+#: Numbered lines a host sends beside a print's own (polls, renumbering): a runout waits for a print line.
+_NOT_PRINTING = frozenset({"M105", "M110"})
 
 
 class SimulatedPrinter:
@@ -227,6 +231,64 @@ class SimulatedPrinter:
         self._emit(f"Error:Thermal Runaway, system stopped! Heater_ID: {heater}")
         self._kill()
 
+    def open_prompt(self, now: float, message: str, buttons: Sequence[str] = ("Continue",)) -> None:
+        """Show a prompt at `now` as HOST_PROMPT_SUPPORT does (`prompt_end`, `prompt_begin`, a `prompt_button` per
+        button, `prompt_show`); the host's `M876 S<index>` answers it (`prompt`, `prompt_answers`).
+
+        Raises:
+            ValueError: the message or a button is not one line, or a button is empty.
+        """
+        check_line("message", message)
+        for label in buttons:
+            check_line("a button", label)
+            if not label.strip():
+                raise ValueError("a button needs a label")
+        self._run_until(to_us(now))
+        if self.halted or self.stalled or self._booting_until is not None:
+            return
+        open_prompt(self._board, message, buttons)
+
+    def host_action(self, now: float, action: str, argument: str = "") -> None:
+        """Send `//action:<action> <argument>` at `now`: `pause`, `paused`, `resume`, `resumed`, `cancel`,
+        `disconnect`, `notification <text>`, ...
+
+        Raises:
+            ValueError: `action` is not one word, or `argument` is not one line.
+        """
+        if not action or not action.isascii() or any(c.isspace() for c in action):
+            raise ValueError(f"action must be one word such as 'cancel', got {action!r}")
+        check_line("argument", argument)
+        self._run_until(to_us(now))
+        if self.halted or self.stalled or self._booting_until is not None:
+            return
+        self._emit(f"//action:{action} {argument}" if argument else f"//action:{action}")
+
+    def answer_on_screen(self, now: float, index: int = 0) -> None:
+        """A person at the printer picks button `index` of the open prompt on its screen at `now` (a click that
+        ends M600's wait), as M876 S<index> would; with no prompt open, the click ends a wait for the user."""
+        self._run_until(to_us(now))
+        board = self._board
+        if board.prompt is not None:
+            answer_prompt(board, index, by_host=False)
+        elif board.wait_for_user:
+            board.wait_for_user = False
+            board.poked = True
+
+    @property
+    def prompt(self) -> tuple[str, tuple[str, ...]] | None:
+        """The prompt shown to the host and not yet answered (its message and buttons), or None."""
+        return self._board.prompt
+
+    @property
+    def prompt_answers(self) -> list[int]:
+        """The button of each prompt the host answered (`M876 S<index>`), in order, since power-up."""
+        return self._board.answers
+
+    @property
+    def waiting_for_user(self) -> bool:
+        """True while M600 (or a runout's M600) waits for the host's answer or M108."""
+        return self._board.wait_for_user
+
     @property
     def thermal_steps(self) -> int:
         """Grid steps the thermal model has integrated one by one, over all heaters (its work, for tests)."""
@@ -308,7 +370,8 @@ class SimulatedPrinter:
         board = self._board
         now = board.now_us
         if self._task is not None and self._next_keepalive is not None and self._next_keepalive <= now:
-            self._emit("busy:processing" if self.config.bare_busy else "echo:busy: processing")
+            reason = board.busy_reason
+            self._emit(f"busy:{reason}" if self.config.bare_busy else f"echo:busy: {reason}")
             interval = board.keepalive_interval_us
             self._next_keepalive = now + interval if interval > 0 else None
         if board.next_report_us is not None and board.next_report_us <= now:
@@ -365,7 +428,10 @@ class SimulatedPrinter:
         for code in self._reader.emergency_codes(data):
             if code == b"108":
                 self._board.wait_for_heatup = False
+                self._board.wait_for_user = False
                 self._board.poked = True
+            elif code.startswith(b"876"):
+                answer_prompt(self._board, int(code.rpartition(b"S")[2]))
             elif code == b"112":
                 self._emit("echo:M112 Shutdown")
                 self._kill()
@@ -398,7 +464,17 @@ class SimulatedPrinter:
         handler = self._handlers.get(command.code)
         if handler is None:
             handler = tool_change if command.code[:1] == "T" else unknown
-        task = handler(board, command)
+        runout = self.faults.runout_at_line
+        if (
+            runout is not None
+            and command.line_number is not None
+            and command.line_number >= runout
+            and command.code not in _NOT_PRINTING
+        ):
+            self.faults.runout_at_line = None  # it strikes once
+            task: Task | None = runout_then(board, command, handler)
+        else:
+            task = handler(board, command)
         if self.halted:
             return
         if task is None:
