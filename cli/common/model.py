@@ -401,6 +401,8 @@ class WatchControls:
             return self._edit(key)
         if self.printer_prompt is not None and (index := answer_index(key, self.printer_prompt)) is not None:
             return AnswerPrompt(index, self.printer_prompt.buttons[index])  # the printer's question wins
+        if self.printer_prompt is not None and key.isdigit():
+            return None  # not one of its buttons: while the printer asks, a digit is never a preset
         if key == _ESCAPE:
             self.notice = None
             return None
