@@ -21,6 +21,10 @@ printer unchanged: `send`, `set_temperatures`, `wait_for_temperatures`, `tempera
 Where: `serve:NAME@tcp://HOST:PORT` reaches a service's TCP listener (its token in `$MARLIN_SERVE_TOKEN`);
 `serve:NAME` is printer NAME at the default socket (`default_socket_path()`), `serve:NAME@/path/to.sock`
 at that socket, and `serve:` alone the service's only printer.
+
+Over 400 lines because it is `Printer`'s API replaced method by method (commands, temperatures, prints, the
+firmware's requests) over one connection: spread over modules, a reader would no longer see in one place which of
+`Printer`'s methods a served printer answers differently.
 """
 
 from __future__ import annotations

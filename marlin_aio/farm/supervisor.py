@@ -12,6 +12,9 @@ absent broker never slows a serial loop.
 Secrets: a printer's password (`password` in the config, sent as `M511 P<password>`) never reaches an event, the
 last error or a log line: every event's message is redacted (`redact`) where it is made, in `Farm.emit`, and the
 bridge redacts whatever else it publishes (`redact_payload`); `PrinterSpec`'s repr leaves the password out.
+
+Over 400 lines because `FarmPrinter` (what is known of a printer) and `Farm` (the only code that writes it: the
+supervisor, the prints, the firmware's requests and answers) are read together: every field's writer is here.
 """
 
 from __future__ import annotations
