@@ -4,7 +4,8 @@ the farm's simulator), reached by `ServedPrinter` (`serve:NAME`) and by raw JSON
 A runout during a served print pauses it in the service; every client hears the prompts and the pause (the
 `requests` topic, `ServedPrinter.prompt`, `host_requests()`); one answers and the print ends with every line once.
 `answer_prompt` with no prompt open, a button the prompt does not have or an index that is no number is an error
-and writes nothing.
+and writes nothing. The CLI's code paths (`print`, `watch`'s answer) use only `Printer`'s API, so through
+`--port serve:NAME` they show and answer the same prompts.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -24,8 +26,12 @@ from marlin_aio.farm.supervisor import PrinterSpec
 from marlin_aio.protocol import HostRequest, Prompt, rpc
 from marlin_aio.service import Service
 from marlin_aio.simulator import SimulatorServer
+from marlin_temp.common.connect import Exit
+from marlin_temp.common.model import AnswerPrompt, WatchModel
+from marlin_temp.watch.command import _outcome
 
 LINES = 30
+FILAMENT_CHANGE = "filament change: load filament, then press 1 Continue"
 
 
 @contextlib.asynccontextmanager
@@ -180,3 +186,43 @@ async def test_answer_prompt_errors_write_nothing(tmp_path: Path) -> None:
             await until(lambda: printer.prompt is None, "the prompt closed for every client")
             status = (await raw.call("status", printer="sim"))["result"]
             assert status["prompt"] is None
+
+
+async def test_print_through_the_service_says_why_the_printer_paused_and_watch_answers_it(tmp_path: Path) -> None:
+    path = tmp_path / "s.sock"
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("; part\n" + "".join(f"{line}\n" for line in gcode_lines()))
+    async with service_at(path) as service:
+        sim = sim_of(service)
+        sim.printer.faults.runout_at_line = 10
+        process = await asyncio.create_subprocess_exec(
+            *(sys.executable, "-m", "marlin_temp", "print", str(gcode), "--port", f"serve:sim@{path}"),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
+        )
+        assert process.stdout is not None
+        said: list[str] = []
+        try:
+            async with asyncio.timeout(60):
+                while FILAMENT_CHANGE not in said:
+                    said.append((await process.stdout.readline()).decode().strip())
+                    assert said[-1] or not process.stdout.at_eof(), said
+            async with marlin_aio.connect(f"serve:sim@{path}") as printer:
+                await until(lambda: printer.prompt is not None, "the prompt told to a second client")
+                # What watch does with the key 1 while the prompt shows (through the same Printer API).
+                notice = await _outcome(printer, AnswerPrompt(0, "Continue"), WatchModel())
+                assert notice.title == "answered the printer: Continue (M876 S0)" and not notice.error
+            _, errors = await asyncio.wait_for(process.communicate(), 60)
+        finally:
+            if process.returncode is None:
+                process.kill()
+                await process.wait()
+        assert process.returncode == Exit.OK, errors.decode()
+        assert "paused: printer asked: filament_runout 0" in said
+        assert f"done: {LINES} commands" in errors.decode()
+        assert moves(sim) == gcode_lines()
+        assert sim.printer.prompt_answers == [0]
+
+
+def gcode_lines() -> list[str]:
+    return [f"G1 X{index} Y{index % 9}" for index in range(LINES)]
