@@ -226,3 +226,45 @@ async def test_print_through_the_service_says_why_the_printer_paused_and_watch_a
 
 def gcode_lines() -> list[str]:
     return [f"G1 X{index} Y{index % 9}" for index in range(LINES)]
+
+
+async def test_host_requests_end_with_the_error_when_the_service_goes_away(tmp_path: Path) -> None:
+    path = tmp_path / "s.sock"
+    async with service_at(path) as service, marlin_aio.connect(f"serve:sim@{path}") as printer:
+        sim = sim_of(service)
+        requests = printer.host_requests()
+        # Registered at its first step, in the loop's next turn: long before the printer's line comes back.
+        first = asyncio.ensure_future(anext(requests))
+        sim.printer.host_action(sim.now(), "notification", "hello")
+        sim.poke()
+        told = await asyncio.wait_for(first, 30)
+        assert (told.action, told.argument) == ("notification", "hello")
+        following = asyncio.ensure_future(anext(requests))
+        service.farm.printers["sim"].printer.emergency_stop()  # halted: the service tells, the reader ends
+        with pytest.raises(marlin_aio.MarlinError):
+            await asyncio.wait_for(following, 30)
+        await requests.aclose()
+
+
+def test_the_firmwares_requests_and_the_print_pause_round_trip_as_json() -> None:
+    prompt = Prompt("Load Filament", ("Continue", "Purge"), shown=True)
+    request = HostRequest("prompt", "Load Filament", prompt)
+    params = rpc.requests_to_json(request, prompt, True, HostRequest("paused", "filament_runout 0"))
+    assert json.loads(rpc.encode_message(params)) == params
+    assert params["prompt"] == {"message": "Load Filament", "buttons": ["Continue", "Purge"]}
+    assert rpc.host_request_from_json(params["request"]) == request
+    assert rpc.prompt_from_json(params["prompt"]) == prompt
+    assert rpc.host_request_from_json(params["last_host_request"]) == HostRequest("paused", "filament_runout 0")
+    assert rpc.host_request_from_json(None) is None and rpc.prompt_from_json(None) is None
+    for bad in ({"buttons": []}, "Load", {"message": "x", "buttons": "Continue"}):
+        with pytest.raises(rpc.RpcError):
+            rpc.prompt_from_json(bad)
+    for bad in ({"argument": "x"}, [], {"action": 3}):
+        with pytest.raises(rpc.RpcError):
+            rpc.host_request_from_json(bad)
+    progress = marlin_aio.PrintProgress(
+        marlin_aio.PrintState.PAUSED, 10, 9, 30, 200, 220, 700, 1.5, 0, 9, paused_by="printer asked: filament_runout 0"
+    )
+    assert rpc.progress_from_json(rpc.progress_to_json(progress)) == progress
+    older = {key: value for key, value in rpc.progress_to_json(progress).items() if not key.endswith("_by")}
+    assert rpc.progress_from_json(older).paused_by is None  # a service without them: none
