@@ -228,7 +228,7 @@ def gcode_lines() -> list[str]:
     return [f"G1 X{index} Y{index % 9}" for index in range(LINES)]
 
 
-async def test_host_requests_end_with_the_error_when_the_service_goes_away(tmp_path: Path) -> None:
+async def test_host_requests_of_a_served_printer_end_with_the_error_when_its_printer_halts(tmp_path: Path) -> None:
     path = tmp_path / "s.sock"
     async with service_at(path) as service, marlin_aio.connect(f"serve:sim@{path}") as printer:
         sim = sim_of(service)
