@@ -32,6 +32,7 @@ from marlin_aio.farm.commands import (
     MAX_ERROR_CHARS,
     MAX_GCODE_CHARS,
     MAX_JSON_DEPTH,
+    MAX_PROMPT_BUTTON,
     CommandError,
     FarmCommand,
     parse_command,
@@ -140,6 +141,10 @@ def check(
         assert allowed_dir is not None
         assert command.path.is_relative_to(allowed_dir.resolve()) and command.path.is_file(), command.path
     assert (command.path is not None) == (command.action == "print")
+    assert (command.index is not None) == (command.action == "answer_prompt")
+    if command.index is not None:
+        assert isinstance(command.index, int) and not isinstance(command.index, bool)
+        assert 0 <= command.index <= MAX_PROMPT_BUTTON
     return command
 
 
@@ -254,6 +259,7 @@ _field_values: dict[str, st.SearchStrategy[Any]] = {
     ),
     "path": _mostly(_paths, _bad_paths | _scalars),
     "name": _mostly(st.sampled_from(["PLA", "petg", "ABS", "cooldown"]), st.text(max_size=80) | _scalars),
+    "index": _mostly(st.integers(0, 3), st.integers(-3, 10**6) | st.floats(0, 3) | _scalars),
 }
 # Each action with some of the fields it takes; or any action with any fields.
 _ACTION_FIELDS = {
@@ -262,6 +268,7 @@ _ACTION_FIELDS = {
     "gcode": ("command", "commands"),
     "print": ("path",),
     "preset": ("name",),
+    "answer_prompt": ("index",),
 }
 _commands = st.sampled_from(ACTIONS).flatmap(
     lambda action: st.fixed_dictionaries(
@@ -336,6 +343,13 @@ def test_command_shaped_json_gives_a_command_within_limits_or_one_clean_line(
             "heater must be",
             id="hotend 9999...",
         ),
+        pytest.param(b'{"action": "answer_prompt"}', 'answer_prompt needs "index"', id="no index"),
+        pytest.param(b'{"action": "answer_prompt", "index": -1}', "got -1", id="negative index"),
+        pytest.param(b'{"action": "answer_prompt", "index": 1.0}', "got 1.0", id="float index"),
+        pytest.param(b'{"action": "answer_prompt", "index": "0"}', "got '0'", id="text index"),
+        pytest.param(b'{"action": "answer_prompt", "index": true}', "got True", id="bool index"),
+        pytest.param(b'{"action": "answer_prompt", "index": 100}', "at most 99", id="index 100"),
+        pytest.param(b'{"action": "answer_prompt", "index": 0, "x": 1}', "takes no 'x'", id="answer field"),
         pytest.param(b'{"action": "pause", "time": "now"}', "time must be", id="text time"),
         pytest.param(b'{"action": "pause", "time": true}', "time must be", id="bool time"),
     ],
@@ -457,6 +471,7 @@ def test_valid_commands_parse_as_before(jobs: Path) -> None:
     assert accepted({"action": "print", "path": str(small)}, jobs).path == small  # absolute, but inside
     for action in ("pause", "resume", "cancel", "emergency_stop"):
         assert accepted({"id": 5, "action": action}) == FarmCommand("a", action, 5)
+    assert accepted({"id": 9, "action": "answer_prompt", "index": 1}) == FarmCommand("a", "answer_prompt", 9, index=1)
     assert accepted({"action": "pause", "id": "é-1"}).id == "é-1"
     assert accepted({"action": "pause", "id": 2**63 - 1}).id == 2**63 - 1
     assert accepted({"action": "pause", "id": -(2**63) + 1}).id == -(2**63) + 1

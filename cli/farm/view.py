@@ -95,6 +95,9 @@ class FarmRow:
     """`heating`, `cooling`, `holding`, `idle`, `printing`, `paused`, or `-` (link down, no reading yet)."""
     progress: str | None
     """`42%`, `done`, `cancelled`, `failed`; None when no print was started."""
+    asks: str | None = None
+    """The message of the prompt the printer shows for a person (`Load Filament`), or None: the state cell says
+    `asks: Load Filament` instead of its state, as that is what needs the user now."""
 
 
 def _short_error(message: str) -> str:
@@ -164,6 +167,7 @@ def farm_row(number: int, farm_printer: FarmPrinter, model: WatchModel, now_s: f
         heaters=heaters,
         state=state,
         progress=progress,
+        asks=None if farm_printer.prompt is None else farm_printer.prompt.message,
     )
 
 
@@ -222,6 +226,8 @@ def _state_cell(row: FarmRow, fit: _TableFit) -> str:
     state = row.state
     if not fit.link and not row.link_up:
         state = "connecting" if row.link == "connecting" else "down"
+    elif row.asks is not None:
+        return f"asks: {row.asks}"
     if not fit.print and row.progress is not None and row.state in ("printing", "paused"):
         state = row.progress if row.state == "printing" else f"paused {row.progress}"
     return state

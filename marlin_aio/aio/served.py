@@ -10,6 +10,9 @@ printer unchanged: `send`, `set_temperatures`, `wait_for_temperatures`, `tempera
   nothing more, so ten clients watching one printer put no more M105s on its wire than one.
 - A print runs inside the service: it goes on when the client that started it exits. Its `PrintHandle` follows
   the service's progress notifications, and `pause`, `resume` and `cancel` are requests.
+- The firmware's requests (`prompt`, `waiting_for_user`, `last_host_request`, `on_host_request`,
+  `host_requests()`) are the service's: it tells each as its printer makes it, and `answer_prompt` is a request
+  (the service checks the index against the prompt open there, and writes M876).
 - The link's own counters (`stats`, `trace`, `round_trips`) are the service's business: here they stay empty.
 - When the service loses the printer, this printer fails as a lost port would (`wait_for_failure()` returns,
   readers of temperatures end, commands fail with the service's error); open it again once the service has
@@ -18,6 +21,10 @@ printer unchanged: `send`, `set_temperatures`, `wait_for_temperatures`, `tempera
 Where: `serve:NAME@tcp://HOST:PORT` reaches a service's TCP listener (its token in `$MARLIN_SERVE_TOKEN`);
 `serve:NAME` is printer NAME at the default socket (`default_socket_path()`), `serve:NAME@/path/to.sock`
 at that socket, and `serve:` alone the service's only printer.
+
+Over 400 lines because it is `Printer`'s API replaced method by method (commands, temperatures, prints, the
+firmware's requests) over one connection: spread over modules, a reader would no longer see in one place which of
+`Printer`'s methods a served printer answers differently.
 """
 
 from __future__ import annotations
@@ -44,13 +51,16 @@ from marlin_aio.errors import (
     PrinterHaltedError,
 )
 from marlin_aio.protocol.events import FirmwareInfo
+from marlin_aio.protocol.hostrequests import HostRequest, Prompt
 from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.printjob import gcode_commands
 from marlin_aio.protocol.replies import Reply
 from marlin_aio.protocol.rpc import (
     MAX_MESSAGE_BYTES,
     RpcError,
+    host_request_from_json,
     progress_from_json,
+    prompt_from_json,
     reading_from_json,
     reply_from_json,
 )
@@ -79,6 +89,10 @@ class ServedPrinter(Printer):
         self._served_print: ServedPrintHandle | None = None
         self._link_up = False
         self._loop: asyncio.AbstractEventLoop | None = None
+        # The firmware's requests as the service last told them (its printer tracks them: see `_take_requests`).
+        self._prompt: Prompt | None = None
+        self._waiting_for_user = False
+        self._last_request: HostRequest | None = None
 
     # ------------------------------------------------------------------------------------------- lifecycle
 
@@ -128,7 +142,9 @@ class ServedPrinter(Printer):
                     await self._rpc.call("auth", {"token": token})
                 except ValueError as exc:  # refused: said once, then the service closes the connection
                     raise PortPermissionError(f"the service at {where} refused: {exc}") from None
-            hello = await self._rpc.call("hello", {"printer": self.name, "subscribe": ["readings", "link", "progress"]})
+            hello = await self._rpc.call(
+                "hello", {"printer": self.name, "subscribe": ["readings", "link", "progress", "requests"]}
+            )
             self._take_hello(hello)
         except BaseException:
             await self.close()
@@ -150,6 +166,8 @@ class ServedPrinter(Printer):
             self.firmware = FirmwareInfo(str(firmware.get("name", "")), dict(firmware.get("fields", {})))
         self.capabilities = dict(info.get("capabilities") or {})
         self._link_up = bool(info.get("link_up"))
+        with contextlib.suppress(RpcError):  # a service that does not tell them: none known
+            self._take_requests(info)
         latest = info.get("latest")
         if latest is not None:
             assert self._loop is not None
@@ -190,6 +208,37 @@ class ServedPrinter(Printer):
                 self._printer_failed(error_type(f"{self.name} (served): {message}"))
         elif method == "progress" and self._served_print is not None:
             self._served_print.update(params)
+        elif method == "request":
+            try:
+                self._take_requests(params)
+                request = host_request_from_json(params.get("request"))
+            except RpcError:
+                _log.warning("the service told a malformed request of the printer: %s", str(params)[:200])
+                return
+            if request is not None and self._request_listeners and self._loop is not None:
+                self._loop.call_soon(self._tell_request_listeners, request)
+
+    def _take_requests(self, params: dict[str, Any]) -> None:
+        """The state of the firmware's requests from a `request` notification or a printer's info.
+
+        Raises:
+            RpcError: a field is not of its shape (nothing taken).
+        """
+        prompt = prompt_from_json(params.get("prompt"))
+        last = host_request_from_json(params.get("last_host_request"))
+        self._prompt, self._last_request = prompt, last
+        self._waiting_for_user = bool(params.get("waiting_for_user"))
+
+    def _failed(self, error: MarlinError) -> None:
+        # `Printer._failed` tells the `host_requests()` readers on its link's loop; this printer has no link open.
+        queues, self._request_queues = self._request_queues, []
+        try:
+            super()._failed(error)
+        finally:
+            self._request_queues = queues
+        if self._loop is not None:
+            for queue in queues:
+                self._loop.call_soon(queue.put_nowait, error)
 
     def _printer_failed(self, error: MarlinError) -> None:
         if self._lost is not None:
@@ -272,6 +321,36 @@ class ServedPrinter(Printer):
             raise ConnectionLostError(f"the printer {self.port} is not open")
         self._rpc.call_soon("interrupt_wait", {"printer": self.name})
         return True
+
+    # ------------------------------------------------------------------------------------------- firmware requests
+
+    @property
+    def prompt(self) -> Prompt | None:
+        """The prompt the service's printer shows for a person, as the service last told it, or None."""
+        return self._prompt
+
+    @property
+    def waiting_for_user(self) -> bool:
+        """True while a command of the service's printer waits for a person (M600), as the service last told."""
+        return self._waiting_for_user
+
+    @property
+    def last_host_request(self) -> HostRequest | None:
+        """The firmware's last pause, paused, resume, resumed, cancel or disconnect request, or None."""
+        return self._last_request
+
+    async def answer_prompt(self, index: int) -> None:
+        """Have the service answer its printer's open prompt with button `index` (0 the first): `M876 S<index>`.
+
+        Raises:
+            ValueError: `index` is not a button number, or the service's printer has no prompt open or no button
+                `index` (the service checks against the prompt open there; nothing is written).
+            MarlinError: as `send`.
+        """
+        if isinstance(index, bool) or not isinstance(index, int) or index < 0:
+            raise ValueError(f"a prompt's button is a number from 0, got {index!r}")
+        await self._call("answer_prompt", index=index)
+        self._prompt = None  # closed at once, as the service closed it (its notification may come later)
 
     # ------------------------------------------------------------------------------------------- temperatures
 

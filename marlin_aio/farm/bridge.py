@@ -5,11 +5,13 @@ Topics, for a printer named `NAME` under the prefix `P` (default `marlin`):
 
 - `P/NAME/telemetry`: `{"time": epoch_s, "heaters": {"hotend": {"actual", "target", "power_percent"}, ...}}` at
   the bridge's rate (QoS 0). Heaters a printer does not report are never in it.
-- `P/NAME/state` (retained): `{"link": "up" | "down", "firmware", "print", "last_error", "readings_dropped"}`,
-  published when it changes.
+- `P/NAME/state` (retained): `{"link": "up" | "down", "firmware", "print", "last_error", "readings_dropped",
+  "prompt": {"message", "buttons"} | null, "waiting_for_user"}`, published when it changes.
 - `P/NAME/events` (QoS 1): `{"event", "message", "time"}` for connected, connection_lost, connect_failed, halted,
-  thermal_runaway, reset, print_started, print_finished, print_cancelled, print_failed. Never dropped while the
-  queue has room: kept until the broker acknowledged them.
+  thermal_runaway, reset, print_started, print_finished, print_cancelled, print_failed, and the firmware's own
+  requests: prompt_opened (the message and buttons), prompt_closed, paused_by_printer, resumed_by_printer,
+  cancelled_by_printer (with the reason). Never dropped while the queue has room: kept until the broker
+  acknowledged them.
 - `P/NAME/availability` (retained): `online` while the printer's link is up, else `offline`.
 - `P/bridge/availability` (retained): `online`, and `offline` as the bridge's Last Will, so a killed bridge shows,
   and on every clean exit. (`bridge` is therefore not a printer name.)
@@ -443,7 +445,14 @@ class Bridge:
             # A state is made (redacted, encoded) only when what it is made of changed: 50 printers sampled ten
             # times a second would otherwise cost 500 of them a second, nearly all equal to the last. A print's
             # progress changes as it goes, so a printer with a print is looked at in full.
-            inputs = (farm_printer.link_up, farm_printer.firmware, farm_printer.last_error, farm_printer.url)
+            inputs = (
+                farm_printer.link_up,
+                farm_printer.firmware,
+                farm_printer.last_error,
+                farm_printer.url,
+                farm_printer.prompt,
+                farm_printer.waiting_for_user,
+            )
             if farm_printer.print_handle is None:
                 if self._state_inputs.get(farm_printer.name) == inputs:
                     continue
@@ -462,6 +471,7 @@ class Bridge:
 
     def _state(self, farm_printer: FarmPrinter) -> dict[str, Any]:
         # Made of the fields `_sample` compares before it calls this: a field added here goes there too.
+        prompt = farm_printer.prompt
         state: dict[str, Any] = redact_payload(
             {
                 "link": "up" if farm_printer.link_up else "down",
@@ -469,6 +479,8 @@ class Bridge:
                 "print": farm_printer.print_status(),
                 "last_error": farm_printer.last_error,
                 "port": farm_printer.url or farm_printer.spec.port,
+                "prompt": None if prompt is None else {"message": prompt.message, "buttons": list(prompt.buttons)},
+                "waiting_for_user": farm_printer.waiting_for_user,
             }
         )
         return state
@@ -646,6 +658,13 @@ class Bridge:
                 # The farm follows the print and says how it ended: this task only starts it.
                 await self.farm.start_print(farm_printer, command.path)
                 result: Any = {"started": command.path.name}
+            elif command.action == "answer_prompt":
+                assert command.index is not None
+                prompt = farm_printer.prompt
+                # The printer checks that a prompt is open and has this button (a ValueError, nothing written).
+                await self.farm.answer_prompt(farm_printer, command.index)
+                label = prompt.buttons[command.index] if prompt is not None else None
+                result = {"answered": command.index, "button": label}
             else:
                 result = await run_command(command, farm_printer)
         except (CommandError, ValueError, RuntimeError, OSError, marlin_aio.MarlinError) as exc:
@@ -838,8 +857,9 @@ class Bridge:
 
     def discovery_messages(self, name: str, heaters: tuple[str, ...]) -> list[tuple[str, dict[str, Any]]]:
         """Home Assistant MQTT discovery for one printer: a device with, per heater, a temperature sensor, a target
-        sensor and a power sensor, and a link sensor; each available while the bridge and the printer are. With
-        commands on, also a number per heater target, a button per preset and the emergency stop button.
+        sensor and a power sensor, a link sensor and a sensor of the open prompt's message; each available while
+        the bridge and the printer are. With commands on, also a number per heater target, a button per preset and
+        the emergency stop button.
 
         As Home Assistant's MQTT documentation asks: an `origin` (this software and its version), the device's
         firmware as `sw_version`, `device_class: temperature` on temperatures and target numbers, no device class on
@@ -955,6 +975,19 @@ class Bridge:
                     "value_template": "{{ value_json.print.percent if value_json.print else 0 }}",
                     "unit_of_measurement": "%",
                     "state_class": "measurement",
+                },
+            )
+        )
+        messages.append(
+            (
+                f"{prefix}/sensor/{node}/prompt/config",
+                base
+                | {
+                    "name": "prompt",
+                    "unique_id": f"{node}_prompt",
+                    "state_topic": self.topic(name, "state"),
+                    # What the printer asks of a person (a filament change), else empty: an automation's trigger.
+                    "value_template": "{{ value_json.prompt.message if value_json.prompt else '' }}",
                 },
             )
         )

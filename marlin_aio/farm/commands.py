@@ -10,6 +10,7 @@ A command is a JSON object published to `PREFIX/NAME/command`; its answer goes t
     {"id": 4, "action": "print", "path": "benchy.gcode"}                      (inside --allowed-dir only)
     {"id": 5, "action": "pause"} / "resume" / "cancel"
     {"id": 6, "action": "emergency_stop"}
+    {"id": 8, "action": "answer_prompt", "index": 0}                        (button 0 of the printer's open prompt)
 
 Every action may also carry `"time": <epoch seconds>`, when it was sent: given the bridge's clock, a command sent
 more than `MAX_COMMAND_AGE_S` before it (a queued "set the bed to 100" delivered an hour late, a replayed message)
@@ -55,6 +56,7 @@ from .supervisor import FarmPrinter
 __all__ = [
     "ACTIONS",
     "MAX_COMMAND_AGE_S",
+    "MAX_PROMPT_BUTTON",
     "UNQUEUED_ACTIONS",
     "CommandError",
     "FarmCommand",
@@ -73,11 +75,15 @@ ACTIONS = (
     "resume",
     "cancel",
     "emergency_stop",
+    "answer_prompt",
 )
 """What a command can ask for (its "action")."""
-UNQUEUED_ACTIONS = frozenset({"emergency_stop", "pause", "resume", "cancel"})
+UNQUEUED_ACTIONS = frozenset({"emergency_stop", "pause", "resume", "cancel", "answer_prompt"})
 """Actions that wait for no command before them and take no time: never refused for being too many waiting (a
-flood of slow commands must not keep the emergency stop out)."""
+flood of slow commands must not keep the emergency stop out, nor the answer that ends an M600 they wait behind)."""
+MAX_PROMPT_BUTTON = 99
+"""The highest button index an answer_prompt may name (a prompt has a handful; whether it has this one is the
+printer's check, when the command runs)."""
 MAX_PAYLOAD_BYTES = 65_536
 """The largest payload read (a list of 100 commands of 96 characters is about 10 KB)."""
 MAX_GCODE_COMMANDS = 100
@@ -131,6 +137,8 @@ class FarmCommand:
     path: Path | None = None
     preset: str | None = None
     """For a preset command (run as set_temperatures): the preset's name, as its file spells it."""
+    index: int | None = None
+    """For answer_prompt: the button (0 the first), as `M876 S<index>` counts."""
 
 
 def _show(value: object) -> str:
@@ -410,6 +418,14 @@ def _check(
         return FarmCommand(printer, action, command_id, gcode=_gcode(body, farm_printer))
     if action == "print":
         return FarmCommand(printer, action, command_id, path=_allowed_path(body.get("path"), allowed_dir))
+    if action == "answer_prompt":
+        index = body.get("index")
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index <= MAX_PROMPT_BUTTON:
+            raise CommandError(
+                f'answer_prompt needs "index": a button of the prompt (0 the first, at most {MAX_PROMPT_BUTTON}), '
+                f"got {_show(index)}"
+            )
+        return FarmCommand(printer, action, command_id, index=index)
     return FarmCommand(printer, action, command_id)
 
 
@@ -424,6 +440,7 @@ _FIELDS: dict[str, set[str]] = {
     "resume": set(),
     "cancel": set(),
     "emergency_stop": set(),
+    "answer_prompt": {"index"},
 }
 
 
@@ -513,7 +530,8 @@ async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
     Raises:
         CommandError: the printer is not connected, or no print is running to pause, resume or cancel.
         ValueError: a G-code command sets a target above the limits (the library checks every command it is given;
-            nothing of it is sent), or the command is a print (`Farm.start_print` starts those).
+            nothing of it is sent), or the command is a print (`Farm.start_print` starts those) or an answer
+            (`Farm.answer_prompt`).
         MarlinError: as the library raises it.
     """
     printer = farm_printer.printer
@@ -543,6 +561,9 @@ async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
         case "print":
             # A print outlives this call: the farm starts and follows it (`Farm.start_print`), the bridge asks it.
             raise ValueError("a print is started with Farm.start_print, not run_command")
+        case "answer_prompt":
+            # The farm answers, so that the answer is also a prompt_closed event (`Farm.answer_prompt`).
+            raise ValueError("a prompt is answered with Farm.answer_prompt, not run_command")
         case _:
             handle = farm_printer.print_handle
             if handle is None or handle.finished:

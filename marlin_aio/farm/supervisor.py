@@ -12,6 +12,9 @@ absent broker never slows a serial loop.
 Secrets: a printer's password (`password` in the config, sent as `M511 P<password>`) never reaches an event, the
 last error or a log line: every event's message is redacted (`redact`) where it is made, in `Farm.emit`, and the
 bridge redacts whatever else it publishes (`redact_payload`); `PrinterSpec`'s repr leaves the password out.
+
+Over 400 lines because `FarmPrinter` (what is known of a printer) and `Farm` (the only code that writes it: the
+supervisor, the prints, the firmware's requests and answers) are read together: every field's writer is here.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import marlin_aio
+import marlin_aio.protocol
 from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
 
 if TYPE_CHECKING:
@@ -35,6 +39,7 @@ if TYPE_CHECKING:
 __all__ = [
     "BACKOFF_MAX_S",
     "BACKOFF_START_S",
+    "REQUEST_EVENTS",
     "RESERVED_NAMES",
     "SIM_RECORD_LIMIT",
     "Farm",
@@ -60,6 +65,18 @@ RESERVED_NAMES = frozenset({"bridge"})
 #: Commands an in-process simulated printer remembers (it counts all): enough to look back on, small enough that
 #: twenty of them polled at 10 Hz for days stay at the same size.
 SIM_RECORD_LIMIT = 1_000
+
+#: The farm event each request of the firmware becomes (those not here, a notification, make none: the
+#: printer's `Printer.on_host_request` still has them, and a disconnect becomes the connection_lost it causes).
+REQUEST_EVENTS = {
+    "prompt": "prompt_opened",
+    "prompt_closed": "prompt_closed",
+    "pause": "paused_by_printer",
+    "paused": "paused_by_printer",
+    "resume": "resumed_by_printer",
+    "resumed": "resumed_by_printer",
+    "cancel": "cancelled_by_printer",
+}
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
 
@@ -109,8 +126,9 @@ class PrinterSpec:
 @dataclass(frozen=True)
 class FarmEvent:
     """Something that happened to one printer: `kind` is one of connected, connection_lost, connect_failed,
-    halted, thermal_runaway, reset, print_started, print_finished, print_cancelled, print_failed; `message` says
-    it for people."""
+    halted, thermal_runaway, reset, print_started, print_finished, print_cancelled, print_failed, or one of the
+    firmware's requests (`REQUEST_EVENTS`: prompt_opened, prompt_closed, paused_by_printer, resumed_by_printer,
+    cancelled_by_printer); `message` says it for people."""
 
     printer: str
     kind: str
@@ -146,6 +164,18 @@ class FarmPrinter:
     """While the supervisor waits to reconnect: when it tries again (`time.monotonic()`), else None."""
     reading_listeners: list[Callable[[marlin_aio.TemperatureReading], None]] = field(default_factory=list)
     """Called with every reading after it is kept (a farm view keeps each printer's history with one)."""
+    request_listeners: list[Callable[[marlin_aio.HostRequest], None]] = field(default_factory=list)
+    """Called with every request of the firmware (`Printer.on_host_request`), after the farm's event for it."""
+
+    @property
+    def prompt(self) -> marlin_aio.protocol.Prompt | None:
+        """The prompt the printer shows for a person now (see `Printer.prompt`), or None (also while it is down)."""
+        return self.printer.prompt if self.printer is not None and self.link_up else None
+
+    @property
+    def waiting_for_user(self) -> bool:
+        """True while a command of the printer waits for a person (M600: `Printer.waiting_for_user`)."""
+        return self.printer is not None and self.link_up and self.printer.waiting_for_user
 
     def print_status(self) -> dict[str, object] | None:
         """The print's progress for the state topic, or None when no print was started."""
@@ -276,6 +306,23 @@ class Farm:
         self.emit(farm_printer, "print_started", f"printing {path.name}")
         return handle
 
+    async def answer_prompt(self, farm_printer: FarmPrinter, index: int) -> None:
+        """Answer `farm_printer`'s open prompt with button `index` (`Printer.answer_prompt`), and say so with a
+        prompt_closed event (the printer's own `prompt_end` after an answer closes nothing left open).
+
+        Raises:
+            RuntimeError: the printer is not connected.
+            ValueError: no prompt is open, or it has no button `index` (nothing is written).
+            MarlinError: as `Printer.answer_prompt`.
+        """
+        printer = farm_printer.printer
+        if printer is None or not farm_printer.link_up:
+            raise RuntimeError(f"printer {farm_printer.name!r} is not connected")
+        prompt = printer.prompt
+        await printer.answer_prompt(index)
+        label = prompt.buttons[index] if prompt is not None else str(index)
+        self.emit(farm_printer, "prompt_closed", f"answered {label} (M876 S{index})")
+
     async def _follow_print(self, farm_printer: FarmPrinter, handle: marlin_aio.PrintHandle) -> None:
         """Wait for a print to end and say how; never raise (but when cancelled)."""
         try:
@@ -390,9 +437,30 @@ class Farm:
                 self.emit(farm_printer, "reset", event.message)
 
         stop_link_events = printer.on_link_event(on_link_event)
+        stop_requests = printer.on_host_request(lambda request: self._host_request(farm_printer, request))
         try:
             async with printer.poll_temperatures(farm_printer.spec.poll_interval_s):
                 raise await printer.wait_for_failure()
         finally:
+            stop_requests()
             stop_link_events()
             stop()
+
+    def _host_request(self, farm_printer: FarmPrinter, request: marlin_aio.HostRequest) -> None:
+        """A request of the firmware: its event (a prompt with its buttons, a pause with its reason), then the
+        printer's request listeners (the service tells its clients)."""
+        kind = REQUEST_EVENTS.get(request.action)
+        if kind is not None:
+            if request.prompt is not None:
+                buttons = ", ".join(request.prompt.buttons)
+                message = request.prompt.message + (f" (buttons: {buttons})" if buttons else "")
+            elif kind == "prompt_closed":
+                message = "the printer closed its prompt"
+            else:
+                message = request.reason
+            self.emit(farm_printer, kind, message)
+        for listener in list(farm_printer.request_listeners):
+            try:
+                listener(request)
+            except Exception:  # a listener's bug must not stop the printer's other listeners
+                _log.exception("request listener failed on %s %s", farm_printer.name, request.action)

@@ -12,7 +12,10 @@ This module only turns values into messages and back: the service and the client
 - a `TemperatureReading` as `{"heaters": {"T": [actual, target, power], ...}, "waiting", "remaining_s", "time_s",
   "source"}` (`reading_to_json`);
 - a `Reply` as its command, lines, the `ok` line's payload and times (`reply_to_json`);
-- a `PrintProgress` as its fields (`progress_to_json`);
+- a `PrintProgress` as its fields (`progress_to_json`), `paused_by` and `cancelled_by` with them;
+- the firmware's requests (`HostRequest`, `Prompt`) and what is open now, as `{"request": {"action", "argument",
+  "prompt"} | null, "prompt": {"message", "buttons"} | null, "waiting_for_user", "last_host_request"}`
+  (`requests_to_json`);
 - an error as JSON-RPC's `{"code", "message", "data": {"type": "CommandTimeoutError"}}`, so the client raises the
   same `MarlinError` subclass the printer's own link would have raised (`error_to_json`, `error_from_json`).
 """
@@ -25,6 +28,7 @@ from typing import Any
 
 import marlin_aio.errors as errors
 from marlin_aio.protocol.events import Ok
+from marlin_aio.protocol.hostrequests import HostRequest, Prompt
 from marlin_aio.protocol.printjob import PrintProgress, PrintState
 from marlin_aio.protocol.replies import Reply
 from marlin_aio.protocol.temperatures import (
@@ -48,14 +52,19 @@ __all__ = [
     "encode_message",
     "error_from_json",
     "error_to_json",
+    "host_request_from_json",
+    "host_request_to_json",
     "notification",
     "progress_from_json",
     "progress_to_json",
+    "prompt_from_json",
+    "prompt_to_json",
     "reading_from_json",
     "reading_to_json",
     "reply_from_json",
     "reply_to_json",
     "request",
+    "requests_to_json",
     "response",
 ]
 
@@ -287,10 +296,12 @@ _PROGRESS_FIELDS = (
 
 
 def progress_to_json(progress: PrintProgress) -> dict[str, Any]:
-    """A print's progress as JSON: its state and counts."""
+    """A print's progress as JSON: its state and counts, and why the printer itself paused or cancelled it."""
     value: dict[str, Any] = {"state": progress.state.value}
     for name in _PROGRESS_FIELDS:
         value[name] = getattr(progress, name)
+    value["paused_by"] = progress.paused_by
+    value["cancelled_by"] = progress.cancelled_by
     return value
 
 
@@ -303,9 +314,74 @@ def progress_from_json(value: object) -> PrintProgress:
     try:
         assert isinstance(value, dict)
         fields = {name: value[name] for name in _PROGRESS_FIELDS}
-        return PrintProgress(state=PrintState(value["state"]), **fields)
+        # Optional: a service from before the firmware's requests were served does not send them.
+        paused_by, cancelled_by = value.get("paused_by"), value.get("cancelled_by")
+        return PrintProgress(
+            state=PrintState(value["state"]),
+            **fields,
+            paused_by=None if paused_by is None else str(paused_by),
+            cancelled_by=None if cancelled_by is None else str(cancelled_by),
+        )
     except (AssertionError, KeyError, TypeError, ValueError):
         raise RpcError(INVALID_PARAMS, f"not a print's progress: {str(value)[:200]}") from None
+
+
+def prompt_to_json(prompt: Prompt | None) -> dict[str, Any] | None:
+    """A prompt as `{"message", "buttons"}`, or None (only shown prompts travel: one being built is no prompt)."""
+    if prompt is None:
+        return None
+    return {"message": prompt.message, "buttons": list(prompt.buttons)}
+
+
+def prompt_from_json(value: object) -> Prompt | None:
+    """The prompt `prompt_to_json` made (shown), or None for null.
+
+    Raises:
+        RpcError: `INVALID_PARAMS` if it is not a prompt's shape.
+    """
+    if value is None:
+        return None
+    try:
+        assert isinstance(value, dict)
+        buttons = value.get("buttons", [])
+        assert isinstance(buttons, list)
+        return Prompt(str(value["message"]), tuple(str(label) for label in buttons), shown=True)
+    except (AssertionError, KeyError):
+        raise RpcError(INVALID_PARAMS, f"not a prompt: {str(value)[:200]}") from None
+
+
+def host_request_to_json(request: HostRequest | None) -> dict[str, Any] | None:
+    """One request of the firmware as `{"action", "argument", "prompt"}`, or None."""
+    if request is None:
+        return None
+    return {"action": request.action, "argument": request.argument, "prompt": prompt_to_json(request.prompt)}
+
+
+def host_request_from_json(value: object) -> HostRequest | None:
+    """The request `host_request_to_json` made, or None for null.
+
+    Raises:
+        RpcError: `INVALID_PARAMS` if it is not a request's shape.
+    """
+    if value is None:
+        return None
+    if not isinstance(value, dict) or not isinstance(value.get("action"), str):
+        raise RpcError(INVALID_PARAMS, f"not a request of the printer: {str(value)[:200]}")
+    return HostRequest(str(value["action"]), str(value.get("argument", "")), prompt_from_json(value.get("prompt")))
+
+
+def requests_to_json(
+    request: HostRequest | None, prompt: Prompt | None, waiting_for_user: bool, last: HostRequest | None
+) -> dict[str, Any]:
+    """A `request` notification's params: the request made now (None when only the state changed: a prompt
+    answered, a wait for the user over) and the state after it: the open prompt, the wait, the last pause,
+    resume, cancel or disconnect request."""
+    return {
+        "request": host_request_to_json(request),
+        "prompt": prompt_to_json(prompt),
+        "waiting_for_user": waiting_for_user,
+        "last_host_request": host_request_to_json(last),
+    }
 
 
 def _first_line(text: str) -> str:

@@ -4,7 +4,8 @@ Moonraker's shape, at this project's size. The farm's supervisor (`marlin_aio.fa
 printer connected, polls it and runs its prints as tasks of its own, so a print outlives the client that started
 it. Clients reach the service on a Unix socket (owner-only: the folder 0700, the socket 0600) speaking JSON-RPC
 2.0, one message per line (`marlin_aio.protocol.rpc`): requests, each answered by its own response, and
-notifications for what a client subscribed to (readings, console lines, print progress, link events).
+notifications for what a client subscribed to (readings, console lines, print progress, link events, the
+firmware's requests: prompts, pause, resume and cancel, waits for the user).
 
 Why a client can never slow the printer or another client: the serial side never awaits a client. Each client has
 one bounded queue of outgoing messages and one writer task; a notification that finds the queue full is dropped
@@ -46,6 +47,7 @@ from marlin_aio.protocol.rpc import (
     progress_to_json,
     reading_to_json,
     reply_to_json,
+    requests_to_json,
 )
 from marlin_aio.service.history import History
 from marlin_aio.service.session import Handler, Session, param
@@ -56,7 +58,7 @@ __all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError", "Tcp
 _log = logging.getLogger("marlin_aio.service")
 
 #: What a client can subscribe to.
-TOPICS = frozenset({"readings", "console", "progress", "link"})
+TOPICS = frozenset({"readings", "console", "progress", "link", "requests"})
 #: The most readings one `history` answer carries (evenly thinned past this): well inside a message's limit.
 MAX_HISTORY_READINGS = 3_000
 #: The name of a print a client sent as lines (a number is added to keep each), and how many of them are kept.
@@ -170,6 +172,7 @@ class Service:
         }
         for name, farm_printer in self.farm.printers.items():
             farm_printer.reading_listeners.append(self._reader_of(name))
+            farm_printer.request_listeners.append(self._requester_of(farm_printer))
         self.octoprint = octoprint
         if tcp is not None and len(tcp.token) < 16:
             raise ValueError("the TCP token must be at least 16 characters")
@@ -180,6 +183,7 @@ class Service:
         self._numbers = 0
         self.ready = asyncio.Event()
         self._announced: dict[str, object] = {}  # the last progress told per printer, not to repeat it
+        self._requests_told: dict[str, object] = {}  # the last state of the firmware's requests told per printer
         self._cancels: dict[str, asyncio.Future[marlin_aio.PrintProgress]] = {}  # a cancel under way per printer
         self.methods: dict[str, Handler] = {
             "hello": self._hello,
@@ -198,6 +202,7 @@ class Service:
             "cancel": self._cancel,
             "emergency_stop": self._emergency_stop,
             "interrupt_wait": self._interrupt_wait,
+            "answer_prompt": self._answer_prompt,
         }
 
     # ------------------------------------------------------------------------------------------- running
@@ -331,6 +336,29 @@ class Service:
 
         return on_reading
 
+    def _requester_of(self, farm_printer: FarmPrinter) -> Callable[[marlin_aio.HostRequest], None]:
+        def on_request(request: marlin_aio.HostRequest) -> None:
+            self._tell_requests(farm_printer, request)
+            if farm_printer.print_handle is not None:
+                self._progress_of(farm_printer)  # a pause, resume or cancel of the print shows at once
+
+        return on_request
+
+    def _requests_of(self, farm_printer: FarmPrinter, request: marlin_aio.HostRequest | None) -> dict[str, Any]:
+        printer = farm_printer.printer
+        last = printer.last_host_request if printer is not None else None
+        return requests_to_json(request, farm_printer.prompt, farm_printer.waiting_for_user, last)
+
+    def _tell_requests(self, farm_printer: FarmPrinter, request: marlin_aio.HostRequest | None) -> None:
+        """Tell the `requests` subscribers of `request` with the state after it; with None, of the state alone
+        and only if it changed since last told."""
+        params = self._requests_of(farm_printer, request)
+        state = {key: value for key, value in params.items() if key != "request"}
+        if request is None and self._requests_told.get(farm_printer.name) == state:
+            return
+        self._requests_told[farm_printer.name] = state
+        self._broadcast(farm_printer.name, "requests", "request", params)
+
     def _note(self, printer: str, direction: str, text: str) -> None:
         text = redact(text)
         self.histories[printer].note(direction, text)
@@ -364,6 +392,8 @@ class Service:
                 handle = farm_printer.print_handle
                 if handle is not None and not handle.finished:
                     self._progress_of(farm_printer)
+                # A wait for the user ends with an ok, and a prompt closes when answered: no request says so.
+                self._tell_requests(farm_printer, None)
 
     def _progress_of(self, farm_printer: FarmPrinter, *, final: bool = False) -> None:
         handle = farm_printer.print_handle
@@ -413,6 +443,8 @@ class Service:
             "last_error": farm_printer.last_error,
             "latest": None if latest is None else reading_to_json(latest),
             "print": farm_printer.print_status(),
+            # The open prompt, the wait for the user, the last pause/resume/cancel/disconnect request.
+            **{key: value for key, value in self._requests_of(farm_printer, None).items() if key != "request"},
         }
 
     def _subscribe_to(self, session: Session, farm_printer: FarmPrinter, topics: object) -> list[str]:
@@ -578,3 +610,12 @@ class Service:
 
     async def _interrupt_wait(self, session: Session, params: dict[str, Any]) -> object:
         return self._connected(self._printer_of(params)).interrupt_wait()
+
+    async def _answer_prompt(self, session: Session, params: dict[str, Any]) -> object:
+        farm_printer = self._printer_of(params)
+        index = param(params, "index", int)
+        self._connected(farm_printer)
+        # The printer checks the index against the prompt open now (ValueError, nothing written).
+        await self.farm.answer_prompt(farm_printer, index)
+        self._tell_requests(farm_printer, None)  # closed here at once: every client hears it now, not at a tick
+        return None
