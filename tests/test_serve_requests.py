@@ -241,7 +241,9 @@ async def test_host_requests_of_a_served_printer_end_with_the_error_when_its_pri
         told = await asyncio.wait_for(first, 30)
         assert (told.action, told.argument) == ("notification", "hello")
         following = asyncio.ensure_future(anext(requests))
-        service.farm.printers["sim"].printer.emergency_stop()  # halted: the service tells, the reader ends
+        owned = service.farm.printers["sim"].printer
+        assert owned is not None
+        owned.emergency_stop()  # halted: the service tells, the reader ends
         with pytest.raises(marlin_aio.MarlinError):
             await asyncio.wait_for(following, 30)
         await requests.aclose()
@@ -257,6 +259,7 @@ def test_the_firmwares_requests_and_the_print_pause_round_trip_as_json() -> None
     assert rpc.prompt_from_json(params["prompt"]) == prompt
     assert rpc.host_request_from_json(params["last_host_request"]) == HostRequest("paused", "filament_runout 0")
     assert rpc.host_request_from_json(None) is None and rpc.prompt_from_json(None) is None
+    bad: object
     for bad in ({"buttons": []}, "Load", {"message": "x", "buttons": "Continue"}):
         with pytest.raises(rpc.RpcError):
             rpc.prompt_from_json(bad)
