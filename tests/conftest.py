@@ -12,12 +12,14 @@ from __future__ import annotations
 import asyncio
 import os
 import pty
+import subprocess
 import tty
 from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
+from tmux_screen import Tmux
 
 import marlin_aio
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_memory, serve_pty, serve_tcp
@@ -170,3 +172,11 @@ async def until(condition: Callable[[], bool], what: str, limit_s: float = 60.0,
         if loop.time() > end:
             raise AssertionError(f"timed out after {limit_s:g} s waiting for {what}")
         await asyncio.sleep(every_s)  # polling a condition, bounded; not a fixed wait
+
+
+@pytest.fixture
+def tmux() -> Iterator[Tmux]:
+    """A tmux server of the test's own (`tests/tmux_screen.py`), killed after the test."""
+    server = Tmux()
+    yield server
+    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)

@@ -8,7 +8,6 @@ so the test can read the printer's own record (`executed`, `halted`) of what rea
 from __future__ import annotations
 
 import asyncio
-import shutil
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -18,7 +17,7 @@ import pytest
 from conftest import TIME_SCALE, until
 from prompt_toolkit.completion import CompleteEvent
 from prompt_toolkit.document import Document
-from test_cli_terminal import Tmux
+from tmux_screen import Tmux, needs_tmux
 from typer.testing import CliRunner, Result
 
 from marlin_aio import TemperatureReading
@@ -29,8 +28,6 @@ from marlin_temp.console.terminal import GcodeCompleter, default_history_path, t
 from marlin_temp.main import app
 
 runner = CliRunner()
-
-needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
 
 
 async def invoke(*args: str) -> Result:

@@ -9,8 +9,7 @@ simulated printer, which records what reached it (`executed`, `halted`).
 from __future__ import annotations
 
 import asyncio
-import subprocess
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -18,8 +17,8 @@ from conftest import until
 from prompt_toolkit.completion import CompleteEvent
 from prompt_toolkit.document import Document
 from prompt_toolkit.history import FileHistory, InMemoryHistory
-from test_cli_console import at_an_empty_prompt, needs_tmux, start_terminal, typed, wait_for
-from test_cli_terminal import Tmux
+from test_cli_console import at_an_empty_prompt, start_terminal, typed, wait_for
+from tmux_screen import Tmux, needs_tmux
 
 from marlin_aio.simulator import SimulatorServer
 from marlin_temp.common.connect import Exit
@@ -109,13 +108,6 @@ def test_a_typed_password_is_never_written_to_the_history_nor_loaded_from_it(tmp
 
 
 # ------------------------------------------------------------------------------------------- in tmux
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
 def shows(text: str) -> Callable[[str], bool]:

@@ -14,16 +14,13 @@ import contextlib
 import io
 import json
 import re
-import shutil
-import subprocess
 import sys
-from collections.abc import Iterator
 from dataclasses import replace
 
 import pytest
 from conftest import until
 from rich.console import Console
-from test_cli_terminal import Tmux
+from tmux_screen import Tmux, needs_tmux
 from typer.testing import CliRunner
 
 import marlin_aio
@@ -49,7 +46,6 @@ from marlin_temp.main import app
 from marlin_temp.watch.command import WatchSettings, watch_farm
 
 WIDTHS = (60, 80, 120)
-needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
 LOST = "connection lost: the printer closed the link (unplugged, or the board reset?); 3 commands failed"
 
 
@@ -266,13 +262,6 @@ def test_watch_help_explains_the_farm_view() -> None:
 
 
 # ------------------------------------------------------------------------------------------- a real terminal
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
 def farm_rows(screen: str) -> dict[str, str]:

@@ -10,17 +10,15 @@ command in a worker thread or in tmux; waits poll a condition with a deadline, n
 from __future__ import annotations
 
 import asyncio
-import shutil
 import signal
-import subprocess
 import sys
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 
 import pytest
 from conftest import until
 from rich.console import Console
-from test_cli_terminal import Tmux
+from tmux_screen import Tmux, needs_tmux
 from typer.testing import CliRunner
 
 import marlin_aio
@@ -33,8 +31,6 @@ from marlin_temp.common.render import controls_view
 from marlin_temp.main import app
 from marlin_temp.printing.view import PrintStatus, plain_status, print_view
 from marlin_temp.watch.command import _outcome
-
-needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
 
 LOAD = Prompt("Load Filament", ("Continue",), shown=True)
 TWO = Prompt("Paused", ("Continue", "PurgeMore"), shown=True)
@@ -218,13 +214,6 @@ async def test_watch_answers_the_prompt_it_shows(runout_sim: SimulatorServer) ->
 
 
 # ------------------------------------------------------------------------------------------- keys, in a terminal
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
 async def wait_for(tmux: Tmux, condition: Callable[[str], bool], what: str) -> str:

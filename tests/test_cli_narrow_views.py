@@ -12,23 +12,19 @@ from __future__ import annotations
 
 import io
 import re
-import shutil
-import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from rich.console import Console
 from test_cli_farm_view import LOST, model_with, printer, rows_of_a_farm
-from test_cli_terminal import Tmux
+from tmux_screen import Tmux, needs_tmux
 
 from marlin_temp.common.connect import Exit
 from marlin_temp.farm.view import DETAIL_KEYS_HELP, FARM_KEYS_HELP, detail_view, farm_row, farm_view
 from marlin_temp.printing.view import KEYS_HELP, PrintStatus, print_view
 
 WIDTHS = (120, 80, 60, 40, 30)
-needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
 
 
 def recorded(renderable: object, width: int) -> list[str]:
@@ -139,13 +135,6 @@ def test_the_print_view_laid_out_for_a_width_is_the_one_drawn_at_that_width() ->
 
 
 # ------------------------------------------------------------------------------------------- a real terminal
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
 @needs_tmux

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_cli_terminal import Tmux
+from tmux_screen import Tmux
 from typer.testing import CliRunner
 
 from marlin_aio.farm.presets import (

@@ -5,17 +5,15 @@ from __future__ import annotations
 
 import asyncio
 import re
-import shutil
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from rich.console import Console
 from test_cli_print_safety import served
-from test_cli_terminal import Tmux
+from tmux_screen import Tmux, needs_tmux
 from typer.testing import CliRunner
 
 from marlin_aio import PrintProgress, PrintState
@@ -275,15 +273,6 @@ async def test_a_heater_wait_in_the_file_shows_heating_not_zero_lines_per_s(tmp_
 
 
 # ------------------------------------------------------------------------------------------- keys, in a terminal
-
-needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
 def dwells_run(sim: SimulatorServer) -> int:

@@ -9,7 +9,6 @@ import asyncio
 import contextlib
 import queue
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -20,7 +19,7 @@ from typing import IO, TypeVar
 
 import pytest
 from rich.console import Console
-from test_cli_terminal import Tmux
+from tmux_screen import Tmux, needs_tmux
 from typer.testing import CliRunner
 
 from marlin_aio.protocol.heaters import HeaterLimits
@@ -377,15 +376,6 @@ async def test_display_text_and_warnings_about_it_stay_as_written(tmp_path: Path
 
 
 # ------------------------------------------------------------------------------------ the question, in a terminal
-
-needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
 def done_lines(screen: str) -> int:

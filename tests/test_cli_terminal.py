@@ -2,47 +2,11 @@
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import sys
-import time
-import uuid
-from collections.abc import Callable, Iterator
 
-import pytest
+from tmux_screen import Tmux, needs_tmux
 
-pytestmark = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
-
-
-class Tmux:
-    """One tmux server of our own (its own socket), so nothing else on the machine is touched."""
-
-    def __init__(self) -> None:
-        self.socket = f"marlin-test-{uuid.uuid4().hex[:8]}"
-
-    def run(self, *args: str) -> str:
-        done = subprocess.run(["tmux", "-L", self.socket, *args], capture_output=True, text=True, check=True)
-        return done.stdout
-
-    def screen(self) -> str:
-        return self.run("capture-pane", "-p", "-t", "w")
-
-    def wait_for(self, condition: Callable[[str], bool], what: str, limit_s: float = 60.0) -> str:
-        """Poll the screen until `condition` holds (bounded); the screen is the only signal a terminal gives."""
-        end = time.monotonic() + limit_s
-        while time.monotonic() < end:
-            screen = self.screen()
-            if condition(screen):
-                return screen
-            time.sleep(0.1)
-        raise AssertionError(f"timed out waiting for {what}; the screen shows:\n{self.screen()}")
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
+pytestmark = needs_tmux
 
 
 def test_watch_shows_the_live_view_updates_and_restores_the_terminal_on_q(tmux: Tmux) -> None:

@@ -10,16 +10,14 @@ and once for real under tmux at 30x12.
 from __future__ import annotations
 
 import math
-import subprocess
 import sys
 import tracemalloc
-from collections.abc import Iterator
 
 import pytest
 from conftest import until
 from rich.console import Console
-from test_cli_terminal import Tmux
-from test_cli_watch_keys import MODELS, heating, needs_tmux, reading, sized
+from test_cli_watch_keys import MODELS, heating, reading, sized
+from tmux_screen import Tmux, needs_tmux
 from typer.testing import CliRunner
 
 import marlin_aio
@@ -285,13 +283,6 @@ def test_the_keys_shorten_to_one_line_rather_than_go() -> None:
     assert len(lines) <= 11
     assert lines[-1].strip() == "h b o +/- 1-4 f : w  q quit"  # 1-4: the four default presets
     assert "> M114" in lines
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
 @needs_tmux

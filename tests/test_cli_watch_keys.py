@@ -11,15 +11,12 @@ from __future__ import annotations
 import asyncio
 import io
 import re
-import shutil
-import subprocess
 import sys
-from collections.abc import Iterator
 from dataclasses import replace
 
 import pytest
 from rich.console import Console
-from test_cli_terminal import Tmux
+from tmux_screen import Tmux, needs_tmux
 from typer.testing import CliRunner
 
 import marlin_aio
@@ -42,7 +39,6 @@ from marlin_temp.main import app
 from marlin_temp.watch.command import _outcome, _perform
 
 WIDTHS = (40, 60, 80, 120)
-needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)")
 
 
 def reading(text: str, time_s: float) -> TemperatureReading:
@@ -335,13 +331,6 @@ def test_keys_that_set_a_target_are_remembered_for_the_way_out() -> None:
 
 
 # ------------------------------------------------------------------------------------------- a real terminal
-
-
-@pytest.fixture
-def tmux() -> Iterator[Tmux]:
-    server = Tmux()
-    yield server
-    subprocess.run(["tmux", "-L", server.socket, "kill-server"], capture_output=True, check=False)
 
 
 def sized(command: str, columns: int, rows: int) -> str:
