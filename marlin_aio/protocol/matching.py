@@ -138,11 +138,11 @@ def attribute(skipped: list[Command], command: Command) -> tuple[str, ...] | Non
 
     Lines go to the oldest command waiting when they arrive; when its ok was lost, the lines of the commands
     behind it landed in its slot too. They are `command`'s for certain only if every skipped command prints
-    nothing but its ok line (a bare M105).
+    nothing but its ok line (a bare M105, or an emergency command: its queued copy is a no-op, or prints nothing).
     """
     if not skipped:
         return tuple(command.lines)
-    if all(lost.text == "M105" or lost.probe for lost in skipped):
+    if all(lost.text == "M105" or lost.probe or lost.emergency for lost in skipped):
         return tuple(line for lost in skipped for line in lost.lines) + tuple(command.lines)
     if not any(lost.lines for lost in skipped):
         return tuple(command.lines)

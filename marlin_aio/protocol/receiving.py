@@ -237,7 +237,7 @@ class Receiving:
             core.lost_oks += 1
             _log.info("the ok of %r was lost; %r was answered after it", redact(lost.text), redact(command.text))
             # Its lines are its own if every command after it printed nothing but its ok (a bare M105).
-            quiet = all(c.text == "M105" or c.probe for c in (*skipped[at + 1 :], command))
+            quiet = all(c.text == "M105" or c.probe or c.emergency for c in (*skipped[at + 1 :], command))
             self._settle(lost, None, tuple(lost.lines) if quiet else None, now, proof=ok)
         self._settle(command, ok, lines, now)
 
@@ -456,6 +456,8 @@ class Receiving:
         if command is None:
             return
         core.in_flight.remove(command, now)
+        if command.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
+            command.move(LineEvent.REFUSED)  # thrown away as it was read (an emergency command acted on even so)
         if not command.orphan and command.job is None and not command.probe:
             error = ChecksumRequiredError(
                 f"the printer refused {redact(command.text)!r} without a line number and checksum "
