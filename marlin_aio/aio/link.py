@@ -270,7 +270,7 @@ class Link:
             reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
             raise ConnectionLostError(f"cannot send M108: {reason}")
         self._transport.write(self._conn.emergency("M108", now=self.now()))
-        self._arm_timer(self._conn.next_deadline())  # its ok is now due too
+        self.flush()  # its ok is now due too, and a probe may follow it (`Connection.emergency`)
 
     def write_emergency(self, text: str) -> None:
         """Write an emergency command (`M876 S1`) at once, ahead of anything queued; it takes its place in the
@@ -284,7 +284,7 @@ class Link:
             reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
             raise ConnectionLostError(f"cannot send {text}: {reason}")
         self._transport.write(self._conn.emergency(text, now=self.now()))
-        self._arm_timer(self._conn.next_deadline())  # its ok is now due too
+        self.flush()  # its ok is now due too, and a probe may follow it (`Connection.emergency`)
 
     def drop(self, error: MarlinError) -> None:
         """End the link now with `error` (everything waiting fails with it) and close the port, without waiting

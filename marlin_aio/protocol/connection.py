@@ -397,6 +397,17 @@ class Connection:
             entry.sends = 1
             entry.sent_s = entry.written_s = now
             core.in_flight.append(entry, now)
+            if (
+                core.in_flight.emergencies > 1
+                and now - core.emergency_probed_s >= timeout_s
+                and not any(c.probe for c in (*core.in_flight, *core.queue))
+            ):
+                # Another is still unanswered. Its ok may have been lost, or its line thrown away: then, with new
+                # ones written before each is answered, the head of the FIFO never waits long enough to time out,
+                # and callers wait behind entries that no ok will settle. The `ok T:` of a probe behind them all
+                # settles those (at most one probe a timeout).
+                core.emergency_probed_s = now
+                core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
         core.trace.sent(now, bare)
         return wire
 
@@ -509,7 +520,7 @@ class Connection:
                 # would be counted twice (and a damaged one may be dropped without a word).
                 (flight.barriers and not (command.probe and resends.unanswered_m110 is not None))
                 or command.code == "M110"
-                or (len(flight) >= core.max_in_flight and not command.probe)
+                or (len(flight) - flight.emergencies >= core.max_in_flight and not command.probe)
                 or (calm and not (command.probe or nudge) and resends.rejectable(flight))
                 or flight.bytes + resends.wire_size(command) > (core.rx_buffer_bytes if command.probe else limit)
                 or not answer_stays_distinct(command, flight, exact_oks=core.exact_oks)

@@ -220,6 +220,12 @@ class Receiving:
                 self._fragment_ran(now)
             return
         held = core.resends.held
+        if held is not None and ok.line_number is None and core.in_flight[index].emergency:
+            # A plain ok, and an emergency command written behind the held line: the ok is the held line's if it
+            # ran unnumbered, else the emergency command's. It proves nothing about the held line: judged as its.
+            ahead = [c for c in core.in_flight][:index]
+            if held in ahead:
+                index = ahead.index(held)
         if held is not None and core.in_flight[index] is held and ok.line_number is None:
             plain = ok.temperatures is None
             if plain != answers_plainly(held):
@@ -290,6 +296,10 @@ class Receiving:
         again at once, in its place.
         """
         core = self._core
+        if any(c.emergency and _changed(c.text, echoed) < 3 for c in core.in_flight):
+            # An emergency command damaged on the way (unnumbered, nothing checks it): the printer queued it like
+            # any line and answers it in its turn, this refusal and then its ok, which lands on its entry.
+            return
         damaged_body = self._damaged_copy(echoed, body=True)
         if damaged_body is not None:
             # The line was counted with a damaged body (two flips of one bit, which the 8-bit checksum cannot
