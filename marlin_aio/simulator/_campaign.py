@@ -342,12 +342,12 @@ def run_print(scenario: Scenario) -> CampaignResult:
                 flush()
         # The printer waits for the user (M600, a runout): the host answers through the emergency path, as
         # `Printer.answer_prompt` and `interrupt_wait` do, and again if the wait goes on (its bytes may be damaged).
-        waiting = requests.waiting_for_user or (requests.prompt is not None and bool(requests.prompt.buttons))
-        if waiting and answer_at is None and now >= answered_s + 0.8:
+        asked = requests.waiting_for_user or (requests.prompt is not None and bool(requests.prompt.buttons))
+        if asked and answer_at is None and now >= answered_s + 0.8:
             answer_at = now + 0.05 + emergency_rng.random() * 0.35
         if answer_at is not None and now >= answer_at:
             answer_at = None
-            if waiting and not job.finished:
+            if asked and not job.finished:
                 answered_s = now
                 if requests.prompt is not None and requests.prompt.buttons and emergency_rng.random() < 0.7:
                     transmit(conn.emergency("M876 S0", now=now), "out", to_printer)
