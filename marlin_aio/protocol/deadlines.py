@@ -51,7 +51,10 @@ class Deadlines:
             return math.inf
         last_in = core.trace.last_received
         head = core.in_flight.head
-        since = max(last_in.time_s if last_in is not None else 0.0, 0.0 if head is None else head.head_since_s or 0.0)
+        since = last_in.time_s if last_in is not None else 0.0
+        if head is not None and not head.emergency:
+            # (Emergency commands let go one after another restart no clock: a silent printer stays silent.)
+            since = max(since, head.head_since_s or 0.0)
         return since + core.feed.timeout_s
 
     def _deadlines(self, head: Command) -> tuple[float, float, float]:
