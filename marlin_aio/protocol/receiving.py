@@ -226,6 +226,18 @@ class Receiving:
             ahead = [c for c in core.in_flight][:index]
             if held in ahead:
                 index = ahead.index(held)
+        entry = core.in_flight[index]
+        if (
+            entry.emergency
+            and core.exact_oks
+            and any(core.in_flight[at].line_number is not None for at in range(index))
+        ):
+            # Its own ok, with numbered lines ahead of it unanswered: it proves nothing about them (unnumbered, it
+            # met no sequence check, and the printer may have dropped one of them without a word). They stay, for
+            # an answer that can prove it (an `ok N`, a probe's `ok T:`) or a resend.
+            core.in_flight.remove(entry, now)
+            self._settle(entry, ok, (), now)
+            return
         if held is not None and core.in_flight[index] is held and ok.line_number is None:
             plain = ok.temperatures is None
             if plain != answers_plainly(held):
