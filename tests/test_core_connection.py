@@ -1086,12 +1086,14 @@ def test_emergency_returns_the_bare_command() -> None:
     submit_all(conn, "M109 S200", "M105", "G28")
     conn.data_to_send(0.0)
     assert conn.emergency("M112", now=1.0) == b"M112\n"
+    assert conn.in_flight == 2  # M112 halts: no ok will come, so it takes no place
     assert conn.emergency("M108 ; stop waiting", now=1.0) == b"M108\n"
-    assert conn.in_flight == 2
+    assert conn.in_flight == 3  # M108's own ok will come, after M109's and M105's
     assert conn.queued == 1
     assert conn.trace.last_sent is not None
     assert conn.trace.last_sent.text == "M108"
     receive(conn, "ok", "ok")
+    assert conn.stats().stray_oks == 0
     assert conn.data_to_send(2.0) == (wire("G28", 3) + "\n").encode()  # numbering unaffected
 
 
@@ -1107,6 +1109,126 @@ def test_emergency_rejects_malformed_commands() -> None:
     conn = Connection()
     with pytest.raises(ValueError, match="line break"):
         conn.emergency("M112\nG28", now=0.0)
+
+
+# Marlin 2.1 with EMERGENCY_PARSER (captures/marlin-2.1/session-emergency-parser.log, lines 1-13): M108 ends the
+# heater wait as its bytes arrive, and its queued copy is then answered with its own plain ok, in order.
+CAPTURED_M105_OK = "ok T:33.15 /150.00 B:25.00 /0.00 @:127 B@:0"
+
+
+def test_the_captured_m108_gets_its_own_ok_and_every_command_its_own() -> None:
+    conn = Connection(numbered=False, max_in_flight=4)
+    (m109,) = submit_all(conn, "M109 S150", now=0.3)
+    assert sent(conn.data_to_send(0.3)) == ["M109 S150"]
+    receive(conn, " T:25.00 /150.00 B:25.00 /0.00 @:0 B@:0 W:?", "echo:busy: processing", now=2.5)
+    assert conn.emergency("M108", now=3.312) == b"M108\n"
+    m105, g28 = submit_all(conn, "M105", "G28 X Y", now=3.312)
+    # M105's `ok T:` cannot be taken for another's; the G28 (a plain ok) waits until M108's ok is in.
+    assert sent(conn.data_to_send(3.313)) == ["M105"]
+    receive(conn, "ok P15 B3", now=3.313)  # M109's: the wait ended
+    assert [(text, reply.ok.temperatures) for text, reply in replies(conn)] == [("M109 S150", None)]
+    assert sent(conn.data_to_send(3.313)) == []
+    receive(conn, "ok P15 B2", now=3.315)  # M108's own
+    assert replies(conn) == []  # nobody waits for it, and nobody is handed it
+    assert sent(conn.data_to_send(3.315)) == ["G28 X Y"]
+    receive(conn, CAPTURED_M105_OK, now=3.322)
+    ((text, reply),) = replies(conn)
+    assert text == "M105" and reply.temperatures is not None and "33.15" in reply.ok.payload
+    receive(conn, "ok P15 B3", now=20.0)
+    assert [text for text, _ in replies(conn)] == ["G28 X Y"]
+    stats = conn.stats()
+    assert (stats.stray_oks, stats.lost_oks, stats.failed, stats.in_flight) == (0, 0, 0, 0)
+    assert not any(command.orphan for command in (m109, m105, g28))
+
+
+@pytest.mark.parametrize("advanced_ok", [False, True])
+def test_a_g1_submitted_after_m108_is_not_answered_by_m108s_ok(advanced_ok: bool) -> None:
+    conn = Connection(max_in_flight=4, advanced_ok=advanced_ok)
+    submit_all(conn, "M109 S150")
+    conn.data_to_send(0.0)
+    conn.emergency("M108", now=1.0)
+    submit_all(conn, "G1 X10", now=1.0)
+    written = sent(conn.data_to_send(1.0))
+    # With line numbers in the oks the G1's answer cannot be mistaken: it may go at once; else it waits.
+    assert written == ([wire("G1 X10", 2)] if advanced_ok else [])
+    receive(conn, "ok N1 P15 B3" if advanced_ok else "ok P15 B3", now=1.1)  # M109's
+    assert [text for text, _ in replies(conn)] == ["M109 S150"]
+    if not advanced_ok:
+        assert sent(conn.data_to_send(1.1)) == []  # still behind M108's ok
+    receive(conn, "ok P15 B2", now=1.2)  # M108's own
+    assert replies(conn) == []  # the G1 is not answered by it
+    if not advanced_ok:
+        assert sent(conn.data_to_send(1.2)) == [wire("G1 X10", 2)]
+    receive(conn, "X:10.00 Y:0.00 Z:0.00 E:0.00 Count X:800 Y:0 Z:0", "ok N2 P15 B3" if advanced_ok else "ok", now=1.3)
+    ((text, reply),) = replies(conn)
+    assert text == "G1 X10" and reply.lines == ("X:10.00 Y:0.00 Z:0.00 E:0.00 Count X:800 Y:0 Z:0",)
+    assert not reply.ok_lost
+    assert (conn.stats().stray_oks, conn.stats().lost_oks) == (0, 0)
+
+
+def test_an_m108_the_printer_threw_away_is_settled_by_the_answer_behind_it() -> None:
+    conn = Connection(max_in_flight=4)
+    submit_all(conn, "G28")
+    conn.data_to_send(0.0)
+    conn.emergency("M108", now=0.5)
+    submit_all(conn, "M105", now=0.5)
+    assert sent(conn.data_to_send(0.5)) == [wire("M105", 2)]
+    receive(conn, "ok", M105_OK, now=1.0)  # G28's, then M105's: no ok for the M108
+    assert [(text, reply.ok_lost) for text, reply in replies(conn)] == [("G28", False), ("M105", False)]
+    stats = conn.stats()
+    assert (stats.in_flight, stats.lost_oks, stats.failed, stats.timeouts) == (0, 1, 0, 0)
+
+
+def test_an_m108_never_answered_is_probed_and_holds_nobody_up_for_long() -> None:
+    conn = Connection(max_in_flight=4)
+    conn.emergency("M876 S0", now=0.0)
+    (g1,) = submit_all(conn, "G1 X5", now=0.0)
+    assert sent(conn.data_to_send(0.0)) == []  # behind M876: its answer must not be taken for the G1's
+    deadline = conn.next_deadline()
+    assert deadline is not None and deadline <= 2.5
+    out = conn.tick(deadline)
+    assert sent(out.data) == [wire("M105", 1)]  # a probe: its `ok T:` proves the M876 processed, or lost
+    receive(conn, M105_OK, now=deadline + 0.1)
+    assert sent(conn.data_to_send(deadline + 0.1)) == [wire("G1 X5", 2)]
+    receive(conn, "ok", now=deadline + 0.2)
+    assert [text for text, _ in replies(conn)] == ["G1 X5"]
+    stats = conn.stats()
+    assert (stats.in_flight, stats.failed, stats.timeouts) == (0, 0, 0)
+    assert not g1.orphan
+
+
+def test_an_m108_is_never_written_again_by_a_resend() -> None:
+    conn = Connection(max_in_flight=4)
+    submit_all(conn, "M105")
+    conn.data_to_send(0.0)
+    conn.emergency("M108", now=0.1)
+    # The M105 arrived damaged; the printer threw away its buffer, the M108's line with it.
+    receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok", now=0.2)
+    written: list[str] = []
+    for step in range(1, 40):
+        written += sent(conn.tick(0.2 + step * 0.1).data)
+    assert written == [wire("M105", 1)]
+    receive(conn, M105_OK, now=5.0)
+    assert [text for text, _ in replies(conn)] == ["M105"]
+    assert (conn.stats().in_flight, conn.stats().failed) == (0, 0)
+
+
+def test_a_printer_that_refuses_unnumbered_lines_answers_no_emergency_command() -> None:
+    conn = Connection(max_in_flight=4)
+    conn.emergency("M108", now=0.0)
+    assert conn.in_flight == 1
+    receive(conn, "Error: Missing checksum", now=0.01)  # as the simulator's --checksum-required firmware does
+    assert (conn.in_flight, conn.stats().failed, conn.requires_numbers) == (0, 0, True)
+    assert outcomes(conn) == []
+    conn.emergency("M108", now=1.0)
+    assert conn.in_flight == 0  # known now: no ok will come
+
+
+def test_no_place_for_an_emergency_command_on_a_halted_printer() -> None:
+    conn = Connection()
+    receive(conn, "Error:Printer halted. kill() called!", now=0.0)
+    assert conn.emergency("M108", now=1.0) == b"M108\n"
+    assert conn.in_flight == 0
 
 
 def test_trace_keeps_the_last_entries() -> None:

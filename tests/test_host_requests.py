@@ -214,3 +214,36 @@ def test_the_simulator_command_line_sets_the_runout_line() -> None:
     with pytest.raises(SystemExit) as exited:
         build_parser().parse_args(["--runout-at-line", "0"])
     assert exited.value.code == 2
+
+
+async def test_a_prompt_answered_during_a_print_leaves_every_callers_reply_its_own(runout_sim: SimulatorServer) -> None:
+    # The answer (M876 S0, written at once for the emergency parser) is queued by Marlin and answered with its own
+    # plain ok, in order: it must land on the M876, not on the G1 or M114 a caller sends at the same time.
+    replies: list[tuple[str, marlin_aio.Reply]] = []
+    stop = asyncio.Event()
+
+    async def user() -> None:
+        for index in range(1_000):
+            command = "M114" if index % 2 else f"G1 Z{1 + index % 5}"
+            replies.append((command, await printer.send(command)))
+            if stop.is_set():
+                return
+
+    async with marlin_aio.connect(runout_sim.url, timeout_s=5.0) as printer:
+        handle = await printer.start_print(gcode())
+        task = asyncio.create_task(user())
+        await until(lambda: printer.prompt is not None and printer.prompt.message == "Load Filament", "the prompt")
+        await printer.answer_prompt(0)
+        final = await asyncio.wait_for(handle.wait(), 30)
+        stop.set()
+        await asyncio.wait_for(task, 30)
+        stats = printer.stats
+    assert final.state is marlin_aio.PrintState.DONE
+    assert [line for line in moves(runout_sim) if " Z" not in line] == [line.strip() for line in gcode()]
+    assert runout_sim.printer.prompt_answers == [0]
+    assert len(replies) >= 2
+    for command, reply in replies:
+        position = [line for line in reply.lines if line.startswith("X:")]
+        # An M114 gets its one position line, a G1 none: a reply shifted by one command would show it.
+        assert len(position) == (1 if command == "M114" else 0), (command, reply)
+    assert stats.stray_oks == 0 and stats.failed == 0

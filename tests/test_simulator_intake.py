@@ -483,3 +483,26 @@ def test_a_reset_boots_again_and_the_delay_can_be_given() -> None:
     with pytest.raises(ValueError, match="boot_delay_s"):
         SimulatorConfig(boot_delay_s=-0.5)
     assert SimulatorConfig().boot_delay_s == 0.0
+
+
+def test_an_emergency_line_acts_at_once_and_is_answered_in_its_turn_as_the_capture_shows() -> None:
+    # shared/captures/marlin-2.1/session-emergency-parser.log, lines 1-13: M108 ends M109's wait as it arrives,
+    # M109 is answered, then M108's queued copy gets its own plain ok (no `N`: it was not numbered), then M105's.
+    printer = make(advanced_ok=True)
+    printer.receive(b"M109 S150\n", 0.3)
+    printer.advance(3.3)
+    assert all(" W:" in line or "busy" in line for line in lines(printer))  # still waiting
+    m109_ok, m108_ok, m105_ok = send(printer, "M108\nM105", 3.312)
+    assert (m109_ok, m108_ok) == ("ok P15 B3", "ok P15 B2")  # as captured
+    assert m105_ok.startswith("ok T:") and "/150.00" in m105_ok
+    assert printer.executed[-2:] == ["M108", "M105"]  # queued and run (a no-op) in its turn
+
+
+def test_a_firmware_that_wants_checksums_acts_on_an_emergency_line_and_refuses_it_without_an_ok() -> None:
+    printer = make(checksum_required=True)
+    printer.receive((number_command("M109 S150", 1) + "\n").encode(), 0.0)
+    printer.advance(2.0)
+    lines(printer)
+    # The emergency parser reads the bytes before the line checks: the wait ends, and the line is refused as read.
+    assert send(printer, "M108", 2.0) == ["ok", "Error: Missing checksum"]  # M109's ok, then the refusal
+    assert "M108" not in printer.executed

@@ -260,7 +260,8 @@ class Link:
 
     def interrupt_wait(self) -> None:
         """Write M108 at once, ahead of anything queued: Marlin's emergency parser ends a heater wait (M109, M190,
-        M191) or an M0/M1 with it. It takes no place in the FIFO; the wait's own command is then answered normally.
+        M191) or an M0/M1 with it. The wait's own command is then answered normally, and the M108 by its own `ok`
+        after it, in order (its place in the FIFO is taken as it is written: see `Connection.emergency`).
 
         Raises:
             ConnectionLostError: the port is closed or lost.
@@ -269,10 +270,11 @@ class Link:
             reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
             raise ConnectionLostError(f"cannot send M108: {reason}")
         self._transport.write(self._conn.emergency("M108", now=self.now()))
+        self.flush()  # its ok is now due too, and a probe may follow it (`Connection.emergency`)
 
     def write_emergency(self, text: str) -> None:
-        """Write an emergency command (`M876 S1`) at once, ahead of anything queued, with no place in the FIFO
-        (see `Connection.emergency`).
+        """Write an emergency command (`M876 S1`) at once, ahead of anything queued; it takes its place in the
+        FIFO as it is written, so its own `ok` lands on it and on no caller's command (see `Connection.emergency`).
 
         Raises:
             ValueError: it is not an emergency command.
@@ -282,6 +284,7 @@ class Link:
             reason = str(self._lost) if self._lost is not None else f"{self.port} is not open"
             raise ConnectionLostError(f"cannot send {text}: {reason}")
         self._transport.write(self._conn.emergency(text, now=self.now()))
+        self.flush()  # its ok is now due too, and a probe may follow it (`Connection.emergency`)
 
     def drop(self, error: MarlinError) -> None:
         """End the link now with `error` (everything waiting fails with it) and close the port, without waiting

@@ -59,6 +59,10 @@ __all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "
 #: Commands Marlin's emergency parser acts on as soon as their bytes arrive; they skip the queue here too.
 EMERGENCY_COMMANDS = frozenset({"M108", "M112", "M410", "M876"})
 
+#: How long an emergency command's `ok` may be missing once everything ahead of it was answered (Marlin answers
+#: the no-op at once when its turn comes) before a probe asks whether it was thrown away or lost.
+EMERGENCY_TIMEOUT_S = 2.0
+
 
 @dataclass(slots=True)
 class Output:
@@ -354,19 +358,57 @@ class Connection:
         core.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
         return command
 
-    def emergency(self, text: str, *, now: float) -> bytes:
-        """Return the bytes of an emergency command (M112, M108, M410) to write at once, ahead of the queue.
+    def emergency(self, text: str, *, now: float, timeout_s: float = EMERGENCY_TIMEOUT_S) -> bytes:
+        """Return the bytes of an emergency command (M112, M108, M410, M876 S<n>) to write at once, ahead of the
+        queue.
 
-        It is never numbered (the emergency parser wants the bare command) and gets no entry in the FIFO: M112 halts
-        the printer, and the halt fails everything that was waiting.
+        It is never numbered: the emergency parser acts on the bare command as its bytes arrive, and it must never be
+        written again (its effect already happened). But Marlin still queues the line and answers it with its own
+        plain `ok` (ADVANCED_OK: `ok P.. B..`, without `N`), in order with everything else (the captured Marlin 2.1
+        session shows it). So M108, M410 and M876 take their place in the FIFO now, behind everything already
+        written and ahead of everything still queued, and that `ok` lands on them and on no caller's command.
+        Nobody waits for the entry: if the printer threw the line away (with its receive buffer, after a line
+        error) or its ok is lost, the answer to a command behind it proves it processed, or, left unanswered at the
+        head of the FIFO for `timeout_s`, a probe behind it settles it (`deadlines`). M112 halts the printer: no ok
+        comes, and the halt fails everything that was waiting. On a halted printer, or one that refuses unnumbered
+        lines (`requires_numbers`: `Error: Missing checksum` and no ok), nothing will answer, so nothing is added.
 
         Raises:
             ValueError: the command is not one of M108, M112, M410, M876, or is malformed.
         """
-        wire = encode_command(text)
-        if command_code(text) not in EMERGENCY_COMMANDS:
+        line = encode_command(text)
+        code = command_code(text)
+        if code not in EMERGENCY_COMMANDS:
             raise ValueError(f"{redact(text)!r} is not an emergency command (M108, M112, M410, M876)")
-        self._core.trace.sent(now, wire.decode("ascii").rstrip("\n"))
+        core = self._core
+        wire = line
+        if core.send_eol:
+            # A line whose end may have been damaged waits in the printer: end it first, or the emergency parser
+            # would not see this command at the start of a line.
+            core.send_eol = False
+            wire = b"\n" + line
+            core.trace.sent(now, "(a bare line end)")
+        bare = line.decode("ascii").rstrip("\n")
+        if code != "M112" and core.state is not LinkState.HALTED and not core.requires_numbers:
+            entry = Command(core.new_id(), bare, code, False, timeout_s, now)
+            entry.emergency = entry.orphan = True  # no caller: its answer completes nothing
+            entry.wire = line
+            entry.move(LineEvent.WRITTEN)
+            entry.sends = 1
+            entry.sent_s = entry.written_s = now
+            core.in_flight.append(entry, now)
+            if (
+                core.in_flight.emergencies > 1
+                and now - core.emergency_probed_s >= timeout_s
+                and not any(c.probe for c in (*core.in_flight, *core.queue))
+            ):
+                # Another is still unanswered. Its ok may have been lost, or its line thrown away: then, with new
+                # ones written before each is answered, the head of the FIFO never waits long enough to time out,
+                # and callers wait behind entries that no ok will settle. The `ok T:` of a probe behind them all
+                # settles those (at most one probe a timeout).
+                core.emergency_probed_s = now
+                core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
+        core.trace.sent(now, bare)
         return wire
 
     def emergency_stop(self, now: float) -> bytes:
@@ -478,7 +520,7 @@ class Connection:
                 # would be counted twice (and a damaged one may be dropped without a word).
                 (flight.barriers and not (command.probe and resends.unanswered_m110 is not None))
                 or command.code == "M110"
-                or (len(flight) >= core.max_in_flight and not command.probe)
+                or (len(flight) - flight.emergencies >= core.max_in_flight and not command.probe)
                 or (calm and not (command.probe or nudge) and resends.rejectable(flight))
                 or flight.bytes + resends.wire_size(command) > (core.rx_buffer_bytes if command.probe else limit)
                 or not answer_stays_distinct(command, flight, exact_oks=core.exact_oks)

@@ -10,6 +10,7 @@ read and write it through their one `CoreState`, and the link's state moves only
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 
 from marlin_aio.errors import MarlinError, PrinterHaltedError
@@ -85,6 +86,7 @@ class CoreState:
         self.state = LinkState.READY
         self.halt: PrinterHaltedError | None = None  # why it is HALTED or STOPPED; raised to new commands
         self.requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
+        self.emergency_probed_s = -math.inf  # when a probe last went behind emergency commands (`Connection.emergency`)
         # Counters (read them through `stats()`). Every submitted command ends up counted once: answered + failed
         # + cancelled + still queued or in flight.
         self.submitted = self.answered = self.failed = self.cancelled = 0

@@ -51,7 +51,10 @@ class Deadlines:
             return math.inf
         last_in = core.trace.last_received
         head = core.in_flight.head
-        since = max(last_in.time_s if last_in is not None else 0.0, 0.0 if head is None else head.head_since_s or 0.0)
+        since = last_in.time_s if last_in is not None else 0.0
+        if head is not None and not head.emergency:
+            # (Emergency commands let go one after another restart no clock: a silent printer stays silent.)
+            since = max(since, head.head_since_s or 0.0)
         return since + core.feed.timeout_s
 
     def _deadlines(self, head: Command) -> tuple[float, float, float]:
@@ -78,7 +81,8 @@ class Deadlines:
             # finds out whether it is needed). An M105 in doubt is let go after one more timeout, as only another
             # M105 could take its late `ok T:`, and that answer would be as true for it.
             probe_at = start if self._may_probe_doubt() else math.inf
-            timeout_at = start + head.timeout_s if head.code == "M105" else math.inf
+            # An emergency command in doubt is let go the same way: its queued copy ran nothing, and nobody waits.
+            timeout_at = start + head.timeout_s if head.code == "M105" or head.emergency else math.inf
             return timeout_at, math.inf, probe_at
         # While a job streams: outside prints a lost ok is found by the timeout, then probed (above).
         # A probe whose own line end was damaged waits in the printer for a line end: another probe behind it
@@ -158,6 +162,14 @@ class Deadlines:
                 if now >= probe_at:
                     self._probe(now)
                 return
+            if head.emergency:
+                # Everything ahead of it was answered and its own ok has not come: the printer threw the line away
+                # with its receive buffer (after a line error), or the ok was lost. Nobody waits for it, so it is
+                # no caller's timeout: in doubt, a probe behind it settles it (`_settle_doubt`).
+                head.move(LineEvent.OVERDUE)
+                head.head_since_s = now
+                head.alive_s = None
+                continue
             # No stale rejection can still be on its way after this much silence.
             resends.forget_stale()
             core.timeouts += 1
@@ -201,6 +213,8 @@ class Deadlines:
             # keeps that time, so the callers behind both end at their own bound from when they began waiting
             # behind lines in doubt, not one more timeout for each; an M105 there is let go now too.
             core.in_flight.popleft(now)
+            if head.emergency:
+                head.move(LineEvent.FAILED)  # never answered: its place is given up (nobody is told; nobody waits)
             after = core.in_flight.head
             if after is not None and after.state is LineState.IN_DOUBT:
                 after.head_since_s = head.head_since_s

@@ -31,12 +31,15 @@ class InFlight:
     """The commands written and waiting for their `ok`, oldest first, and the bytes they hold in the printer's
     receive buffer. The oldest command's `head_since_s` says since when it has been the one answered next."""
 
-    __slots__ = ("_commands", "barriers", "bytes")
+    __slots__ = ("_commands", "barriers", "bytes", "emergencies")
 
     def __init__(self) -> None:
         self._commands: deque[Command] = deque()
         self.bytes = 0
         self.barriers = 0  # M110s in flight: nothing may be written behind one (see `resends`)
+        # Emergency commands in flight (`Connection.emergency`): they hold no place in the window of commands, as
+        # the host did not choose to write them, and one whose ok never comes must not hold a print line back.
+        self.emergencies = 0
 
     def __len__(self) -> int:
         return len(self._commands)
@@ -68,6 +71,8 @@ class InFlight:
         self.bytes += len(command.wire)
         if command.code == "M110":
             self.barriers += 1
+        elif command.emergency:
+            self.emergencies += 1
 
     def popleft(self, now: float) -> Command:
         """Take the oldest command off; the next one is answered next from `now` on."""
@@ -75,6 +80,8 @@ class InFlight:
         self.bytes -= len(command.wire)
         if command.code == "M110":
             self.barriers -= 1
+        elif command.emergency:
+            self.emergencies -= 1
         if self._commands:
             self._commands[0].head_since_s = now
         return command
@@ -86,6 +93,8 @@ class InFlight:
         self.bytes -= len(command.wire)
         if command.code == "M110":
             self.barriers -= 1
+        elif command.emergency:
+            self.emergencies -= 1
         if was_head and self._commands:
             self._commands[0].head_since_s = now
 
@@ -95,6 +104,7 @@ class InFlight:
         self._commands = deque(keep)
         self.bytes = sum(len(c.wire) for c in self._commands)
         self.barriers = sum(c.code == "M110" for c in self._commands)
+        self.emergencies = sum(c.emergency for c in self._commands)
         if self._commands and (restart_head or self._commands[0].head_since_s is None):
             self._commands[0].head_since_s = now
 
@@ -103,6 +113,7 @@ class InFlight:
         self._commands.clear()
         self.bytes = 0
         self.barriers = 0
+        self.emergencies = 0
 
 
 def match_ok(flight: InFlight, ok: Ok, *, exact_oks: bool) -> int | None:
@@ -138,11 +149,11 @@ def attribute(skipped: list[Command], command: Command) -> tuple[str, ...] | Non
 
     Lines go to the oldest command waiting when they arrive; when its ok was lost, the lines of the commands
     behind it landed in its slot too. They are `command`'s for certain only if every skipped command prints
-    nothing but its ok line (a bare M105).
+    nothing but its ok line (a bare M105, or an emergency command: its queued copy is a no-op, or prints nothing).
     """
     if not skipped:
         return tuple(command.lines)
-    if all(lost.text == "M105" or lost.probe for lost in skipped):
+    if all(lost.text == "M105" or lost.probe or lost.emergency for lost in skipped):
         return tuple(line for lost in skipped for line in lost.lines) + tuple(command.lines)
     if not any(lost.lines for lost in skipped):
         return tuple(command.lines)

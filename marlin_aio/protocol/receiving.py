@@ -220,6 +220,24 @@ class Receiving:
                 self._fragment_ran(now)
             return
         held = core.resends.held
+        if held is not None and ok.line_number is None and core.in_flight[index].emergency:
+            # A plain ok, and an emergency command written behind the held line: the ok is the held line's if it
+            # ran unnumbered, else the emergency command's. It proves nothing about the held line: judged as its.
+            ahead = [c for c in core.in_flight][:index]
+            if held in ahead:
+                index = ahead.index(held)
+        entry = core.in_flight[index]
+        if (
+            entry.emergency
+            and core.exact_oks
+            and any(core.in_flight[at].line_number is not None for at in range(index))
+        ):
+            # Its own ok, with numbered lines ahead of it unanswered: it proves nothing about them (unnumbered, it
+            # met no sequence check, and the printer may have dropped one of them without a word). They stay, for
+            # an answer that can prove it (an `ok N`, a probe's `ok T:`) or a resend.
+            core.in_flight.remove(entry, now)
+            self._settle(entry, ok, (), now)
+            return
         if held is not None and core.in_flight[index] is held and ok.line_number is None:
             plain = ok.temperatures is None
             if plain != answers_plainly(held):
@@ -237,7 +255,7 @@ class Receiving:
             core.lost_oks += 1
             _log.info("the ok of %r was lost; %r was answered after it", redact(lost.text), redact(command.text))
             # Its lines are its own if every command after it printed nothing but its ok (a bare M105).
-            quiet = all(c.text == "M105" or c.probe for c in (*skipped[at + 1 :], command))
+            quiet = all(c.text == "M105" or c.probe or c.emergency for c in (*skipped[at + 1 :], command))
             self._settle(lost, None, tuple(lost.lines) if quiet else None, now, proof=ok)
         self._settle(command, ok, lines, now)
 
@@ -290,6 +308,10 @@ class Receiving:
         again at once, in its place.
         """
         core = self._core
+        if any(c.emergency and _changed(c.text, echoed) < 3 for c in core.in_flight):
+            # An emergency command damaged on the way (unnumbered, nothing checks it): the printer queued it like
+            # any line and answers it in its turn, this refusal and then its ok, which lands on its entry.
+            return
         damaged_body = self._damaged_copy(echoed, body=True)
         if damaged_body is not None:
             # The line was counted with a damaged body (two flips of one bit, which the 8-bit checksum cannot
@@ -456,6 +478,8 @@ class Receiving:
         if command is None:
             return
         core.in_flight.remove(command, now)
+        if command.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
+            command.move(LineEvent.REFUSED)  # thrown away as it was read (an emergency command acted on even so)
         if not command.orphan and command.job is None and not command.probe:
             error = ChecksumRequiredError(
                 f"the printer refused {redact(command.text)!r} without a line number and checksum "

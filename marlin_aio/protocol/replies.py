@@ -81,6 +81,7 @@ class Command:
     probe: bool = False  # an M105 written to find out whether a stalled stream lost an ok
     refusal: str | None = None  # the printer's line saying it did not run this command (locked, not executed)
     placeholder: bool = False  # an `M110 N<n>` that takes the number of a line that must not run (again)
+    emergency: bool = False  # M108/M410/M876 written at once (`Connection.emergency`): never written again
     state: LineState = LineState.QUEUED  # moved only by `move`, through `states.LINE_TRANSITIONS`
 
     def move(self, event: LineEvent) -> None:

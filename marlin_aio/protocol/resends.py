@@ -57,8 +57,8 @@ def wanted(line: Command) -> bool:
     """
     if line.placeholder and line.state is LineState.QUEUED:
         return True  # the placeholder of an earlier request, not written yet
-    if line.state not in (LineState.TO_RESEND, LineState.ON_WIRE, LineState.IN_DOUBT):
-        return False
+    if line.emergency or line.state not in (LineState.TO_RESEND, LineState.ON_WIRE, LineState.IN_DOUBT):
+        return False  # an emergency command acted as its bytes arrived: it is never written again
     if line.placeholder or line.probe:
         return True
     if line.orphan:

@@ -55,6 +55,8 @@ _LOCKED = "echo:Printer locked! (Unlock with M511 or LCD)"  # STR_PRINTER_LOCKED
 _LOST_MCU = "!! Lost communication with MCU 'mcu'"
 #: Numbered lines a host sends beside a print's own (polls, renumbering): a runout waits for a print line.
 _NOT_PRINTING = frozenset({"M105", "M110"})
+# What a host writes without a line number on purpose, for the emergency parser (`Connection.emergency`).
+_BARE_BY_DESIGN = frozenset({"M108", "M410", "M876"})
 
 
 class SimulatedPrinter:
@@ -83,7 +85,8 @@ class SimulatedPrinter:
         `SimulatorConfig.record_limit` of them (`executed_line_count` counts all)."""
         self.unnumbered_runs = 0
         """How many commands ran that came without a line number (`M110 N0`-style hosts number every line, so
-        for them each is a line whose `N` the wire damaged, or the tail of a line cut by a line error's flush)."""
+        for them each is a line whose `N` the wire damaged, or the tail of a line cut by a line error's flush). The
+        commands a host writes bare for the emergency parser (M108, M410, M876) are not counted."""
         self.unnumbered_m105_runs = 0
         """Of those, how many were an M105 (whose `ok T:` cannot show whether it was counted) run while a line
         before it had been dropped without a word: its answer then seems to prove that line ran."""
@@ -455,7 +458,11 @@ class SimulatedPrinter:
             self._finish_command()
             return
         self.executed.append(command.text.rstrip(" "))  # a comment cut after a space leaves the space behind
-        if command.line_number is None and (command.code in self._handlers or command.code[:1] == "T"):
+        if (
+            command.line_number is None
+            and (command.code in self._handlers or command.code[:1] == "T")
+            and not (command.code in _BARE_BY_DESIGN and self.config.emergency_parser)
+        ):
             self.unnumbered_runs += 1
             if command.code == "M105" and self._reader.dropped_since_counted:
                 self.unnumbered_m105_runs += 1
