@@ -12,8 +12,8 @@ import pytest
 from rich.console import Console
 from test_farm import MOSQUITTO, Broker, command, not_polls, one_printer_farm
 
-from cli.farm.view import farm_row, farm_table
 from marlin_temp.common.model import WatchModel
+from marlin_temp.farm.view import farm_row, farm_table
 
 pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="Mosquitto is not installed")
 
