@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import marlin_aio
 import marlin_aio.protocol
 from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
+from marlin_aio.farm.job import DEFAULT_END_SCRIPT, Job, cancel_script_for
 
 if TYPE_CHECKING:
     from marlin_aio.simulator import SimulatorServer
@@ -152,12 +153,8 @@ class FarmPrinter:
     """The open printer while the link is up (to send it commands), else None."""
     url: str | None = None
     """Where it is reached: the port, or the simulator's pty."""
-    print_handle: marlin_aio.PrintHandle | None = None
-    """The print started over MQTT, if any (finished or not)."""
-    print_file: str | None = None
-    """The file name of that print."""
-    print_starting: bool = False
-    """True while a print is being started (its M110 in flight): a second one is refused, not started too."""
+    job: Job | None = None
+    """The printer's print job: the one running, or the last one (ended), or None. Written by the farm only."""
     machine: str | None = None
     """The board's MACHINE_TYPE from M115, if it says."""
     reconnect_at_s: float | None = None
@@ -177,11 +174,22 @@ class FarmPrinter:
         """True while a command of the printer waits for a person (M600: `Printer.waiting_for_user`)."""
         return self.printer is not None and self.link_up and self.printer.waiting_for_user
 
+    @property
+    def print_handle(self) -> marlin_aio.PrintHandle | None:
+        """The job's print in progress (or ended), if it got as far as starting."""
+        return None if self.job is None else self.job.handle
+
+    @property
+    def print_file(self) -> str | None:
+        """The job's file name as its starter gave it."""
+        return None if self.job is None else self.job.file
+
     def print_status(self) -> dict[str, object] | None:
         """The print's progress for the state topic, or None when no print was started."""
-        handle = self.print_handle
-        if handle is None:
+        job = self.job
+        if job is None or job.handle is None:
             return None
+        handle = job.handle
         progress = handle.progress
         failure = handle.job.error if progress.state is marlin_aio.PrintState.FAILED else None
         # Read from the job itself, so the state is never "failed" without why, even before the follower ran.
@@ -189,12 +197,14 @@ class FarmPrinter:
         total = progress.source_bytes_total
         percent = round(100 * progress.source_bytes_acked / total, 1) if total else None
         return {
-            "file": self.print_file,
+            "file": job.file,
             "state": progress.state.value,
+            "job_state": job.state.value,
             "percent": percent,
             "lines_acked": progress.lines_acked,
             "last_file_line": progress.last_source_line,
-            "error": error,
+            "started_by": job.started_by,
+            "error": error or job.error,
         }
 
     @property
@@ -258,6 +268,7 @@ class Farm:
         self.wire_log: WireLog | None = None
         """Where every printer's wire goes, each line with the printer's name (set before `run`), or None."""
         self._group: asyncio.TaskGroup | None = None
+        self._cancels: dict[str, asyncio.Future[None]] = {}  # a cancel under way per printer
 
     async def run(self) -> None:
         """Supervise every printer until cancelled; one task each, named after its printer. The simulated
@@ -273,16 +284,31 @@ class Farm:
                 await server.aclose()
 
     async def start_print(
-        self, farm_printer: FarmPrinter, path: Path, *, send_ahead: bool = False, timeout_s: float | None = None
-    ) -> marlin_aio.PrintHandle:
-        """Start printing `path` on `farm_printer` and follow the print in a task of the farm's own.
+        self,
+        farm_printer: FarmPrinter,
+        path: Path,
+        *,
+        send_ahead: bool = False,
+        timeout_s: float | None = None,
+        window_bytes: int | None = None,
+        name: str | None = None,
+        started_by: str = "the farm",
+        cancel_script: tuple[str, ...] | None = None,
+        end_script: tuple[str, ...] = DEFAULT_END_SCRIPT,
+        remove_file: bool = False,
+    ) -> Job:
+        """Start printing `path` on `farm_printer` as a new `Job` and follow it in a task of the farm's own.
 
         However the print ends (done, cancelled, halted, a reset, the link lost, a stall) becomes one `print_*`
-        event and the printer's print state: an ending that is an error is that printer's news only, never an
-        exception in whoever started it (the bridge), so the farm and the other printers go on.
+        event and the job's state: an ending that is an error is that printer's news only, never an exception in
+        whoever started it, so the farm and the other printers go on. `name` is the file's name as its starter
+        knows it (default: the path's); `cancel_script` runs once when it is cancelled (default: every heater and
+        the fan off, `cancel_script_for`); `end_script` after it ended by itself; with `remove_file` the file is
+        the service's own copy and is removed when the job ends.
 
         Raises:
-            RuntimeError: the farm is not running, the printer is not connected, or a print is already running.
+            RuntimeError: the farm is not running, the printer is not connected, or a job is already running (the
+                message names it).
             ValueError, OSError, MarlinError: as `Printer.start_print` (nothing of the file was sent).
         """
         printer = farm_printer.printer
@@ -290,21 +316,95 @@ class Farm:
             raise RuntimeError("the farm is not running")
         if printer is None or not farm_printer.link_up:
             raise RuntimeError(f"printer {farm_printer.name!r} is not connected")
-        handle = farm_printer.print_handle
-        if farm_printer.print_starting or (handle is not None and not handle.finished):
-            raise RuntimeError("a print is already running: cancel it first")
-        # Marked before the first await: two print commands back to back (a double press, a redelivered message)
-        # must not both pass the check above while the first one's M110 is on its way.
-        farm_printer.print_starting = True
+        running = farm_printer.job
+        if running is not None and running.active:
+            raise RuntimeError(f"a print is already running: {running.describe()}; cancel it first")
+        script = cancel_script_for(farm_printer.latest) if cancel_script is None else cancel_script
+        # The job holds the printer from before the first await: two print commands back to back (a double press,
+        # a redelivered message) must not both pass the check above while the first one's M110 is on its way.
+        job = Job(
+            farm_printer.name,
+            name or path.name,
+            path,
+            started_by,
+            cancel_script=script,
+            end_script=end_script,
+            remove_file=remove_file,
+        )
+        farm_printer.job = job
         try:
-            handle = await printer.start_print(path, send_ahead=send_ahead, timeout_s=timeout_s)
-        finally:
-            farm_printer.print_starting = False
-        farm_printer.print_handle = handle
-        farm_printer.print_file = path.name
-        self._group.create_task(self._follow_print(farm_printer, handle), name=f"print on {farm_printer.name}")
-        self.emit(farm_printer, "print_started", f"printing {path.name}")
-        return handle
+            job.handle = await printer.start_print(
+                path, send_ahead=send_ahead, timeout_s=timeout_s, window_bytes=window_bytes
+            )
+        except BaseException as exc:
+            job.ended(one_line(redact(str(exc))) or type(exc).__name__)
+            raise
+        self._group.create_task(self._follow_print(farm_printer, job), name=f"print on {farm_printer.name}")
+        self.emit(farm_printer, "print_started", f"printing {job.file} (started by {started_by})")
+        return job
+
+    def running_job(self, farm_printer: FarmPrinter) -> Job:
+        """The job running on `farm_printer`.
+
+        Raises:
+            RuntimeError: none is running (the message says what the last one did).
+        """
+        job = farm_printer.job
+        if job is None or not job.active:
+            last = "" if job is None else f" (the last: {job.describe()})"
+            raise RuntimeError(f"no print is running on {farm_printer.name}{last}")
+        return job
+
+    def pause_print(self, farm_printer: FarmPrinter) -> Job:
+        """Stop feeding the running job's lines (what is in flight completes; heaters stay as they are).
+
+        Raises:
+            RuntimeError: no print is running, or it is still starting.
+        """
+        job = self.running_job(farm_printer)
+        if job.handle is None:
+            raise RuntimeError(f"{job.file} is still starting: pause it in a moment")
+        job.handle.pause()
+        return job
+
+    def resume_print(self, farm_printer: FarmPrinter) -> Job:
+        """Feed the running job's lines again.
+
+        Raises:
+            RuntimeError: no print is running, or it is still starting.
+        """
+        job = self.running_job(farm_printer)
+        if job.handle is None:
+            raise RuntimeError(f"{job.file} is still starting: resume it in a moment")
+        job.handle.resume()
+        return job
+
+    async def cancel_print(self, farm_printer: FarmPrinter, by: str) -> Job:
+        """Cancel the running job: stop feeding, wait for what is in flight, run its cancel script (once, however
+        many ask), and return it ended. A second cancel while one is under way waits for the first; a caller
+        that leaves does not stop the script (it runs in the farm's task).
+
+        Raises:
+            RuntimeError: no print is running.
+            MarlinError: the printer failed meanwhile (the job says so too).
+        """
+        job = farm_printer.job
+        cancelling = self._cancels.get(farm_printer.name)
+        if cancelling is None or cancelling.done() or job is None or cancelling is not job.cancel_task:
+            job = self.running_job(farm_printer)
+            if job.handle is None:
+                raise RuntimeError(f"{job.file} is still starting: cancel it in a moment")
+            job.cancelling(by)
+            cancelling = asyncio.ensure_future(self._cancel(farm_printer, job))
+            job.cancel_task = cancelling
+            self._cancels[farm_printer.name] = cancelling
+        await asyncio.shield(cancelling)
+        return job
+
+    async def _cancel(self, farm_printer: FarmPrinter, job: Job) -> None:
+        assert job.handle is not None  # `running_job` refuses a job still starting
+        await job.handle.cancel(job.cancel_script)
+        self.emit(farm_printer, "cancel_script", f"{job.file}: ran {'; '.join(job.cancel_script) or 'nothing'}")
 
     async def answer_prompt(self, farm_printer: FarmPrinter, index: int) -> None:
         """Answer `farm_printer`'s open prompt with button `index` (`Printer.answer_prompt`), and say so with a
@@ -323,21 +423,40 @@ class Farm:
         label = prompt.buttons[index] if prompt is not None else str(index)
         self.emit(farm_printer, "prompt_closed", f"answered {label} (M876 S{index})")
 
-    async def _follow_print(self, farm_printer: FarmPrinter, handle: marlin_aio.PrintHandle) -> None:
-        """Wait for a print to end and say how; never raise (but when cancelled)."""
+    async def _follow_print(self, farm_printer: FarmPrinter, job: Job) -> None:
+        """Wait for a print to end and say how, then run its end script; never raise (but when cancelled)."""
+        assert job.handle is not None
         try:
-            progress = await handle.wait()
+            progress = await job.handle.wait()
         except Exception as exc:  # every ending is news of this printer, never a crash of the farm
-            where = handle.progress.last_source_line
+            where = job.handle.progress.last_source_line
             reason = _print_failure(exc)
-            self.emit(farm_printer, "print_failed", f"{farm_printer.print_file}: {reason} at file line {where}: {exc}")
+            message = f"{job.file}: {reason} at file line {where}: {exc}"
+            job.ended(one_line(redact(message)))
+            self.emit(farm_printer, "print_failed", message)
             return
+        if job.cancel_task is not None:
+            with contextlib.suppress(Exception):  # the cancel's own caller hears how its script went
+                await asyncio.shield(job.cancel_task)
+        elif progress.state is marlin_aio.PrintState.CANCELLED and farm_printer.printer is not None:
+            # The printer itself cancelled it (//action:cancel): the same cancel script as any door's cancel.
+            job.cancelling(progress.cancelled_by or "the printer")
+            try:
+                for command in job.cancel_script:
+                    await farm_printer.printer.send(command)
+            except (marlin_aio.MarlinError, ValueError) as exc:
+                self.emit(farm_printer, "print_failed", f"{job.file}: its cancel script failed: {exc}")
+        elif progress.state is marlin_aio.PrintState.DONE and job.end_script and farm_printer.printer is not None:
+            try:
+                for command in job.end_script:
+                    await farm_printer.printer.send(command)
+            except (marlin_aio.MarlinError, ValueError) as exc:
+                self.emit(farm_printer, "print_failed", f"{job.file}: its end script failed: {exc}")
+        job.ended()
         kind = "print_finished" if progress.state is marlin_aio.PrintState.DONE else "print_cancelled"
-        self.emit(
-            farm_printer,
-            kind,
-            f"{farm_printer.print_file}: {progress.state.value} at file line {progress.last_source_line}",
-        )
+        by = f" by {job.cancelled_by}" if kind == "print_cancelled" and job.cancelled_by else ""
+        at_line = f"at file line {progress.last_source_line}"
+        self.emit(farm_printer, kind, f"{job.file}: {progress.state.value}{by} {at_line}")
 
     def emit(self, farm_printer: FarmPrinter, kind: str, message: str) -> None:
         """Tell the listener that `kind` happened to `farm_printer` (also for events from outside: a print).

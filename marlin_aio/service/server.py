@@ -28,46 +28,38 @@ import logging
 import os
 import stat
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import marlin_aio
 from marlin_aio.aio.servicepaths import default_socket_path
+from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
 from marlin_aio.farm.supervisor import Farm, FarmEvent, FarmPrinter, PrinterSpec
 from marlin_aio.protocol import redact
 from marlin_aio.protocol.rpc import (
-    INVALID_PARAMS,
     MAX_MESSAGE_BYTES,
-    RpcError,
     encode_message,
     error_to_json,
     notification,
     progress_to_json,
     reading_to_json,
-    reply_to_json,
     requests_to_json,
 )
+from marlin_aio.service import verbs
 from marlin_aio.service.history import History
-from marlin_aio.service.session import Handler, Session, param
+from marlin_aio.service.session import Handler, Session
 from marlin_aio.service.uploads import Uploads
+from marlin_aio.service.verbs import Caller, Door
+from marlin_aio.service.verbs.feeds import TOPICS
 
 __all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError", "TcpSettings", "check_private_folder"]
 
 _log = logging.getLogger("marlin_aio.service")
 
-#: What a client can subscribe to.
-TOPICS = frozenset({"readings", "console", "progress", "link", "requests"})
-#: The most readings one `history` answer carries (evenly thinned past this): well inside a message's limit.
-MAX_HISTORY_READINGS = 3_000
-#: The name of a print a client sent as lines (a number is added to keep each), and how many of them are kept.
-CLIENT_UPLOAD_NAME = "sent.gcode"
-KEEP_CLIENT_UPLOADS = 10
 #: TCP clients at once (the Unix socket's are the owner's own: not bounded).
 MAX_TCP_CLIENTS = 64
-#: The longest timeout a request may give a command (a G28 of a large printer takes minutes, not days).
-MAX_TIMEOUT_S = 24 * 3600.0
 #: How often a running print's progress is told to its subscribers.
 PROGRESS_INTERVAL_S = 0.5
 
@@ -146,6 +138,7 @@ class Service:
         history_long_s: how far back one reading a second is kept.
         octoprint: serve the OctoPrint API too (needs aiohttp: the `[serve]` extra).
         tcp: listen on TCP too; each client there must first send `auth` with the token.
+        presets: the named targets the `apply_preset` verb sets.
 
     Raises:
         ValueError: printer names not unique, or `octoprint` names a printer the service does not have.
@@ -162,6 +155,7 @@ class Service:
         history_long_s: float = 6 * 3600.0,
         octoprint: OctoPrintSettings | None = None,
         tcp: TcpSettings | None = None,
+        presets: Sequence[Preset] = DEFAULT_PRESETS,
     ) -> None:
         self.socket_path = socket_path or default_socket_path()
         self.uploads = Uploads(uploads_dir or self.socket_path.parent / "uploads")
@@ -184,25 +178,11 @@ class Service:
         self.ready = asyncio.Event()
         self._announced: dict[str, object] = {}  # the last progress told per printer, not to repeat it
         self._requests_told: dict[str, object] = {}  # the last state of the firmware's requests told per printer
-        self._cancels: dict[str, asyncio.Future[marlin_aio.PrintProgress]] = {}  # a cancel under way per printer
+        self.presets = tuple(presets)
+        self.sent_files: dict[Path, str] = {}  # prints sent as lines: removed when their job ends
+        # The socket's door: every verb of the table it is offered on, called with the session as the caller.
         self.methods: dict[str, Handler] = {
-            "hello": self._hello,
-            "printers": self._printers,
-            "status": self._status,
-            "subscribe": self._subscribe,
-            "unsubscribe": self._unsubscribe,
-            "history": self._history,
-            "send": self._send,
-            "read_temperatures": self._read_temperatures,
-            "set_temperatures": self._set_temperatures,
-            "upload": self._upload,
-            "start_print": self._start_print,
-            "pause": self._pause,
-            "resume": self._resume,
-            "cancel": self._cancel,
-            "emergency_stop": self._emergency_stop,
-            "interrupt_wait": self._interrupt_wait,
-            "answer_prompt": self._answer_prompt,
+            name: self._door(name) for name, entry in verbs.VERBS.items() if entry.doors & {"socket", "tcp"}
         }
 
     # ------------------------------------------------------------------------------------------- running
@@ -389,18 +369,19 @@ class Service:
                 for session in self.sessions:
                     session.push(alive)
             for farm_printer in self.farm.printers.values():
-                handle = farm_printer.print_handle
-                if handle is not None and not handle.finished:
+                job = farm_printer.job
+                if job is not None and job.active:
                     self._progress_of(farm_printer)
                 # A wait for the user ends with an ok, and a prompt closes when answered: no request says so.
                 self._tell_requests(farm_printer, None)
 
     def _progress_of(self, farm_printer: FarmPrinter, *, final: bool = False) -> None:
-        handle = farm_printer.print_handle
-        if handle is None:
+        job = farm_printer.job
+        if job is None or job.handle is None:
             return
+        handle = job.handle
         progress = handle.progress
-        params: dict[str, Any] = {"file": farm_printer.print_file, "progress": progress_to_json(progress)}
+        params: dict[str, Any] = {"file": job.file, "progress": progress_to_json(progress), "job": job.to_json()}
         if progress.state is marlin_aio.PrintState.FAILED and handle.job.error is not None:
             params["error"] = error_to_json(handle.job.error)
         if not final and self._announced.get(farm_printer.name) == params:
@@ -408,214 +389,36 @@ class Service:
         self._announced[farm_printer.name] = params
         self._broadcast(farm_printer.name, "progress", "progress", params)
 
-    # ------------------------------------------------------------------------------------------- methods
+    # ------------------------------------------------------------------------------------------- the owner of verbs
 
-    def _printer_of(self, params: dict[str, Any]) -> FarmPrinter:
-        name = param(params, "printer", str, None)
-        printers = self.farm.printers
-        if name is None:
-            if len(printers) == 1:
-                return next(iter(printers.values()))
-            raise RpcError(INVALID_PARAMS, f"which printer? this service has {', '.join(printers)}")
-        if name not in printers:
-            raise marlin_aio.PortNotFoundError(
-                f"no printer named {name[:60]!r} in the service at {self.socket_path} (it has: {', '.join(printers)})"
+    @property
+    def clients(self) -> int:
+        """Socket clients connected now."""
+        return len(self.sessions)
+
+    def note(self, printer: str, direction: str, text: str) -> None:
+        """Keep a console line (redacted) and tell the console's subscribers."""
+        self._note(printer, direction, text)
+
+    def tell_progress(self, farm_printer: FarmPrinter) -> None:
+        """Tell the progress subscribers of the printer's job now."""
+        self._progress_of(farm_printer)
+
+    def tell_requests(self, farm_printer: FarmPrinter) -> None:
+        """Tell the requests subscribers the state of the printer's prompts now."""
+        self._tell_requests(farm_printer, None)
+
+    def _door(self, name: str) -> Handler:
+        """The socket's handler of the verb `name`: the session's client as the caller, the table does the rest."""
+
+        async def handle(session: Session, params: dict[str, Any]) -> object:
+            door: Door = "tcp" if session.remote else "socket"
+            caller = Caller(
+                door,
+                f"{door} client {session.number}",
+                files="uploads" if session.remote else "any",
+                subscriber=session,
             )
-        return printers[name]
+            return await verbs.call(self, name, params, caller)
 
-    def _connected(self, farm_printer: FarmPrinter) -> marlin_aio.Printer:
-        printer = farm_printer.printer
-        if printer is None or not farm_printer.link_up:
-            reason = farm_printer.last_error or "connecting"
-            raise marlin_aio.ConnectionLostError(f"printer {farm_printer.name} is not connected now ({reason})")
-        return printer
-
-    def _info(self, farm_printer: FarmPrinter) -> dict[str, Any]:
-        printer = farm_printer.printer
-        firmware = printer.firmware if printer is not None else None
-        latest = farm_printer.latest
-        return {
-            "name": farm_printer.name,
-            "port": farm_printer.spec.port or "sim",
-            "link_up": farm_printer.link_up,
-            "firmware": None if firmware is None else {"name": firmware.name, "fields": firmware.fields},
-            "capabilities": dict(printer.capabilities) if printer is not None else {},
-            "last_error": farm_printer.last_error,
-            "latest": None if latest is None else reading_to_json(latest),
-            "print": farm_printer.print_status(),
-            # The open prompt, the wait for the user, the last pause/resume/cancel/disconnect request.
-            **{key: value for key, value in self._requests_of(farm_printer, None).items() if key != "request"},
-        }
-
-    def _subscribe_to(self, session: Session, farm_printer: FarmPrinter, topics: object) -> list[str]:
-        if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
-            raise RpcError(INVALID_PARAMS, f"topics are a list of names: {', '.join(sorted(TOPICS))}")
-        unknown = set(topics) - TOPICS
-        if unknown:
-            raise RpcError(
-                INVALID_PARAMS, f"no topic {sorted(unknown)[0][:40]!r}; there are {', '.join(sorted(TOPICS))}"
-            )
-        session.subscriptions.setdefault(farm_printer.name, set()).update(topics)
-        return sorted(session.subscriptions[farm_printer.name])
-
-    async def _hello(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        topics = params.get("subscribe", [])
-        subscribed = self._subscribe_to(session, farm_printer, topics) if topics else []
-        return {
-            "service": {"version": marlin_aio.__version__, "printers": list(self.farm.printers)},
-            "printer": self._info(farm_printer),
-            "subscribed": subscribed,
-        }
-
-    async def _printers(self, session: Session, params: dict[str, Any]) -> object:
-        return [self._info(farm_printer) for farm_printer in self.farm.printers.values()]
-
-    async def _status(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        info = self._info(farm_printer)
-        info["clients"] = len(self.sessions)
-        info["dropped"] = session.dropped
-        return info
-
-    async def _subscribe(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        subscribed = self._subscribe_to(session, farm_printer, params.get("topics"))
-        return {"subscribed": subscribed}
-
-    async def _unsubscribe(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        topics = params.get("topics")
-        if topics is None:
-            session.subscriptions.pop(farm_printer.name, None)
-        elif isinstance(topics, list):
-            session.subscriptions.get(farm_printer.name, set()).difference_update(str(t) for t in topics)
-        return {"subscribed": sorted(session.subscriptions.get(farm_printer.name, ()))}
-
-    async def _history(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        seconds = float(param(params, "seconds", (int, float), 300.0))
-        history = self.histories[farm_printer.name]
-        readings = history.readings(seconds)
-        if len(readings) > MAX_HISTORY_READINGS:
-            # Evenly thinned, so any span fits one message (an hour at 10 Hz would not).
-            step = len(readings) / MAX_HISTORY_READINGS
-            readings = [readings[int(index * step)] for index in range(MAX_HISTORY_READINGS)]
-        return {
-            "readings": [reading_to_json(r) for r in readings],
-            "console": [{"direction": c.direction, "text": c.text, "time_s": c.time_s} for c in history.console],
-        }
-
-    async def _send(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        command = param(params, "command", str)
-        timeout_s = param(params, "timeout_s", (int, float), None)
-        if timeout_s is not None and not 0 < timeout_s <= MAX_TIMEOUT_S:
-            raise RpcError(INVALID_PARAMS, f"timeout_s must be above 0 and at most {MAX_TIMEOUT_S:g} s")
-        printer = self._connected(farm_printer)
-        reply = await printer.send(command, timeout_s=timeout_s)
-        self._note(farm_printer.name, ">", command)
-        for line in reply.lines:
-            self._note(farm_printer.name, "<", line)
-        self._note(farm_printer.name, "<", f"ok {reply.ok.payload}".rstrip())
-        return reply_to_json(reply)
-
-    async def _read_temperatures(self, session: Session, params: dict[str, Any]) -> object:
-        printer = self._connected(self._printer_of(params))
-        return reading_to_json(await printer.read_temperatures())
-
-    async def _set_temperatures(self, session: Session, params: dict[str, Any]) -> object:
-        printer = self._connected(self._printer_of(params))
-        targets = {name: param(params, name, (int, float), None) for name in ("hotend", "bed", "chamber")}
-        await printer.set_temperatures(**targets, tool=param(params, "tool", int, None))
-        return None
-
-    async def _upload(self, session: Session, params: dict[str, Any]) -> object:
-        upload_id = param(params, "upload_id", str, None)
-        lines = param(params, "lines", list, [])
-        if not all(isinstance(line, str) for line in lines):
-            raise RpcError(INVALID_PARAMS, "lines are strings, one line of the file each")
-        if upload_id is None:
-            upload_id = self.uploads.begin()
-            session.uploads.add(upload_id)
-        self.uploads.append(upload_id, lines)
-        if not params.get("done"):
-            return {"upload_id": upload_id}
-        session.uploads.discard(upload_id)
-        path = self.uploads.finish(upload_id, CLIENT_UPLOAD_NAME)
-        # Prints sent as lines are the service's to clean up: the newest few stay (to print again), older go.
-        printing = {fp.print_file for fp in self.farm.printers.values() if fp.print_handle and fp.print_file}
-        self.uploads.prune(CLIENT_UPLOAD_NAME.removesuffix(".gcode"), KEEP_CLIENT_UPLOADS, printing | {path.name})
-        return {"path": str(path)}
-
-    async def _start_print(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        self._connected(farm_printer)
-        path_text = param(params, "path", str)
-        path = Path(path_text)
-        if not path.is_absolute():
-            raise RpcError(INVALID_PARAMS, f"the service needs an absolute path, got {path_text[:200]!r}")
-        if session.remote and path.parent != self.uploads.folder:
-            # A path means a file on this machine: a client elsewhere prints what it uploaded, nothing else.
-            raise PermissionError("over TCP a print is a file uploaded first (the client's start_print does that)")
-        timeout_s = param(params, "timeout_s", (int, float), None)
-        if timeout_s is not None and not 0 < timeout_s <= MAX_TIMEOUT_S:
-            raise RpcError(INVALID_PARAMS, f"timeout_s must be above 0 and at most {MAX_TIMEOUT_S:g} s")
-        options = {"send_ahead": bool(params.get("send_ahead", False)), "timeout_s": timeout_s}
-        # In a task of the service's, not the client's: a client that leaves while its print is starting leaves
-        # the start to finish (or fail) whole, never half-done.
-        start = asyncio.ensure_future(self.farm.start_print(farm_printer, path, **options))
-        handle = await asyncio.shield(start)
-        return {"file": farm_printer.print_file, "progress": progress_to_json(handle.progress)}
-
-    def _running(self, farm_printer: FarmPrinter) -> marlin_aio.PrintHandle:
-        handle = farm_printer.print_handle
-        if handle is None or handle.finished:
-            raise RuntimeError(f"no print is running on {farm_printer.name}")
         return handle
-
-    async def _pause(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        self._running(farm_printer).pause()
-        self._progress_of(farm_printer)
-        return None
-
-    async def _resume(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        self._running(farm_printer).resume()
-        self._progress_of(farm_printer)
-        return None
-
-    async def _cancel(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        script = param(params, "script", list, [])
-        if not all(isinstance(command, str) for command in script):
-            raise RpcError(INVALID_PARAMS, "script is a list of commands")
-        # One cancel per print, in a task of the service's: a second cancel (another client, a double press) waits
-        # for the first instead of running its script again, and a client that leaves mid-cancel does not stop
-        # the script (the heaters off) from running.
-        cancelling = self._cancels.get(farm_printer.name)
-        if cancelling is None or cancelling.done():
-            handle = self._running(farm_printer)
-            cancelling = asyncio.ensure_future(handle.cancel(tuple(script)))
-            self._cancels[farm_printer.name] = cancelling
-        progress = await asyncio.shield(cancelling)
-        return progress_to_json(progress)
-
-    async def _emergency_stop(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        self._connected(farm_printer).emergency_stop()
-        self._note(farm_printer.name, ">", "M112 (emergency stop)")
-        return None
-
-    async def _interrupt_wait(self, session: Session, params: dict[str, Any]) -> object:
-        return self._connected(self._printer_of(params)).interrupt_wait()
-
-    async def _answer_prompt(self, session: Session, params: dict[str, Any]) -> object:
-        farm_printer = self._printer_of(params)
-        index = param(params, "index", int)
-        self._connected(farm_printer)
-        # The printer checks the index against the prompt open now (ValueError, nothing written).
-        await self.farm.answer_prompt(farm_printer, index)
-        self._tell_requests(farm_printer, None)  # closed here at once: every client hears it now, not at a tick
-        return None

@@ -16,6 +16,7 @@ from collections.abc import Awaitable, Callable, Mapping
 from typing import Any, Protocol
 
 import marlin_aio
+from marlin_aio.service.verbs import urgent_verbs
 from marlin_aio.protocol.rpc import (
     INVALID_PARAMS,
     INVALID_REQUEST,
@@ -48,7 +49,8 @@ CLIENT_QUEUE_MESSAGES = 1_000
 CLIENT_QUEUE_BYTES = 16 * 1024 * 1024
 #: Methods never refused as busy, and never waiting behind a client's other requests: they stop or steer what is
 #: under way (an emergency stop must get through however many requests its client has out).
-PRIORITY_METHODS = frozenset({"emergency_stop", "interrupt_wait", "pause", "resume", "cancel_request"})
+# The table's urgent verbs (`Queue.URGENT`), and the session's own way to give up a request.
+PRIORITY_METHODS = urgent_verbs() | {"cancel_request"}
 #: How long a TCP client has to send its token.
 AUTH_TIMEOUT_S = 10.0
 #: Bytes a client may have unsent in its transport before messages wait in the queue (where the bound applies).
