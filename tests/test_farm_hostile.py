@@ -542,7 +542,8 @@ async def test_two_prints_started_at_once_start_one(tmp_path: Path) -> None:
                 farm.start_print(farm_printer, path), farm.start_print(farm_printer, path), return_exceptions=True
             )
             refused = [r for r in results if isinstance(r, BaseException)]
-            assert len(refused) == 1 and str(refused[0]).startswith("a print is already running: long.gcode on a (starting")
+            running = "a print is already running: long.gcode on a (starting"
+            assert len(refused) == 1 and str(refused[0]).startswith(running)
             handle = farm_printer.print_handle
             assert handle is not None
             await handle.cancel()

@@ -182,7 +182,8 @@ async def test_answer_prompt_errors_write_nothing(tmp_path: Path) -> None:
                 await printer.answer_prompt(5)
             assert sim.printer.prompt_answers == []  # nothing reached the printer
             assert printer.prompt is not None  # still open
-            assert (await raw.call("answer_prompt", printer="sim", index=1))["result"] == {"answered": 1, "button": "Cancel"}
+            answered = await raw.call("answer_prompt", printer="sim", index=1)
+            assert answered["result"] == {"answered": 1, "button": "Cancel"}
             await until(lambda: sim.printer.prompt_answers == [1], "the answer at the printer")
             await until(lambda: printer.prompt is None, "the prompt closed for every client")
             status = (await raw.call("status", printer="sim"))["result"]

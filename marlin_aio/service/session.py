@@ -16,7 +16,6 @@ from collections.abc import Awaitable, Callable, Mapping
 from typing import Any, Protocol
 
 import marlin_aio
-from marlin_aio.service.verbs import urgent_verbs
 from marlin_aio.protocol.rpc import (
     INVALID_PARAMS,
     INVALID_REQUEST,
@@ -28,6 +27,7 @@ from marlin_aio.protocol.rpc import (
     error_to_json,
     response,
 )
+from marlin_aio.service.verbs import urgent_verbs
 
 __all__ = [
     "CLIENT_QUEUE_BYTES",
