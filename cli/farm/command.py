@@ -113,10 +113,10 @@ async def run_farm(
 
     # One supervisor: the farm is `marlin-temp serve` plus the bridge, so every command and program reaches its
     # printers through the socket too (`--port serve:NAME`), and a print is one print whoever started it.
-    service = Service(specs, options.socket, on_event=show)
+    service = Service(specs, options.socket, on_event=show, presets=settings.presets)
     farm = service.farm
     farm.wire_log = options.wire_log
-    bridge = Bridge(farm, broker, settings)
+    bridge = Bridge(farm, broker, settings, owner=service)
     try:
         await service.check_socket()
     except ServiceRunningError as exc:

@@ -69,6 +69,7 @@ import paho.mqtt.client as mqtt
 import marlin_aio
 import marlin_aio.protocol
 from marlin_aio.aio import Backoff
+from marlin_aio.service.verbs import FarmOwner, Owner
 
 from .commands import (
     MAX_COMMAND_AGE_S,
@@ -315,7 +316,9 @@ class Bridge:
             reserved (`bridge`).
     """
 
-    def __init__(self, farm: Farm, broker: BrokerSettings, settings: BridgeSettings | None = None) -> None:
+    def __init__(
+        self, farm: Farm, broker: BrokerSettings, settings: BridgeSettings | None = None, *, owner: Owner | None = None
+    ) -> None:
         settings = settings or BridgeSettings()
         if not settings.rate_hz > 0:
             raise ValueError(f"the telemetry rate must be positive, got {settings.rate_hz}")
@@ -327,6 +330,8 @@ class Bridge:
         self.farm = farm
         self.broker = broker
         self.settings = settings
+        # Whose verbs the commands call: the service the farm belongs to (`marlin-temp farm`), else the farm alone.
+        self.owner: Owner = owner if owner is not None else FarmOwner(farm, settings.presets)
         # Each printer keeps its own newest readings while the broker is away: one busy printer (or fifty) never
         # pushes another's out.
         self._telemetry: dict[str, deque[bytes]] = {
@@ -651,22 +656,10 @@ class Bridge:
 
     async def _run(self, command: FarmCommand) -> None:
         """Run a checked command and answer it; whatever happens, an answer, never an exception."""
-        farm_printer = self.farm.printers[command.printer]
         try:
-            if command.action == "print":
-                assert command.path is not None
-                # The farm follows the print and says how it ended: this task only starts it.
-                await self.farm.start_print(farm_printer, command.path)
-                result: Any = {"started": command.path.name}
-            elif command.action == "answer_prompt":
-                assert command.index is not None
-                prompt = farm_printer.prompt
-                # The printer checks that a prompt is open and has this button (a ValueError, nothing written).
-                await self.farm.answer_prompt(farm_printer, command.index)
-                label = prompt.buttons[command.index] if prompt is not None else None
-                result = {"answered": command.index, "button": label}
-            else:
-                result = await run_command(command, farm_printer)
+            # Through the service's table of verbs, as every door: a print started here is the job every client
+            # sees, a cancel runs its one cancel script.
+            result = await run_command(command, self.owner)
         except (CommandError, ValueError, RuntimeError, OSError, marlin_aio.MarlinError) as exc:
             self._answer(command.printer, command.id, error=str(exc) or type(exc).__name__)
         except Exception as exc:

@@ -22,7 +22,8 @@ Everything is checked before anything is written: bad JSON, an unknown printer o
 `abc`, a newline inside a G-code command, a G-code command setting a target above the printer's limit however it
 is spelt (`M104S280`, `m0104 s280`, `M104 B1000`: the library's `check_gcode_targets`, which reads it as Marlin
 does), a path outside the allowed directory each get an error answer and write nothing to any printer.
-`parse_command` does the checking (no I/O but stat calls on the path), `run_command` the running.
+`parse_command` does the checking (no I/O but stat calls on the path), `run_command` the running: it calls the
+service's table of verbs (`marlin_aio.service.verbs`), as every other door does.
 
 One message must not knock the farm over: whatever the topic and bytes, `parse_command` returns a `FarmCommand` or
 raises `CommandError` whose message is one printable line of at most `MAX_ERROR_CHARS` (values from the payload are
@@ -49,12 +50,15 @@ from typing import Any
 
 import marlin_aio
 import marlin_aio.protocol
+from marlin_aio.service import verbs
+from marlin_aio.service.verbs import Caller, Owner, Queue
 
 from .presets import DEFAULT_PRESETS, Preset
 from .supervisor import FarmPrinter
 
 __all__ = [
     "ACTIONS",
+    "ACTION_VERBS",
     "MAX_COMMAND_AGE_S",
     "MAX_PROMPT_BUTTON",
     "UNQUEUED_ACTIONS",
@@ -78,9 +82,6 @@ ACTIONS = (
     "answer_prompt",
 )
 """What a command can ask for (its "action")."""
-UNQUEUED_ACTIONS = frozenset({"emergency_stop", "pause", "resume", "cancel", "answer_prompt"})
-"""Actions that wait for no command before them and take no time: never refused for being too many waiting (a
-flood of slow commands must not keep the emergency stop out, nor the answer that ends an M600 they wait behind)."""
 MAX_PROMPT_BUTTON = 99
 """The highest button index an answer_prompt may name (a prompt has a handful; whether it has this one is the
 printer's check, when the command runs)."""
@@ -503,76 +504,67 @@ def _allowed_path(value: object, allowed_dir: Path | None) -> Path:
     return path
 
 
-def _check_heaters(targets: dict[str, float | int], farm_printer: FarmPrinter) -> None:
-    """Refuse a target for a heater the printer does not report, as `marlin-temp set` does: nothing is sent."""
-    reading = farm_printer.latest
-    if reading is None:
-        raise CommandError(f"printer {farm_printer.name!r} has not reported its heaters yet; try again")
-    keys = set(reading.temperatures.heaters)
-    hotends = sorted(int(key[1:]) for key in keys if key[:1] == "T" and key[1:].isdigit()) or (
-        [0] if "T" in keys else []
-    )
-    has = [f"{len(hotends)} hotend{'s' if len(hotends) != 1 else ''}"] + [
-        name for key, name in (("B", "bed"), ("C", "chamber")) if key in keys
-    ]
-    tool = targets.get("tool")
-    missing = []
-    if "hotend" in targets and (not hotends or (tool is not None and int(tool) not in hotends)):
-        missing.append("hotend" if tool is None else f"hotend {tool}")
-    missing += [name for key, name in (("B", "bed"), ("C", "chamber")) if name in targets and key not in keys]
-    if missing:
-        raise CommandError(f"printer {farm_printer.name!r} has no {', '.join(missing)} (it has {', '.join(has)})")
+#: The verb of the service's table each action calls (`marlin_aio.service.verbs`): set_target and preset are
+#: set_temperatures and apply_preset in another shape, gcode is send for each command.
+ACTION_VERBS = {
+    "set_temperatures": "set_temperatures",
+    "preset": "apply_preset",
+    "gcode": "send",
+    "print": "start_print",
+    "pause": "pause",
+    "resume": "resume",
+    "cancel": "cancel",
+    "emergency_stop": "emergency_stop",
+    "answer_prompt": "answer_prompt",
+}
 
 
-async def run_command(command: FarmCommand, farm_printer: FarmPrinter) -> Any:
-    """Run a checked command on its printer; return the result to answer with.
+async def run_command(command: FarmCommand, owner: Owner) -> Any:
+    """Run a checked command through the service's table of verbs, as MQTT's door: the same verb, with the same
+    checks and effects, as the socket's and the OctoPrint API's; return the result in MQTT's answer shape.
 
     Raises:
-        CommandError: the printer is not connected, or no print is running to pause, resume or cancel.
-        ValueError: a G-code command sets a target above the limits (the library checks every command it is given;
-            nothing of it is sent), or the command is a print (`Farm.start_print` starts those) or an answer
-            (`Farm.answer_prompt`).
-        MarlinError: as the library raises it.
+        CommandError: the printer is not connected.
+        ValueError, RuntimeError, OSError, MarlinError: as the verb raised them (a heater the printer lacks, no
+            print to pause, ...): nothing was done.
     """
-    printer = farm_printer.printer
-    if printer is None or not farm_printer.link_up:
+    farm_printer = owner.farm.printers[command.printer]
+    if farm_printer.printer is None or not farm_printer.link_up:
         raise CommandError(f"printer {farm_printer.name!r} is not connected")
+    caller = Caller("mqtt", "mqtt")  # a print's path was checked against --allowed-dir by parse_command
+
+    async def call(verb_name: str, **params: Any) -> Any:
+        return await verbs.call(owner, verb_name, {"printer": command.printer, **params}, caller)
+
     match command.action:
+        case "set_temperatures" if command.preset is not None:
+            return await call("apply_preset", name=command.preset)
         case "set_temperatures":
-            _check_heaters(command.targets, farm_printer)
-            targets = dict(command.targets)
-            tool = targets.pop("tool", None)
-            await printer.set_temperatures(
-                hotend=targets.get("hotend"),
-                bed=targets.get("bed"),
-                chamber=targets.get("chamber"),
-                tool=None if tool is None else int(tool),
-            )
-            return {"targets": command.targets} | ({"preset": command.preset} if command.preset else {})
+            await call("set_temperatures", **command.targets)
+            return {"targets": command.targets}
         case "gcode":
             replies = []
             for text in command.gcode:
-                reply = await printer.send(text)
-                replies.append({"command": text, "lines": list(reply.lines)})
+                reply = await call("send", command=text)
+                replies.append({"command": text, "lines": reply["lines"]})
             return {"replies": replies}
-        case "emergency_stop":
-            printer.emergency_stop()
-            return {"sent": "M112"}
         case "print":
-            # A print outlives this call: the farm starts and follows it (`Farm.start_print`), the bridge asks it.
-            raise ValueError("a print is started with Farm.start_print, not run_command")
+            assert command.path is not None
+            job = await call("start_print", path=str(command.path))
+            return {"started": job["file"]}
+        case "emergency_stop":
+            await call("emergency_stop")
+            return {"sent": "M112"}
         case "answer_prompt":
-            # The farm answers, so that the answer is also a prompt_closed event (`Farm.answer_prompt`).
-            raise ValueError("a prompt is answered with Farm.answer_prompt, not run_command")
+            return await call("answer_prompt", index=command.index)
+        case "cancel":
+            job = (await call("cancel"))["job"]
+            return {"cancelled_at_line": job["surely_run_line"], "job": job}
         case _:
-            handle = farm_printer.print_handle
-            if handle is None or handle.finished:
-                raise CommandError(f"no print to {command.action}")
-            if command.action == "pause":
-                handle.pause()
-            elif command.action == "resume":
-                handle.resume()
-            else:
-                progress = await handle.cancel(marlin_aio.COOL_DOWN)
-                return {"cancelled_at_line": progress.last_source_line}
-            return {"state": handle.progress.state.value}
+            job = await call(command.action)
+            return {"state": job["progress"]["state"], "job": job}
+
+
+UNQUEUED_ACTIONS = frozenset(action for action, name in ACTION_VERBS.items() if verbs.VERBS[name].queue is Queue.URGENT)
+"""Actions whose verb is urgent (`Queue.URGENT`): never refused for being too many waiting (a flood of slow
+commands must not keep the emergency stop out, nor the answer that ends an M600 they wait behind)."""

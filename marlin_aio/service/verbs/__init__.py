@@ -38,6 +38,7 @@ __all__ = [
     "Arg",
     "Caller",
     "Door",
+    "FarmOwner",
     "Owner",
     "Queue",
     "Subscriber",
@@ -157,6 +158,39 @@ class Owner(Protocol):
 
     def tell_requests(self, farm_printer: FarmPrinter) -> None:
         """Tell the requests subscribers the state of the printer's prompts now."""
+
+
+class FarmOwner:
+    """The owner of a farm that serves no socket (a bridge made on a bare `Farm`): the verbs' state with nobody
+    to tell. `marlin-temp farm` gives its bridge the service instead, whose clients hear everything."""
+
+    def __init__(self, farm: Farm, presets: tuple[Preset, ...]) -> None:
+        import tempfile
+
+        from marlin_aio.service.history import History
+        from marlin_aio.service.uploads import Uploads
+
+        self.farm = farm
+        self.presets = presets
+        # Never made unless a verb uploads (none of MQTT's does): the folder is created on first use.
+        self.uploads = Uploads(Path(tempfile.gettempdir()) / f"marlin-temp-farm-{id(self)}")
+        self.histories = {name: History() for name in farm.printers}
+        self.socket_path = Path("(no socket)")
+        self.sent_files: dict[Path, str] = {}
+
+    @property
+    def clients(self) -> int:
+        """None: it has no socket."""
+        return 0
+
+    def note(self, printer: str, direction: str, text: str) -> None:
+        """Nobody to tell."""
+
+    def tell_progress(self, farm_printer: FarmPrinter) -> None:
+        """Nobody to tell."""
+
+    def tell_requests(self, farm_printer: FarmPrinter) -> None:
+        """Nobody to tell."""
 
 
 Handler = Callable[["Context", dict[str, Any]], Awaitable[object]]
