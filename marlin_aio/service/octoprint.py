@@ -23,8 +23,12 @@ from urllib.parse import unquote
 from aiohttp import BodyPartReader, web
 
 import marlin_aio
+from marlin_aio.farm.job import JobState
 from marlin_aio.farm.supervisor import FarmPrinter
+from marlin_aio.protocol.rpc import RpcError
+from marlin_aio.service import verbs
 from marlin_aio.service.uploads import UploadError, Uploads
+from marlin_aio.service.verbs import Caller, Owner
 
 __all__ = ["OCTOPRINT_VERSION", "OctoPrintApi"]
 
@@ -34,9 +38,12 @@ _log = logging.getLogger("marlin_aio.service.octoprint")
 OCTOPRINT_VERSION = "1.10.0"
 _API_VERSION = "0.1"
 
+#: OctoPrint's words for the states of a job that holds the printer.
 _STATES = {
-    marlin_aio.PrintState.RUNNING: "Printing",
-    marlin_aio.PrintState.PAUSED: "Paused",
+    JobState.STARTING: "Starting",
+    JobState.PRINTING: "Printing",
+    JobState.PAUSED: "Paused",
+    JobState.CANCELLING: "Cancelling",
 }
 
 
@@ -50,11 +57,15 @@ class OctoPrintApi:
         api_key: the key every request but `/api/version` must carry.
     """
 
-    def __init__(self, farm_printer: FarmPrinter, start_print: Any, uploads: Uploads, api_key: str) -> None:
+    def __init__(
+        self, farm_printer: FarmPrinter, start_print: Any, uploads: Uploads, api_key: str, *, owner: Owner | None = None
+    ) -> None:
         if len(api_key) < 16:
             raise ValueError("the API key must be at least 16 characters")
         self.farm_printer = farm_printer
         self._start_print = start_print
+        # The service whose table of verbs every action here calls (as the socket's and MQTT's doors do).
+        self.owner = owner
         self.uploads = uploads
         self._key = api_key.encode()
         self.selected: Path | None = None
@@ -124,9 +135,9 @@ class OctoPrintApi:
     def _state_text(self) -> str:
         if not self.farm_printer.link_up:
             return "Offline" if self.farm_printer.last_error is None else "Offline after error"
-        handle = self._handle()
-        if handle is not None and not handle.finished:
-            return _STATES.get(handle.progress.state, "Printing")
+        job = self.farm_printer.job
+        if job is not None and job.active:
+            return _STATES[job.state]
         return "Operational"
 
     # ------------------------------------------------------------------------------------------- read
@@ -180,20 +191,19 @@ class OctoPrintApi:
                     name = f"tool{key[1:]}"
                 if name is not None and name not in temperature:
                     temperature[name] = {"actual": heater.actual, "target": heater.target, "offset": 0}
-        handle = self._handle()
-        running = handle is not None and not handle.finished
-        paused = running and handle is not None and handle.progress.state is marlin_aio.PrintState.PAUSED
+        job = self.farm_printer.job
+        state = None if job is None or not job.active else job.state
         flags = {
             "operational": True,
-            "printing": running and not paused,
-            "paused": paused,
+            "printing": state in (JobState.STARTING, JobState.PRINTING),
+            "paused": state is JobState.PAUSED,
             "pausing": False,
             "resuming": False,
-            "cancelling": False,
+            "cancelling": state is JobState.CANCELLING,
             "finishing": False,
             "closedOrError": False,
             "error": False,
-            "ready": not running,
+            "ready": state is None,
             "sdReady": False,
         }
         return web.json_response({"temperature": temperature, "state": {"text": self._state_text(), "flags": flags}})
@@ -231,14 +241,11 @@ class OctoPrintApi:
         body = await _json(request)
         if body.get("command") != "target" or not isinstance(body.get("targets"), dict):
             raise web.HTTPBadRequest(text="only the target command is supported")
-        printer = self._operational()
+        self._operational()
         for name, target in body["targets"].items():
             if not (isinstance(name, str) and name.startswith("tool") and name[4:].isdigit()):
                 raise web.HTTPBadRequest(text=f"unknown tool {str(name)[:20]!r}")
-            try:
-                await printer.set_temperatures(hotend=target, tool=int(name[4:]))
-            except ValueError as exc:
-                raise web.HTTPBadRequest(text=str(exc)) from None
+            await self._verb("set_temperatures", hotend=target, tool=int(name[4:]))
         return web.Response(status=204)
 
     async def bed(self, request: web.Request) -> web.Response:
@@ -246,10 +253,8 @@ class OctoPrintApi:
         body = await _json(request)
         if body.get("command") != "target":
             raise web.HTTPBadRequest(text="only the target command is supported")
-        try:
-            await self._operational().set_temperatures(bed=body.get("target"))
-        except ValueError as exc:
-            raise web.HTTPBadRequest(text=str(exc)) from None
+        self._operational()
+        await self._verb("set_temperatures", bed=body.get("target"))
         return web.Response(status=204)
 
     async def job_command(self, request: web.Request) -> web.Response:
@@ -257,26 +262,20 @@ class OctoPrintApi:
         body = await _json(request)
         command = body.get("command")
         handle = self._handle()
-        running = handle is not None and not handle.finished
         if command in ("start", "restart"):
-            if running:
-                raise web.HTTPConflict(text="a print is already running: cancel it first")
             if self.selected is None:
                 raise web.HTTPConflict(text="no file is selected")
             await self._start(self.selected)
         elif command == "cancel":
-            if not running or handle is None:
-                raise web.HTTPConflict(text="no print is running")
-            await handle.cancel()
+            # The job's one cancel script (heaters and fan off by default), as from every door.
+            await self._verb("cancel")
         elif command == "pause":
-            if not running or handle is None:
-                raise web.HTTPConflict(text="no print is running")
             action = body.get("action", "toggle")
-            paused = handle.progress.state is marlin_aio.PrintState.PAUSED
+            paused = handle is not None and handle.progress.state is marlin_aio.PrintState.PAUSED
             if action == "pause" or (action == "toggle" and not paused):
-                handle.pause()
+                await self._verb("pause")
             elif action in ("resume", "toggle"):
-                handle.resume()
+                await self._verb("resume")
             else:
                 raise web.HTTPBadRequest(text=f"unknown pause action {str(action)[:20]!r}")
         else:
@@ -284,11 +283,28 @@ class OctoPrintApi:
         return web.Response(status=204)
 
     async def _start(self, path: Path) -> None:
+        if self.owner is None:  # an API made without its service (older callers): the farm's own start
+            try:
+                await self._start_print(self.farm_printer, path)
+            except (ValueError, OSError) as exc:
+                raise web.HTTPBadRequest(text=str(exc)) from None
+            except RuntimeError as exc:
+                raise web.HTTPConflict(text=str(exc)) from None
+            return
+        await self._verb("start_print", path=str(path))
+
+    async def _verb(self, name: str, **params: Any) -> Any:
+        """Call the service's verb `name` on this printer, as the HTTP door: its refusals as OctoPrint's statuses
+        (a bad argument 400, a state that does not allow it 409)."""
+        owner = self.owner
+        if owner is None:
+            raise web.HTTPServiceUnavailable(text="this API was made without its service")
+        caller = Caller("http", "octoprint")
         try:
-            await self._start_print(self.farm_printer, path)
-        except (ValueError, OSError) as exc:
+            return await verbs.call(owner, name, {"printer": self.farm_printer.name, **params}, caller)
+        except (RpcError, ValueError) as exc:
             raise web.HTTPBadRequest(text=str(exc)) from None
-        except RuntimeError as exc:
+        except (RuntimeError, FileNotFoundError, PermissionError, marlin_aio.MarlinError) as exc:
             raise web.HTTPConflict(text=str(exc)) from None
 
     async def upload(self, request: web.Request) -> web.Response:
