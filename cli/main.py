@@ -28,6 +28,7 @@ from .console import options as console
 from .farm import options as farm
 from .heaters import options as heaters
 from .heaters import presets as heater_presets
+from .job import options as job
 from .logs import options as logs
 from .ports import options as ports
 from .printing import options as printing
@@ -141,6 +142,7 @@ app.command("set", help=heaters.SET_HELP, epilog=EXIT_CODES_HELP)(heaters.set_ta
 app.command("presets", help=heater_presets.PRESETS_HELP, epilog=EXIT_CODES_HELP)(heater_presets.presets)
 app.command("log", help=logs.LOG_HELP, epilog=EXIT_CODES_HELP)(logs.log)
 app.command("print", help=printing.PRINT_HELP, epilog=EXIT_CODES_HELP)(printing.print_file)
+app.command("job", help=job.JOB_HELP, epilog=EXIT_CODES_HELP)(job.job)
 app.command("send", help=console.SEND_HELP, epilog=EXIT_CODES_HELP)(console.send)
 app.command("terminal", help=console.TERMINAL_HELP, epilog=EXIT_CODES_HELP)(console.terminal)
 app.command("serve", help=serve.SERVE_HELP, epilog=EXIT_CODES_HELP)(serve.serve)

@@ -403,7 +403,10 @@ class Farm:
 
     async def _cancel(self, farm_printer: FarmPrinter, job: Job) -> None:
         assert job.handle is not None  # `running_job` refuses a job still starting
-        await job.handle.cancel(job.cancel_script)
+        try:
+            await job.handle.cancel(job.cancel_script)
+        finally:
+            job.ended()  # the asker hears it ended (`_follow_print` says how, in its event)
         self.emit(farm_printer, "cancel_script", f"{job.file}: ran {'; '.join(job.cancel_script) or 'nothing'}")
 
     async def answer_prompt(self, farm_printer: FarmPrinter, index: int) -> None:

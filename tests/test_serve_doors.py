@@ -1,0 +1,142 @@
+"""One verb, every door: a print cancelled through the socket's JSON-RPC, the CLI (`marlin-temp job cancel`), MQTT
+and the OctoPrint API ends in the same state, through a real `marlin-temp serve` (or `farm`) process and the
+simulator on a pty: the job cancelled (and saying by whom), its cancel script run once, the heaters off at the
+printer. Also: the table is the only list of verbs each door offers."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+import pytest
+from conftest import until
+from test_farm import Broker, free_port
+from test_serve import Served, raw_client, serving
+
+import marlin_aio
+from marlin_aio.farm.commands import ACTION_VERBS, UNQUEUED_ACTIONS
+from marlin_aio.service import verbs
+from marlin_aio.service.session import PRIORITY_METHODS
+
+DOORS = ("socket", "cli", "mqtt", "http")
+
+
+def moves(count: int) -> str:
+    return "G28\n" + "".join(f"G1 X{i % 200} Y{(i * 7) % 200} F6000\n" for i in range(count))
+
+
+async def _cancel_over_http(port: int, key: str) -> int:
+    def post() -> int:
+        request = urllib.request.Request(
+            f"http://127.0.0.1:{port}/api/job",
+            data=json.dumps({"command": "cancel"}).encode(),
+            headers={"X-Api-Key": key, "Content-Type": "application/json"},
+            method="POST",
+        )
+        with urllib.request.urlopen(request, timeout=60) as answer:
+            return int(answer.status)
+
+    return await asyncio.to_thread(post)
+
+
+async def _cancel_over_mqtt(broker: Broker, printer: str) -> dict[str, Any]:
+    async with aiomqtt.Client("127.0.0.1", broker.port, identifier="canceller") as client:
+        await client.subscribe(f"marlin/{printer}/response", qos=1)
+        await client.publish(f"marlin/{printer}/command", json.dumps({"id": 7, "action": "cancel"}), qos=1)
+        async with asyncio.timeout(60):
+            async for message in client.messages:
+                answer: dict[str, Any] = json.loads(bytes(message.payload))  # type: ignore[arg-type]
+                if answer.get("id") == 7:
+                    return answer
+    raise AssertionError("no answer")
+
+
+async def _cancel_over_cli(served: Served, printer: str) -> tuple[int, str]:
+    process = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "marlin_temp",
+        "job",
+        "cancel",
+        "--port",
+        served.url(printer),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+        env=served.env(),
+    )
+    output, _ = await asyncio.wait_for(process.communicate(), 60)
+    return process.returncode or 0, output.decode()
+
+
+@pytest.mark.parametrize("door", DOORS)
+async def test_a_cancel_through_each_door_ends_in_the_same_state(
+    door: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text(moves(4_000))
+    args: tuple[str, ...] = ("--sim", "--sim-speed", "50", "--interval", "0.05")
+    command = "serve"
+    printer_name = "sim"
+    http_port = free_port()
+    broker: Broker | None = None
+    if door == "http":
+        args += ("--octoprint", f"127.0.0.1:{http_port}")
+    if door == "mqtt":
+        broker = request.getfixturevalue("broker")
+        args = ("--sims", "1", "--sim-speed", "50", "--interval", "0.05", "--broker", f"127.0.0.1:{broker.port}")
+        args += ("--allow-commands",)
+        command, printer_name = "farm", "sim1"
+    async with serving(tmp_path, *args, command=command) as served, raw_client(served) as raw:
+        async with marlin_aio.connect(served.url(printer_name)) as printer:
+            await printer.set_temperatures(hotend=200, bed=60)
+            handle = await printer.start_print(gcode)
+            await until(lambda: handle.progress.lines_acked > 20, "the print under way")
+            if door == "socket":
+                answer = await raw.call("cancel", printer=printer_name)
+                assert answer["result"]["job"]["state"] == "cancelled", answer
+            elif door == "cli":
+                code, output = await _cancel_over_cli(served, printer_name)
+                assert code == 0 and "part.gcode on sim: cancelled" in output, output
+            elif door == "mqtt":
+                assert broker is not None
+                answer = await _cancel_over_mqtt(broker, printer_name)
+                assert answer["ok"] is True and answer["result"]["job"]["state"] == "cancelled", answer
+            else:
+                key = (served.socket.parent / "api-key").read_text().strip()
+                assert await _cancel_over_http(http_port, key) == 204
+            final = await handle.wait()
+            assert final.state is marlin_aio.PrintState.CANCELLED
+            # The heaters off at the printer: its own report, polled by the service, says targets 0.
+            await until(
+                lambda: (
+                    printer.latest is not None
+                    and printer.latest.hotend is not None
+                    and printer.latest.hotend.target == 0
+                    and printer.latest.bed is not None
+                    and printer.latest.bed.target == 0
+                ),
+                "the printer's targets read back 0",
+            )
+        job = (await raw.call("job", printer=printer_name))["result"]
+    assert job["state"] == "cancelled" and job["file"] == "part.gcode"
+    by = {"socket": "socket client", "cli": "socket client", "mqtt": "mqtt", "http": "octoprint"}[door]
+    assert job["cancelled_by"].startswith(by), job
+    assert job["resume_line"] > job["surely_run_line"] > 0
+    # The cancel script ran once, whoever asked.
+    ran = [line for line in served.lines if "cancel_script: part.gcode: ran M104 S0; M140 S0; M107" in line]
+    assert len(ran) == 1, served.lines
+
+
+def test_every_door_offers_the_verbs_of_the_table_and_nothing_else() -> None:
+    """The socket's methods, MQTT's actions and what jumps the queue at each door are read from the one table."""
+    socket_verbs = {name for name, entry in verbs.VERBS.items() if entry.doors & verbs.SOCKETS}
+    assert set(ACTION_VERBS.values()) <= {name for name, entry in verbs.VERBS.items() if "mqtt" in entry.doors}
+    assert {a for a, v in ACTION_VERBS.items() if verbs.VERBS[v].queue is verbs.Queue.URGENT} == UNQUEUED_ACTIONS
+    assert PRIORITY_METHODS - {"cancel_request"} == verbs.urgent_verbs()
+    assert {"emergency_stop", "pause", "resume", "cancel", "answer_prompt"} <= verbs.urgent_verbs()
+    assert {"send", "set_temperatures", "start_print", "job", "status"} <= socket_verbs
