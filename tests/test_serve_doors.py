@@ -50,7 +50,7 @@ async def _cancel_over_mqtt(broker: Broker, printer: str) -> dict[str, Any]:
         await client.publish(f"marlin/{printer}/command", json.dumps({"id": 7, "action": "cancel"}), qos=1)
         async with asyncio.timeout(60):
             async for message in client.messages:
-                answer: dict[str, Any] = json.loads(bytes(message.payload))  # type: ignore[arg-type]
+                answer: dict[str, Any] = json.loads(bytes(message.payload))
                 if answer.get("id") == 7:
                     return answer
     raise AssertionError("no answer")
