@@ -140,3 +140,40 @@ def test_every_door_offers_the_verbs_of_the_table_and_nothing_else() -> None:
     assert PRIORITY_METHODS - {"cancel_request"} == verbs.urgent_verbs()
     assert {"emergency_stop", "pause", "resume", "cancel", "answer_prompt"} <= verbs.urgent_verbs()
     assert {"send", "set_temperatures", "start_print", "job", "status"} <= socket_verbs
+
+
+async def test_a_second_print_is_one_line_naming_the_running_job_and_stores_nothing(tmp_path: Path) -> None:
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text(moves(4_000))
+    other = tmp_path / "other.gcode"
+    other.write_text(moves(10))
+    async with serving(tmp_path) as served, marlin_aio.connect(served.url()) as printer:
+        handle = await printer.start_print(gcode)
+        await until(lambda: handle.progress.lines_acked > 5, "the first print under way")
+        uploads = served.socket.parent / "uploads"
+        before = sorted(path.name for path in uploads.iterdir()) if uploads.exists() else []
+        process = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "marlin_temp",
+            "print",
+            str(other),
+            "--port",
+            served.url(),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
+            env=served.env(),
+        )
+        out, err = await asyncio.wait_for(process.communicate(), 60)
+        lines = err.decode().strip().splitlines()
+        assert process.returncode == 4, (out, err)
+        assert len(lines) == 1 and "a print is already running" in lines[0] and "part.gcode" in lines[0], lines
+        assert "marlin-temp job cancel" in lines[0]
+        after = sorted(path.name for path in uploads.iterdir()) if uploads.exists() else []
+        assert after == before  # nothing of the refused file was stored
+        # A raw client that skips the check and uploads anyway is refused at its first piece: nothing stored.
+        async with raw_client(served) as raw:
+            answer = await raw.call("upload", printer="sim", lines=["G28"], name="sneaky.gcode")
+            assert "a print is already running" in answer["error"]["message"], answer
+        assert (sorted(path.name for path in uploads.iterdir()) if uploads.exists() else []) == before
+        await handle.cancel()

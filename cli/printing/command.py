@@ -25,7 +25,7 @@ from rich.text import Text
 
 import marlin_aio
 
-from ..common.connect import ConnectOptions, Exit, exit_code_for, open_printer
+from ..common.connect import ConnectOptions, Exit, UsageProblem, exit_code_for, open_printer
 from ..common.keys import key_presses, on_stop_signals
 from ..common.prompts import answer_index, prompt_text
 from .plan import GcodePlan
@@ -156,6 +156,30 @@ def _announce(plan: GcodePlan, errors: Console) -> None:
             )
 
 
+def _job_hint(options: ConnectOptions) -> str:
+    port = options.port or "serve:NAME"
+    return f"follow it with: marlin-temp job attach --port {port}; cancel it with: marlin-temp job cancel --port {port}"
+
+
+async def _refuse_if_served_job(printer: marlin_aio.Printer, label: str, options: ConnectOptions) -> None:
+    """A printer of the service runs one job at a time, whoever started it: a second print is one line naming
+    the running job (exit 4), refused before a byte of the file is sent.
+
+    Raises:
+        UsageProblem: a job is running there (`Exit.PORT_BUSY`).
+    """
+    call = getattr(printer, "call", None)
+    if call is None:
+        return  # a printer on a port: this command owns it
+    from ..job.command import ACTIVE_STATES, describe_job
+
+    job = await call("job")
+    if job is not None and job.get("state") in ACTIVE_STATES:
+        raise UsageProblem(
+            f"a print is already running on {label}: {describe_job(job)} ({_job_hint(options)})", Exit.PORT_BUSY
+        )
+
+
 async def print_gcode(options: ConnectOptions, settings: PrintSettings, console: Console, errors: Console) -> Exit:
     """Stream the file; return the exit code (0 done, 130 cancelled, 7 after the emergency stop, or the code of
     the error that ended the print).
@@ -171,9 +195,13 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
     interrupted = asyncio.Event()
     with on_stop_signals(interrupted.set):
         async with open_printer(options, errors) as (printer, label), printer.poll_temperatures(1.0):
-            handle = await printer.start_print(
-                plan.lines(), send_ahead=settings.send_ahead, window_bytes=settings.window_bytes
-            )
+            await _refuse_if_served_job(printer, label, options)
+            try:
+                handle = await printer.start_print(
+                    plan.lines(), send_ahead=settings.send_ahead, window_bytes=settings.window_bytes
+                )
+            except RuntimeError as exc:  # the service's job, started by someone else since the check above
+                raise UsageProblem(f"{exc} ({_job_hint(options)})", Exit.PORT_BUSY) from None
             mode = "send-ahead" if settings.send_ahead else "ping-pong"
             errors.print(f"printing {plan.path.name} on {label} ({mode}); Ctrl-C to cancel", style="dim")
             script = () if settings.keep_heaters else CANCEL_SCRIPT
