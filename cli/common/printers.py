@@ -3,6 +3,8 @@ each polled every `--interval`; made into the farm's `PrinterSpec`s in one place
 
 from __future__ import annotations
 
+import dataclasses
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -11,7 +13,7 @@ import typer
 
 import marlin_aio
 
-from .connect import Exit
+from .connect import PASSWORD_ENV, Exit
 from .options import fail
 
 if TYPE_CHECKING:
@@ -46,13 +48,19 @@ def printer_specs(
     try:
         specs = [*(load_config(config) if config is not None else []), *more]
         if ports or sims or not specs:
-            specs += specs_from_options(
-                ports or [],
-                sims,
-                baud=baud or marlin_aio.DEFAULT_BAUDRATE,
-                poll_interval_s=interval_s,
-                sim_speed=sim_speed,
-            )
+            # A locked printer on --port is unlocked with $MARLIN_PASSWORD, as every other command does (the error
+            # of a locked printer says to set it); a config file's printers carry their own `password`.
+            password = os.environ.get(PASSWORD_ENV) or None
+            specs += [
+                spec if spec.sim else dataclasses.replace(spec, password=password)
+                for spec in specs_from_options(
+                    ports or [],
+                    sims,
+                    baud=baud or marlin_aio.DEFAULT_BAUDRATE,
+                    poll_interval_s=interval_s,
+                    sim_speed=sim_speed,
+                )
+            ]
         return check_unique(specs)
     except ValueError as exc:
         fail(str(exc), Exit.USAGE)
