@@ -133,13 +133,31 @@ async def test_a_cancel_through_each_door_ends_in_the_same_state(
 
 
 def test_every_door_offers_the_verbs_of_the_table_and_nothing_else() -> None:
-    """The socket's methods, MQTT's actions and what jumps the queue at each door are read from the one table."""
-    socket_verbs = {name for name, entry in verbs.VERBS.items() if entry.doors & verbs.SOCKETS}
-    assert set(ACTION_VERBS.values()) <= {name for name, entry in verbs.VERBS.items() if "mqtt" in entry.doors}
-    assert {a for a, v in ACTION_VERBS.items() if verbs.VERBS[v].queue is verbs.Queue.URGENT} == UNQUEUED_ACTIONS
+    """The socket's methods, MQTT's actions, the OctoPrint API's calls and what jumps the queue at each door are
+    read from the one table: a door offers exactly the verbs the table says it does."""
+    import re
+
+    import marlin_aio.service.octoprint as octoprint
+    from marlin_aio.service.server import Service
+
+    offered = {door: {n for n, v in verbs.VERBS.items() if door in v.doors} for door in verbs.DOORS}
+    service = Service([], Path("/nonexistent/s.sock"))
+    assert set(service.methods) == offered["socket"] == offered["tcp"]
+    assert set(ACTION_VERBS.values()) == offered["mqtt"]
+    http_calls = set(re.findall(r'_verb\("([a-z_]+)"', Path(octoprint.__file__).read_text()))
+    assert http_calls == offered["http"]
+    assert UNQUEUED_ACTIONS == {a for a, v in ACTION_VERBS.items() if verbs.VERBS[v].queue is verbs.Queue.URGENT}
     assert PRIORITY_METHODS - {"cancel_request"} == verbs.urgent_verbs()
     assert {"emergency_stop", "pause", "resume", "cancel", "answer_prompt"} <= verbs.urgent_verbs()
-    assert {"send", "set_temperatures", "start_print", "job", "status"} <= socket_verbs
+
+
+def test_the_readme_lists_every_verb_of_the_table() -> None:
+    readme = (Path(__file__).parent.parent / "README.md").read_text()
+    for name, entry in verbs.VERBS.items():
+        row = next((line for line in readme.splitlines() if line.startswith(f"| `{name}` |")), None)
+        assert row is not None, f"the README's table of verbs has no row for {name}"
+        doors = ", ".join(door for door in ("socket", "tcp", "mqtt", "http") if door in entry.doors)
+        assert f"| {entry.queue.value} | {doors} |" in row, row
 
 
 async def test_a_second_print_is_one_line_naming_the_running_job_and_stores_nothing(tmp_path: Path) -> None:

@@ -25,7 +25,7 @@ from aiohttp import BodyPartReader, web
 import marlin_aio
 from marlin_aio.farm.job import JobState
 from marlin_aio.farm.supervisor import FarmPrinter
-from marlin_aio.protocol.rpc import RpcError
+from marlin_aio.protocol.rpc import RpcError, progress_from_json
 from marlin_aio.service import verbs
 from marlin_aio.service.uploads import UploadError, Uploads
 from marlin_aio.service.verbs import Caller, Owner
@@ -38,6 +38,7 @@ _log = logging.getLogger("marlin_aio.service.octoprint")
 OCTOPRINT_VERSION = "1.10.0"
 _API_VERSION = "0.1"
 
+_ACTIVE = frozenset(state.value for state in JobState if state.active)
 #: OctoPrint's words for the states of a job that holds the printer.
 _STATES = {
     JobState.STARTING: "Starting",
@@ -182,17 +183,17 @@ class OctoPrintApi:
     async def printer(self, request: web.Request) -> web.Response:
         """`GET /api/printer`: temperatures and state flags (409 while the printer is not connected)."""
         self._operational()
+        info = await self._verb("status")
         temperature: dict[str, dict[str, float | None]] = {}
-        latest = self.farm_printer.latest
-        if latest is not None:
-            for key, heater in latest.temperatures.heaters.items():
-                name = {"T": "tool0", "B": "bed", "C": "chamber"}.get(key)
-                if name is None and key.startswith("T") and key[1:].isdigit():
-                    name = f"tool{key[1:]}"
-                if name is not None and name not in temperature:
-                    temperature[name] = {"actual": heater.actual, "target": heater.target, "offset": 0}
-        job = self.farm_printer.job
-        state = None if job is None or not job.active else job.state
+        latest = info["latest"]
+        for key, (actual, target, _power) in (latest["heaters"] if latest else {}).items():
+            name = {"T": "tool0", "B": "bed", "C": "chamber"}.get(key)
+            if name is None and key.startswith("T") and key[1:].isdigit():
+                name = f"tool{key[1:]}"
+            if name is not None and name not in temperature:
+                temperature[name] = {"actual": actual, "target": target, "offset": 0}
+        job = info["job"]
+        state = None if job is None or job["state"] not in _ACTIVE else JobState(job["state"])
         flags = {
             "operational": True,
             "printing": state in (JobState.STARTING, JobState.PRINTING),
@@ -209,13 +210,13 @@ class OctoPrintApi:
         return web.json_response({"temperature": temperature, "state": {"text": self._state_text(), "flags": flags}})
 
     async def job(self, request: web.Request) -> web.Response:
-        """`GET /api/job`: the print running or last run (or the file selected), and its progress."""
-        handle = self._handle()
-        name = self.farm_printer.print_file if handle is not None else (self.selected.name if self.selected else None)
+        """`GET /api/job`: the printer's job (running or last run; or the file selected), and its progress."""
+        job = await self._verb("job")
+        name = job["file"] if job is not None else (self.selected.name if self.selected else None)
         file: dict[str, Any] = {"name": name, "path": name, "origin": "local" if name else None}
         progress: dict[str, Any] = {"completion": None, "filepos": None, "printTime": None, "printTimeLeft": None}
-        if handle is not None:
-            snapshot = handle.progress
+        snapshot = None if job is None or job["progress"] is None else progress_from_json(job["progress"])
+        if snapshot is not None:
             file["size"] = snapshot.source_bytes_total
             fraction = snapshot.fraction
             progress = {
@@ -224,8 +225,8 @@ class OctoPrintApi:
                 "printTime": round(snapshot.elapsed_s),
                 "printTimeLeft": None if snapshot.eta_s is None else round(snapshot.eta_s),
             }
-        job = {"file": file, "estimatedPrintTime": None, "lastPrintTime": None, "filament": None}
-        return web.json_response({"job": job, "progress": progress, "state": self._state_text()})
+        value = {"file": file, "estimatedPrintTime": None, "lastPrintTime": None, "filament": None}
+        return web.json_response({"job": value, "progress": progress, "state": self._state_text()})
 
     async def files(self, request: web.Request) -> web.Response:
         """`GET /api/files`: the uploaded files."""

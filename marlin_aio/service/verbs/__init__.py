@@ -31,8 +31,10 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DOORS",
+    "NOT_HTTP",
     "REQUIRED",
     "SOCKETS",
+    "SOCKETS_AND_HTTP",
     "VERBS",
     "Access",
     "Arg",
@@ -53,6 +55,10 @@ Door = Literal["socket", "tcp", "mqtt", "http"]
 DOORS: frozenset[Door] = frozenset({"socket", "tcp", "mqtt", "http"})
 #: The socket's doors (the owner's Unix socket and TCP), for the verbs only a socket client has.
 SOCKETS: frozenset[Door] = frozenset({"socket", "tcp"})
+#: The socket's doors and the OctoPrint API (which reads the status and the job, and has no MQTT-only verb).
+SOCKETS_AND_HTTP: frozenset[Door] = frozenset({"socket", "tcp", "http"})
+#: Every door but the OctoPrint API (whose clients send no G-code, presets or prompt answers).
+NOT_HTTP: frozenset[Door] = frozenset({"socket", "tcp", "mqtt"})
 
 
 class Access(Enum):

@@ -16,7 +16,7 @@ from typing import Any
 from marlin_aio.farm.job import Job
 from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError, progress_to_json
-from marlin_aio.service.verbs import REQUIRED, SOCKETS, Access, Arg, Context, Owner, Queue, verb
+from marlin_aio.service.verbs import REQUIRED, SOCKETS, SOCKETS_AND_HTTP, Access, Arg, Context, Owner, Queue, verb
 from marlin_aio.service.verbs.printer import MAX_TIMEOUT_S, connected
 
 __all__ = ["check_printable", "start_job"]
@@ -154,7 +154,7 @@ async def start_print(context: Context, args: dict[str, Any]) -> object:
     return {"file": job.file, "progress": progress_to_json(job.handle.progress), "job": job.to_json()}
 
 
-@verb("job", access=Access.READ, result="job or null")
+@verb("job", access=Access.READ, doors=SOCKETS_AND_HTTP, result="job or null")
 async def job(context: Context, args: dict[str, Any]) -> object:
     """The printer's job: the one running, or the last one, with its state, progress and resume line."""
     return _job_json(context.farm_printer.job)

@@ -10,13 +10,23 @@ from marlin_aio.farm.presets import find_preset, preset_targets
 from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.protocol import check_gcode_targets, check_target, validate_command
 from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError, reading_to_json, reply_to_json, requests_to_json
-from marlin_aio.service.verbs import DOORS, REQUIRED, SOCKETS, Access, Arg, Context, Owner, Queue, verb
+from marlin_aio.service.verbs import (
+    NOT_HTTP,
+    REQUIRED,
+    SOCKETS,
+    SOCKETS_AND_HTTP,
+    Access,
+    Arg,
+    Context,
+    Owner,
+    Queue,
+    verb,
+)
 
 __all__ = ["MAX_TIMEOUT_S", "check_heaters", "connected", "info"]
 
 #: The longest timeout a request may give a command (a G28 of a large printer takes minutes, not days).
 MAX_TIMEOUT_S = 24 * 3600.0
-_READERS = DOORS
 
 
 def connected(farm_printer: FarmPrinter) -> marlin_aio.Printer:
@@ -91,13 +101,13 @@ def _timeout(value: float | None) -> float | None:
 # ------------------------------------------------------------------------------------------- what and how
 
 
-@verb("printers", access=Access.READ, doors=_READERS, result="[printer info]", on_printer=False)
+@verb("printers", access=Access.READ, doors=SOCKETS, result="[printer info]", on_printer=False)
 async def printers(context: Context, args: dict[str, Any]) -> object:
     """Every printer of the service: its link, firmware, latest reading, job and prompt."""
     return [info(context.owner, farm_printer) for farm_printer in context.owner.farm.printers.values()]
 
 
-@verb("status", access=Access.READ, doors=_READERS, result="printer info, clients, dropped")
+@verb("status", access=Access.READ, doors=SOCKETS_AND_HTTP, result="printer info, clients, dropped")
 async def status(context: Context, args: dict[str, Any]) -> object:
     """One printer's info, with how many clients the service has and how many notifications this one missed."""
     value = info(context.owner, context.farm_printer)
@@ -107,7 +117,7 @@ async def status(context: Context, args: dict[str, Any]) -> object:
     return value
 
 
-@verb("link_stats", access=Access.READ, doors=_READERS, result="{stats, round_trips}")
+@verb("link_stats", access=Access.READ, doors=SOCKETS, result="{stats, round_trips}")
 async def link_stats(context: Context, args: dict[str, Any]) -> object:
     """The service's link counters for the printer and its latest round trips, `[answered_s, round_trip_s]`."""
     printer = connected(context.farm_printer)
@@ -124,6 +134,7 @@ async def link_stats(context: Context, args: dict[str, Any]) -> object:
     Arg("command", str, REQUIRED, "one G-code command"),
     Arg("timeout_s", float, None, "how long to wait for its ok (default: the printer's)"),
     access=Access.CONTROL,
+    doors=NOT_HTTP,
     result="reply",
 )
 async def send(context: Context, args: dict[str, Any]) -> object:
@@ -142,7 +153,7 @@ async def send(context: Context, args: dict[str, Any]) -> object:
     return reply_to_json(reply)
 
 
-@verb("emergency_stop", access=Access.CONTROL, queue=Queue.URGENT, result="null")
+@verb("emergency_stop", access=Access.CONTROL, queue=Queue.URGENT, doors=NOT_HTTP, result="null")
 async def emergency_stop(context: Context, args: dict[str, Any]) -> object:
     """Write M112 at once, ahead of anything queued: the printer halts and needs a reset."""
     farm_printer = context.farm_printer
@@ -162,6 +173,7 @@ async def interrupt_wait(context: Context, args: dict[str, Any]) -> object:
     Arg("index", int, REQUIRED, "the button, 0 the first"),
     access=Access.CONTROL,
     queue=Queue.URGENT,
+    doors=NOT_HTTP,
     result="{answered, button}",
 )
 async def answer_prompt(context: Context, args: dict[str, Any]) -> object:
@@ -179,7 +191,7 @@ async def answer_prompt(context: Context, args: dict[str, Any]) -> object:
 # ------------------------------------------------------------------------------------------- temperatures
 
 
-@verb("read_temperatures", access=Access.READ, result="reading")
+@verb("read_temperatures", access=Access.READ, doors=SOCKETS, result="reading")
 async def read_temperatures(context: Context, args: dict[str, Any]) -> object:
     """Ask the printer for its temperatures now (M105) and return the reading."""
     return reading_to_json(await connected(context.farm_printer).read_temperatures())
@@ -211,7 +223,7 @@ async def set_temperatures(context: Context, args: dict[str, Any]) -> object:
     return {"targets": targets | ({"tool": tool} if tool is not None else {})}
 
 
-@verb("presets", access=Access.READ, result="[{name, hotend, bed}]", on_printer=False)
+@verb("presets", access=Access.READ, doors=SOCKETS, result="[{name, hotend, bed}]", on_printer=False)
 async def presets(context: Context, args: dict[str, Any]) -> object:
     """The service's presets (named targets), in their file's order."""
     return [{"name": p.name, "hotend": p.hotend_celsius, "bed": p.bed_celsius} for p in context.owner.presets]
@@ -221,6 +233,7 @@ async def presets(context: Context, args: dict[str, Any]) -> object:
     "apply_preset",
     Arg("name", str, REQUIRED, "a preset's name, any case"),
     access=Access.CONTROL,
+    doors=NOT_HTTP,
     result="{targets, preset}",
 )
 async def apply_preset(context: Context, args: dict[str, Any]) -> object:
