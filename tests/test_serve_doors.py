@@ -146,7 +146,7 @@ def test_every_door_offers_the_verbs_of_the_table_and_nothing_else() -> None:
     assert set(ACTION_VERBS.values()) == offered["mqtt"]
     http_calls = set(re.findall(r'_verb\("([a-z_]+)"', Path(octoprint.__file__).read_text()))
     assert http_calls == offered["http"]
-    assert UNQUEUED_ACTIONS == {a for a, v in ACTION_VERBS.items() if verbs.VERBS[v].queue is verbs.Queue.URGENT}
+    assert {a for a, v in ACTION_VERBS.items() if verbs.VERBS[v].queue is verbs.Queue.URGENT} == UNQUEUED_ACTIONS
     assert PRIORITY_METHODS - {"cancel_request"} == verbs.urgent_verbs()
     assert {"emergency_stop", "pause", "resume", "cancel", "answer_prompt"} <= verbs.urgent_verbs()
 
