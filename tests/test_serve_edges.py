@@ -73,3 +73,20 @@ async def test_serve_port_unlocks_a_locked_printer_with_marlin_password(
     ):
         assert (await printer.send("M118 unlocked")).lines == ("unlocked",)
     assert not any("1234" in line for line in served.lines)  # never printed
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="making a folder another user owns needs root")
+def test_a_socket_folder_another_user_made_first_is_one_clear_line(tmp_path: Path) -> None:
+    folder = tmp_path / "taken"
+    folder.mkdir(mode=0o755)
+    os.chown(folder, 65534, 65534)  # as another local user would make it first under /tmp
+    result = subprocess.run(
+        [sys.executable, "-m", "marlin_temp", "serve", "--sim", "--no-log", "--socket", str(folder / "serve.sock")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode != 0 and len(lines) == 1, result.stderr
+    assert "belongs to user" in lines[0] and "65534" in lines[0] and "--socket" in lines[0], lines
+    assert not (folder / "serve.sock").exists()

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import marlin_aio
-from marlin_aio.aio.servicepaths import default_socket_path
+from marlin_aio.aio.servicepaths import SOCKET_ENV, default_socket_path
 from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
 from marlin_aio.farm.supervisor import Farm, FarmEvent, FarmPrinter, PrinterSpec
 from marlin_aio.protocol import redact
@@ -100,10 +100,22 @@ def check_private_folder(folder: Path) -> None:
     if stat.S_ISLNK(info.st_mode) or not stat.S_ISDIR(info.st_mode):
         raise PermissionError(f"{folder} is not a folder of its own (a link?): refusing to use it")
     if info.st_uid != os.getuid() or info.st_mode & 0o077:
+        # Anyone may make a folder in /tmp first: say whose it is and how to get out of the way, in one line.
+        whose = "another user" if info.st_uid == os.getuid() else f"user {_user_name(info.st_uid)}"
         raise PermissionError(
-            f"{folder} belongs to another user or others may enter it (mode {stat.S_IMODE(info.st_mode):o}): "
-            "refusing to use it; remove it, or give --socket in a folder of your own"
+            f"{folder} belongs to {whose} or others may enter it (mode {stat.S_IMODE(info.st_mode):o}): refusing "
+            f"to use it; remove it, or give --socket (or ${SOCKET_ENV}) in a folder of your own, such as under "
+            "$XDG_RUNTIME_DIR"
         )
+
+
+def _user_name(uid: int) -> str:
+    import pwd
+
+    try:
+        return f"{pwd.getpwuid(uid).pw_name} (uid {uid})"
+    except KeyError:
+        return f"uid {uid}"
 
 
 def _prepare_folder(path: Path) -> bool:
