@@ -15,8 +15,11 @@ refused as busy. Commands of all clients meet in the printer's one FIFO (the lib
 request that sent its command. Nothing a client sent is replayed when the service restarts: requests live only in
 the process that took them.
 
-A client's reader, writer and queue are `session.Session`. Over 400 lines because the methods are one table: each
-is a few lines over the farm, and spread over modules they would hide which requests exist.
+What a request can do is the service's table of verbs (`marlin_aio.service.verbs`), which every door calls: this
+module is the owner the verbs act on (the farm, the uploads, the histories, the clients to tell) and the socket's
+door (`methods`: each verb the socket offers, called with the session as the caller). A client's reader, writer
+and queue are `session.Session`. Over 400 lines because it is the service's life (listening, the registry) and
+every notification it sends, read together.
 """
 
 from __future__ import annotations
