@@ -193,12 +193,6 @@ async def _log_until_done(
 ) -> None:
     """The sessions of one run, into one file, and its summary line (see `log_temperatures`)."""
     async with TemperatureLog(settings.output, settings.fmt, interval_s=settings.interval_s) as log:
-        if log.tightened_from is not None:
-            errors.print(
-                f"{log.path} was readable by others ({log.tightened_from:o}): made it owner-only (600)",
-                style="dim",
-                markup=False,
-            )
         try:
             await _keep_logging(options, settings, log, stop, run, errors)
         except LogWriteError:
