@@ -22,8 +22,8 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from marlin_aio import TemperatureReading
-from marlin_aio.farm.bridge import telemetry_payload
 from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
+from marlin_aio.farm.telemetry import telemetry_payload
 from marlin_aio.protocol import HeaterReading, ReadingSource, parse_temperatures
 from marlin_aio.simulator import SimulatedPrinter, SimulatorConfig, serve_pty
 from marlin_temp.common.connect import Exit

@@ -632,7 +632,7 @@ async def test_an_absent_broker_never_slows_the_printers_and_each_keeps_its_own_
 
         def newest_slow_buffered() -> bool:
             latest = farm.printers["slow"].latest
-            buffered = bridge._telemetry["slow"]
+            buffered = bridge._telemetry.buffers["slow"]
             if not buffered or latest is None:
                 return False
             return bool(json.loads(buffered[-1])["time"] == round(latest.wall_time_s, 3))
@@ -648,7 +648,7 @@ async def test_an_absent_broker_never_slows_the_printers_and_each_keeps_its_own_
             await until(newest_slow_buffered, "the slow printer's newest reading in its buffer")
         assert farm.printers["busy"].readings > 100  # polls went on at their rate
         assert bridge.telemetry_dropped > 50  # each buffer kept its newest 10 and counted the rest
-        assert {name: len(buffer) for name, buffer in bridge._telemetry.items()} == {"busy": 10, "slow": 10}
+        assert {name: len(buffer) for name, buffer in bridge._telemetry.buffers.items()} == {"busy": 10, "slow": 10}
         assert bridge.connections == 0
 
 

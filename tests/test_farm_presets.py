@@ -12,8 +12,8 @@ import pytest
 from test_farm import MOSQUITTO, Broker, command, not_polls, one_printer_farm, subscribed
 from typer.testing import CliRunner
 
-from marlin_aio.farm.bridge import preset_slugs
 from marlin_aio.farm.commands import CommandError, parse_command
+from marlin_aio.farm.discovery import preset_slugs
 from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
 from marlin_aio.farm.supervisor import FarmPrinter, PrinterSpec
 from marlin_temp.common.connect import Exit

@@ -18,16 +18,9 @@ from hypothesis import strategies as st
 from test_farm import MOSQUITTO, Broker, subscribed
 
 from marlin_aio import HeaterReading, TemperatureReading, Temperatures
-from marlin_aio.farm.bridge import (
-    Bridge,
-    BridgeSettings,
-    BrokerSettings,
-    _stdlib_json,
-    compact_json,
-    publish_packet,
-    telemetry_payload,
-)
+from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
 from marlin_aio.farm.supervisor import Farm, PrinterSpec
+from marlin_aio.farm.telemetry import _stdlib_json, compact_json, publish_packet, telemetry_payload
 from marlin_aio.protocol import ReadingSource
 
 
@@ -123,11 +116,11 @@ async def test_a_batch_of_telemetry_reaches_a_subscriber_as_each_message_would(
                 bridge._on_reading("ab"[index % 2], reading(one.temperatures.heaters, one.wall_time_s, at_s=index))
             # A message the MQTT client has yet to write (a slow broker): the telemetry waits in its buffers.
             client._client.publish("test/before", b"first", 0)
-            bridge._publish_telemetry(client)
-            assert bridge.published == 0 and [len(bridge._telemetry[name]) for name in "ab"] == [6, 6]
+            bridge._telemetry.publish(client)
+            assert bridge.published == 0 and [len(bridge._telemetry.buffers[name]) for name in "ab"] == [6, 6]
             await asyncio.sleep(0.1)  # the client writes it
-            bridge._publish_telemetry(client)
-            assert bridge.published == 12 and not any(bridge._telemetry.values())
+            bridge._telemetry.publish(client)
+            assert bridge.published == 12 and not any(bridge._telemetry.buffers.values())
             await sub.until(lambda: len(sub.payloads("marlin/b/telemetry")) == 6, "the whole batch")
     sent = [telemetry_payload(one) for one in READINGS * 3]
     assert sub.payloads("marlin/a/telemetry") == sent[0::2]

@@ -205,6 +205,15 @@ def checked_wire_log(path: Path | None) -> WireLog | None:
     target = path if path.exists() else path.parent
     if not os.access(target, os.W_OK):
         fail(f"--wire-log {path}: cannot write to {target.resolve()} (permission denied)", Exit.USAGE)
+    # (issue 33) The wire log makes an existing file that others could read owner-only as it opens it: said here,
+    # where the user sees it (the library says it on its logger).
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0
+    if mode & 0o077 and path.stat().st_uid == os.getuid():
+        error_console().print(
+            f"--wire-log {path} is readable by others ({mode:o}): it is made owner-only (600)",
+            style="dim",
+            markup=False,
+        )
     return WireLog(path)
 
 

@@ -229,6 +229,9 @@ class TemperatureLog:
     `summary` counts what is on disk and says that logging stopped. So a view may go on without its log, and a
     command that exists to log can end on it.
 
+    The file is its owner's alone: made 0600, and an existing one of this user's that others could read is made
+    0600 on entering (`tightened_from` says what it was).
+
     Raises:
         ValueError: `fmt` is unknown, `flush_interval_s` or `interval_s` is not positive; on entering, `path`
             exists and is not a log of this format (an older marlin-temp's, the other format, not a log);
@@ -261,11 +264,21 @@ class TemperatureLog:
         self.failure: LogWriteError | None = None  # why logging stopped, if the file system refused a write
         self._failed: asyncio.Event | None = None
         self._created = False  # this log made the file (it was not there): one left empty is taken away again
+        self.tightened_from: int | None = None
+        """The mode (0o644, say) an existing file had before this log made it owner-only; None if it was already."""
 
     async def __aenter__(self) -> TemperatureLog:
         needs_newline = self._check_existing()
         self._created = not self.path.exists()
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        # A temperature log of a print farm is nobody else's: made owner-only, and one others could read is made so.
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        mode = os.fstat(self._fd).st_mode & 0o777
+        if mode & 0o077:
+            # The open file, not the path: no window for a swapped file. Another user's file that we may write to
+            # stays as its owner shared it.
+            with contextlib.suppress(PermissionError):
+                os.fchmod(self._fd, 0o600)
+                self.tightened_from = mode
         if needs_newline:
             self._pending.append(_Entry("\n"))  # a last line cut short by someone else's crash stays a line of its own
         self._loop = asyncio.get_running_loop()

@@ -7,6 +7,7 @@ and the file line last acknowledged (`"print": {"file": ..., "line": ...}`). A n
 The supervisors hand each reading over without waiting (a bounded queue; a reading that finds it full is dropped
 and counted): a slow disk never slows a printer. The writing is `TemperatureLog`'s, with its rules: rows reach the
 disk within a second, a kill leaves whole rows, a full disk stops the log with one line and the service goes on.
+The logs are their owner's alone: files 0600 (`TemperatureLog`), and the folders made for them 0700.
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ class ServeLogs:
         Raises:
             OSError: the folder cannot be made.
         """
-        self.folder.mkdir(parents=True, exist_ok=True)
+        _make_private_folder(self.folder)
         try:
             while True:
                 farm_printer, reading = await self.queue.get()
@@ -91,7 +92,20 @@ class ServeLogs:
             log.failure = log.failure or _stopped(exc)
             return None
         self._logs[name] = (day, log)
+        if log.tightened_from is not None:
+            self.errors.print(
+                f"{escape(str(log.path))} was readable by others ({log.tightened_from:o}): made it owner-only (600)",
+                style="dim",
+            )
         return log
+
+
+def _make_private_folder(folder: Path) -> None:
+    """Make `folder` and each missing folder above it owner-only (0700): `Path.mkdir` gives the parents it makes the
+    default mode. A folder that exists is left as its owner made it."""
+    missing = [level for level in (folder, *folder.parents) if not level.exists()]
+    for level in reversed(missing):
+        level.mkdir(mode=0o700, exist_ok=True)
 
 
 def _stopped(exc: Exception) -> Any:

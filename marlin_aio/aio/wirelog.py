@@ -13,11 +13,12 @@ pays one test against None per line for it.
 
 One `WireLog` can serve several connections at once and one after another (reconnects, a farm): `named(name)` gives
 a view of the same file whose lines start with the printer's name. The file is opened for appending (a day's
-sessions stay in one file) when the first connection starts, and closed when the last one ends. A port that could
-not be opened is logged too (`# ...: not opened (...)`), as is a handshake that failed: the log says why a
-connection never came. Lines go through a buffer (a 100 Hz poll is 200 lines a second) flushed at least
-once a second and when the last connection ends, so a crash loses little. A write that fails (a full disk) stops
-the log, never the link: `error` says why.
+sessions stay in one file) when the first connection starts, and closed when the last one ends. It is its owner's
+alone: made 0600, and an existing file others could read is made 0600 too (with a warning on `marlin_aio`'s
+logger). A port that could not be opened is logged too (`# ...: not opened (...)`), as is a handshake that failed:
+the log says why a connection never came. Lines go through a buffer (a 100 Hz poll is 200 lines a second) flushed
+at least once a second and when the last connection ends, so a crash loses little. A write that fails (a full
+disk) stops the log, never the link: `error` says why.
 """
 
 from __future__ import annotations
@@ -64,8 +65,9 @@ class _WireFile:
         self.users += 1
         if self.file is None and self.error is None:
             try:
+                fd = _open_private(self.path)
                 # Line-buffered would be a write per line: a block buffer, flushed by the timer below.
-                self.file = open(self.path, "a", encoding="utf-8", errors="replace", newline="\n")  # noqa: SIM115
+                self.file = open(fd, "a", encoding="utf-8", errors="replace", newline="\n")  # noqa: SIM115
             except OSError as exc:
                 self._failed(exc)
 
@@ -120,6 +122,25 @@ class _WireFile:
             # Its buffer cannot be written either: the error above says so.
             with contextlib.suppress(OSError):
                 file.close()
+
+
+def _open_private(path: str) -> int:
+    """Open `path` for appending, readable and writable by its owner only: made 0600 if it is new (a wire log holds
+    every line of a print farm's printers), tightened to 0600 (and said so) if others could read it.
+
+    Raises:
+        OSError: it cannot be opened.
+    """
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    mode = os.fstat(fd).st_mode & 0o777
+    if mode & 0o077:
+        try:
+            os.fchmod(fd, 0o600)  # the open file, not the path: no window for a swapped file
+        except PermissionError as exc:  # another user's file that we may write to: theirs to share
+            _log.warning("the wire log %s is readable by others (%o) and not ours to change: %s", path, mode, exc)
+        else:
+            _log.warning("the wire log %s was readable by others (%o): made it owner-only (600)", path, mode)
+    return fd
 
 
 class WireSession:

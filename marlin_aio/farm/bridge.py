@@ -27,11 +27,8 @@ topic and one log line, never an exception out of the bridge. A print runs as a 
 (`Farm.start_print`), so however it ends is that printer's event, not the bridge's failure. Sets that other
 clients can grow are bounded (the names of other bridges' printers, the commands waiting per printer).
 
-Backpressure: each reading goes, as it is read (at most at the rate), into its printer's own bounded buffer whatever
-the broker does, which drops (and counts) that printer's oldest when the broker cannot keep up or is away: every
-printer keeps its newest readings. The buffers go out together, at most TELEMETRY_BATCH_S after a reading, in one
-write to the broker's socket (see `_publish_telemetry`), and only once the MQTT client has written the last batch.
-The serial loops never wait for the broker. Events wait in a queue of their own (bounded too: past the bound the
+Backpressure: telemetry waits in a bounded buffer per printer and goes out in batches (`telemetry.TelemetryLane`):
+the serial loops never wait for the broker. Events wait in a queue of their own (bounded too: past the bound the
 oldest is dropped, counted, and logged). When the broker goes away the bridge reconnects with backoff and publishes
 availability, state and discovery again.
 
@@ -40,10 +37,11 @@ logged carries a printer's password: each event, state and answer is redacted (`
 queued, whatever the farm and the library already did, since a command's text and an error's message can quote
 `M511 P<password>` (typed as G-code, or sent by the handshake).
 
-Over 400 lines because these are one MQTT session's rules, each guarding against the others' failures: the
-topics and their payloads, availability with the Last Will, retained-message hygiene and forged-state
-correction, the bounded queues (answers apart from events), reconnecting, and redaction. The command checks
-(`commands`), the printers (`supervisor`) and the settings (`config`) are apart.
+Over 400 lines because these are one MQTT session's rules, each guarding against the others' failures:
+availability with the Last Will, retained-message hygiene and forged-state correction, the bounded queues (answers
+apart from events), the commands taken and answered, reconnecting, and redaction. Apart from it: the settings
+(`bridgesettings`), the payloads and the telemetry's buffers and batches (`telemetry`), Home Assistant discovery
+(`discovery`), the command checks (`commands`), the printers (`supervisor`) and the farm's file (`config`).
 """
 
 from __future__ import annotations
@@ -53,43 +51,28 @@ import contextlib
 import functools
 import json
 import logging
-import math
-import ssl
-import struct
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import aiomqtt
-import paho.mqtt.client as mqtt
 
 import marlin_aio
-import marlin_aio.protocol
 from marlin_aio.aio import Backoff
 from marlin_aio.service.verbs import FarmOwner, Owner
 
-from .commands import (
-    MAX_COMMAND_AGE_S,
-    UNQUEUED_ACTIONS,
-    CommandError,
-    FarmCommand,
-    command_id_of,
-    parse_command,
-    run_command,
-)
+from .bridgesettings import BridgeSettings, BrokerSettings
+from .commands import UNQUEUED_ACTIONS, CommandError, FarmCommand, command_id_of, parse_command, run_command
 from .config import NAME_PATTERN
-from .presets import DEFAULT_PRESETS, Preset
-from .supervisor import RESERVED_NAMES, Farm, FarmEvent, FarmPrinter, one_line, redact, redact_payload
+from .discovery import discovery_messages, heater_slug, preset_slugs
+from .supervisor import RESERVED_NAMES, Farm, FarmEvent, one_line, redact, redact_payload
+from .telemetry import TelemetryLane, compact_json, state_inputs, state_payload
 
 __all__ = ["Bridge", "BridgeSettings", "BrokerSettings", "heater_slug", "preset_slugs"]
 
 _log = logging.getLogger("marlin_temp.bridge")
 
-EVENT_QUEUE = 10_000
-"""Events kept until the broker has them (a long outage); past it the oldest is lost (counted, and logged)."""
 ANSWER_QUEUE = 1_000
 """Answers to commands kept until published; past it the oldest is dropped (counted): a flood of commands from
 outside fills this queue, never the events' one."""
@@ -100,150 +83,12 @@ FIGHT_LIMIT = 5
 says so: another client that keeps publishing there (a second bridge with a printer of the same name) is not
 fought for ever."""
 FIGHT_WINDOW_S = 60.0
-TELEMETRY_BATCH_S = 0.05
-"""Telemetry goes out in batches, this long after the first reading of each, written to the broker's socket together:
-at most this much more latency (nothing beside a reading every 5 s, the default rate) for one write every 50 ms
-whatever the printers' number and rate. Each write costs the same whatever it holds (about 0.2 ms of CPU on a small
-VM, waking the broker): at 50 printers polled at 10 Hz, 20 ms gave 17 writes a second, 50 ms gives 10."""
-TELEMETRY_BUFFER = 240
-"""Telemetry messages kept per printer while the broker is slow or away (two minutes at the default rate)."""
 MAX_OTHER_PRINTERS = 1_024
 """Names of other bridges' printers remembered (from their availability topics); past it the oldest is forgotten."""
 MAX_PENDING_COMMANDS = 16
 """Commands accepted and not yet finished, per printer; past it a command is refused (a flood cannot queue more)."""
 CORRECTION_GAP_S = 1.0
 """A retained topic someone else overwrote is corrected at most this often (two bridges fighting stay slow)."""
-
-
-@dataclass(frozen=True)
-class BrokerSettings:
-    """Where the broker is and how to log in. `password` is never printed (its repr hides it)."""
-
-    host: str = "127.0.0.1"
-    port: int = 1883
-    username: str | None = None
-    password: str | None = field(default=None, repr=False)
-    client_id: str | None = None
-    tls_ca: str | None = None
-    tls_cert: str | None = None
-    tls_key: str | None = None
-    keepalive_s: int = 30
-    connect_timeout_s: float = 10.0
-    """How long an attempt to open a session may take (a TLS handshake the broker refused ends only by it)."""
-
-    @property
-    def address(self) -> str:
-        """`host:port`, for messages."""
-        return f"{self.host}:{self.port}"
-
-    def tls_context(self) -> ssl.SSLContext | None:
-        """The TLS context the options ask for (a CA, a client certificate), or None for a plain connection."""
-        if self.tls_ca is None and self.tls_cert is None:
-            return None
-        context = ssl.create_default_context(cafile=self.tls_ca)
-        if self.tls_cert is not None:
-            context.load_cert_chain(self.tls_cert, self.tls_key)
-        return context
-
-
-@dataclass(frozen=True)
-class BridgeSettings:
-    """What the bridge publishes and how often."""
-
-    prefix: str = "marlin"
-    name: str = "bridge"
-    """The bridge's own topic level: its availability is `PREFIX/NAME/availability`. Bridges that share a broker
-    and a prefix each need their own (else one's Last Will is the other's to correct, and a killed bridge's printers
-    stay available in Home Assistant)."""
-    rate_hz: float = 0.2
-    """Telemetry messages per second and printer. One every 5 s by default: Home Assistant's recorder keeps every
-    state change, and a temperature is a new state at nearly every reading."""
-    discovery: bool = True
-    discovery_prefix: str = "homeassistant"
-    backoff_start_s: float = 1.0
-    backoff_max_s: float = 30.0
-    allow_commands: bool = False
-    """Take commands on `PREFIX/NAME/command` (off unless asked for)."""
-    allowed_dir: Path | None = None
-    """With commands: the directory prints may be started from (None: no prints over MQTT)."""
-    telemetry_buffer: int = TELEMETRY_BUFFER
-    """Telemetry messages kept per printer while the broker is slow or away; past it that printer's oldest is
-    dropped (and counted)."""
-    event_queue: int = EVENT_QUEUE
-    """Events and answers kept until delivered; past it the oldest is lost (counted, and logged)."""
-    max_command_age_s: float = MAX_COMMAND_AGE_S
-    """A command with a `time` older (or further in the future) than this is refused."""
-    presets: tuple[Preset, ...] = DEFAULT_PRESETS
-    """What a `preset` command may name (`marlin-temp farm` gives the presets file's); with commands, Home
-    Assistant gets a button for each."""
-
-
-def _stdlib_json(value: Any) -> bytes:
-    return json.dumps(value, separators=(",", ":")).encode()
-
-
-try:
-    import orjson
-except ImportError:  # orjson comes with the `fast` extra; without it, the same JSON from the standard library
-    compact_json: Callable[[Any], bytes] = _stdlib_json
-else:
-
-    def compact_json(value: Any) -> bytes:
-        """`value` as compact JSON: orjson's, about fifteen times faster than json's on a telemetry payload (0.2
-        against 3.2 us) and the same bytes for the bridge's payloads (compact, floats at their shortest, null for
-        None; NaN, which json writes as NaN and orjson as null, is in none of them). What orjson refuses (a lone
-        surrogate in a string, an int over 64 bits) json writes."""
-        try:
-            return orjson.dumps(value)
-        except orjson.JSONEncodeError:
-            return _stdlib_json(value)
-
-
-def heater_slug(name: str) -> str:
-    """A heater's name as a topic or entity id part: `"hotend 0"` gives `"hotend_0"`."""
-    return name.replace(" ", "_")
-
-
-def preset_slugs(presets: tuple[Preset, ...]) -> list[tuple[str, Preset]]:
-    """Each preset with the id its Home Assistant button gets: its name in lower case, `+` as `plus` and other
-    signs as `_` ("PLA+" is `pla_plus`), numbered where two would be the same ("a-b" and "a.b")."""
-    slugs: list[tuple[str, Preset]] = []
-    taken: set[str] = set()
-    for preset in presets:
-        base = "".join(c if c.isalnum() else "_" for c in preset.name.lower().replace("+", "_plus"))
-        slug, number = base, 2
-        while slug in taken:
-            slug, number = f"{base}_{number}", number + 1
-        taken.add(slug)
-        slugs.append((slug, preset))
-    return slugs
-
-
-def telemetry_payload(reading: marlin_aio.TemperatureReading) -> dict[str, Any]:
-    """The telemetry of one reading: every heater reported, by name, in degrees Celsius and percent."""
-    # Called for every message (500 a second for 50 printers at 10 Hz): heater names are looked up once each, and
-    # each value is read once (15% of this function's time). A value that is not finite is written as null.
-    heaters: dict[str, dict[str, float | None]] = {}
-    reported = reading.temperatures.heaters
-    numbered = "T0" in reported
-    for key, heater in reported.items():
-        if key == "T" and numbered:
-            continue  # with several hotends, each is reported by number; `T` repeats the active one
-        name = _HEATER_NAMES.get(key)
-        if name is None:
-            name = marlin_aio.protocol.heater_name(key)
-            if len(_HEATER_NAMES) < 64:  # a confused printer may report any number of odd keys
-                _HEATER_NAMES[key] = name
-        actual, target, fraction = heater.actual, heater.target, heater.power_fraction
-        heaters[name] = {
-            "actual": actual if math.isfinite(actual) else None,
-            "target": target if target is not None and math.isfinite(target) else None,
-            "power_percent": None if fraction is None else round(fraction * 100, 1),
-        }
-    return {"time": round(reading.wall_time_s, 3), "heaters": heaters}
-
-
-_HEATER_NAMES: dict[str, str] = {}
 
 
 async def _stop(tasks: list[asyncio.Task[None]]) -> None:
@@ -267,42 +112,11 @@ def _raise_if_cancelled() -> None:
         raise asyncio.CancelledError
 
 
-def _check(rc: int) -> None:
-    """Raise for a paho result code that is not success, as aiomqtt's `publish` does.
-
-    Raises:
-        aiomqtt.MqttCodeError: not MQTT_ERR_SUCCESS (no connection, say).
-    """
-    if rc != mqtt.MQTT_ERR_SUCCESS:
-        raise aiomqtt.MqttCodeError(rc, "Could not publish message")
-
-
 def _payload_bytes(payload: object) -> bytes:
     """A message's payload as bytes (aiomqtt gives bytes, or str/int/float/None for some)."""
     if isinstance(payload, bytes | bytearray):
         return bytes(payload)
     return b"" if payload is None else str(payload).encode()
-
-
-def publish_packet(topic: str, payload: bytes) -> bytes:
-    """An MQTT 3.1.1 PUBLISH packet (section 3.3) at QoS 0, neither retained nor a duplicate, as it goes on the wire.
-
-    Raises:
-        ValueError: a topic longer than 65,535 bytes, or a packet longer than MQTT allows.
-    """
-    name = topic.encode()
-    if len(name) > 0xFFFF:
-        raise ValueError(f"topic of {len(name)} bytes, over MQTT's 65535")
-    remaining = 2 + len(name) + len(payload)
-    if remaining > 268_435_455:
-        raise ValueError(f"packet of {remaining} bytes, over MQTT's 268435455")
-    length = bytearray()  # the remaining length: 7 bits a byte, least significant first, the top bit for "more"
-    while True:
-        remaining, digit = divmod(remaining, 128)
-        length.append(digit | 0x80 if remaining else digit)
-        if not remaining:
-            break
-    return b"\x30" + length + struct.pack("!H", len(name)) + name + payload
 
 
 class Bridge:
@@ -332,15 +146,13 @@ class Bridge:
         self.settings = settings
         # Whose verbs the commands call: the service the farm belongs to (`marlin-temp farm`), else the farm alone.
         self.owner: Owner = owner if owner is not None else FarmOwner(farm, settings.presets)
-        # Each printer keeps its own newest readings while the broker is away: one busy printer (or fifty) never
-        # pushes another's out.
-        self._telemetry: dict[str, deque[bytes]] = {
-            name: deque(maxlen=settings.telemetry_buffer) for name in farm.printers
-        }
-        self._telemetry_topics = {name: self.topic(name, "telemetry") for name in farm.printers}
-        # The printers with telemetry in their buffer, in the order they read it (a dict as an ordered set): the
-        # publisher looks at these, not at all fifty buffers for each reading.
-        self._telemetry_waiting: dict[str, None] = {}
+        self._wake = asyncio.Event()
+        self._telemetry = TelemetryLane(
+            {name: self.topic(name, "telemetry") for name in farm.printers},
+            settings.rate_hz,
+            settings.telemetry_buffer,
+            self._wake.set,
+        )
         # Events and command answers: QoS 1, each kept until the broker acknowledged it; apart, so that answers to
         # a flood of commands never push an event (a thermal runaway) out.
         self._events: deque[tuple[str, str]] = deque()
@@ -349,11 +161,8 @@ class Bridge:
         # Printers of other bridges on the same broker, newest last; bounded, since anyone can publish a name.
         self._elsewhere: OrderedDict[str, None] = OrderedDict()
         self._pending: dict[str, int] = dict.fromkeys(farm.printers, 0)
-        self._wake = asyncio.Event()
         self._states_dirty = True
         self._discovery_dirty = True
-        self._last_sent_s: dict[str, float] = {}
-        self._min_gap_s = 0.9 / settings.rate_hz
         for farm_printer in farm.printers.values():
             farm_printer.reading_listeners.append(self._listener(farm_printer.name))
         self._states: dict[str, str] = {}
@@ -375,10 +184,7 @@ class Bridge:
         """Attempts to open a session with the broker that failed (refused, unreachable, TLS or login refused)."""
         self.broker_error: str | None = None
         """Why the last session with the broker ended or could not open (None: none has yet)."""
-        self.published = 0
-        """Messages handed to the broker."""
-        self.telemetry_dropped = 0
-        """Telemetry messages dropped from a full per-printer buffer (the oldest)."""
+        self._published = 0  # apart from telemetry, which its lane counts
         self.events_lost = 0
         """Events dropped from a full event queue (the oldest)."""
         self.answers_dropped = 0
@@ -397,12 +203,24 @@ class Bridge:
 
     def topic(self, printer: str, leaf: str) -> str:
         """`prefix/printer/leaf`."""
-        return f"{self.settings.prefix}/{printer}/{leaf}"
+        return self.settings.topic(printer, leaf)
 
     @property
     def bridge_availability_topic(self) -> str:
         """The bridge's own availability (its Last Will sets it offline)."""
-        return f"{self.settings.prefix}/{self.settings.name}/availability"
+        return self.settings.bridge_availability_topic
+
+    # ------------------------------------------------------------------------------------------- counters
+
+    @property
+    def published(self) -> int:
+        """Messages handed to the broker."""
+        return self._published + self._telemetry.published
+
+    @property
+    def telemetry_dropped(self) -> int:
+        """Telemetry messages dropped from a full per-printer buffer (the oldest)."""
+        return self._telemetry.dropped
 
     # ------------------------------------------------------------------------------------------- intake
 
@@ -420,23 +238,10 @@ class Bridge:
         return functools.partial(self._on_reading, name)  # (a lambda would add a Python call to every reading)
 
     def _on_reading(self, name: str, reading: marlin_aio.TemperatureReading) -> None:
-        """A printer's reading, as it is read: into its telemetry buffer unless one went out less than a rate's
-        period ago (a tenth of it is allowed for jitter, so polls at the rate itself are all sent)."""
-        last = self._last_sent_s.get(name)
-        if last is not None and reading.monotonic_s - last < self._min_gap_s:
+        """A printer's reading, as it is read: into its telemetry lane, and a discovery anew if its heaters changed."""
+        payload = self._telemetry.add(name, reading)
+        if payload is None:
             return
-        self._last_sent_s[name] = reading.monotonic_s
-        payload = telemetry_payload(reading)
-        buffer = self._telemetry[name]
-        if len(buffer) == buffer.maxlen:
-            self.telemetry_dropped += 1  # this printer's oldest goes: a slow broker never slows a printer
-        buffer.append(compact_json(payload))
-        if not self._telemetry_waiting:
-            # The first message since the last batch: the publisher comes for it, and for whatever the other
-            # printers read meanwhile, TELEMETRY_BATCH_S from now. (A wake-up per reading cost a turn of the
-            # publisher and a write to the socket per message.)
-            asyncio.get_running_loop().call_later(TELEMETRY_BATCH_S, self._wake.set)
-        self._telemetry_waiting[name] = None
         heaters = tuple(payload["heaters"])
         if heaters and heaters != self._heaters.get(name):
             self._heaters[name] = heaters
@@ -450,21 +255,14 @@ class Bridge:
             # A state is made (redacted, encoded) only when what it is made of changed: 50 printers sampled ten
             # times a second would otherwise cost 500 of them a second, nearly all equal to the last. A print's
             # progress changes as it goes, so a printer with a print is looked at in full.
-            inputs = (
-                farm_printer.link_up,
-                farm_printer.firmware,
-                farm_printer.last_error,
-                farm_printer.url,
-                farm_printer.prompt,
-                farm_printer.waiting_for_user,
-            )
+            inputs = state_inputs(farm_printer)
             if farm_printer.print_handle is None:
                 if self._state_inputs.get(farm_printer.name) == inputs:
                     continue
                 self._state_inputs[farm_printer.name] = inputs
             else:
                 self._state_inputs.pop(farm_printer.name, None)
-            state = compact_json(self._state(farm_printer)).decode()
+            state = compact_json(state_payload(farm_printer)).decode()
             if self._states.get(farm_printer.name) != state:
                 self._states[farm_printer.name] = state
                 changed = True
@@ -473,22 +271,6 @@ class Bridge:
             self._wake.set()
         if self._overwritten:
             self._wake.set()  # a correction held back by CORRECTION_GAP_S may be due now
-
-    def _state(self, farm_printer: FarmPrinter) -> dict[str, Any]:
-        # Made of the fields `_sample` compares before it calls this: a field added here goes there too.
-        prompt = farm_printer.prompt
-        state: dict[str, Any] = redact_payload(
-            {
-                "link": "up" if farm_printer.link_up else "down",
-                "firmware": farm_printer.firmware,
-                "print": farm_printer.print_status(),
-                "last_error": farm_printer.last_error,
-                "port": farm_printer.url or farm_printer.spec.port,
-                "prompt": None if prompt is None else {"message": prompt.message, "buttons": list(prompt.buttons)},
-                "waiting_for_user": farm_printer.waiting_for_user,
-            }
-        )
-        return state
 
     # ------------------------------------------------------------------------------------------- running
 
@@ -520,7 +302,7 @@ class Bridge:
         while True:
             delay = backoff.start_s  # (set again by the failure that ends the attempt)
             try:
-                async with self._client() as client:
+                async with self.broker.client(self.bridge_availability_topic) as client:
                     self.connected = True
                     self.connections += 1
                     backoff.reset()
@@ -689,25 +471,11 @@ class Bridge:
         self._answers.append((self.topic(printer, "response"), json.dumps(answer, default=str)))
         self._wake.set()
 
-    def _client(self) -> aiomqtt.Client:
-        broker = self.broker
-        return aiomqtt.Client(
-            broker.host,
-            broker.port,
-            username=broker.username,
-            password=broker.password,
-            identifier=broker.client_id,
-            keepalive=broker.keepalive_s,
-            timeout=broker.connect_timeout_s,
-            tls_context=broker.tls_context(),
-            will=aiomqtt.Will(self.bridge_availability_topic, "offline", qos=1, retain=True),
-        )
-
     async def _publish_retained(self, client: aiomqtt.Client, topic: str, payload: str) -> None:
         """Publish one of the bridge's retained topics and remember what it holds."""
         self._retained[topic] = payload.encode()
         await client.publish(topic, payload, qos=1, retain=True)
-        self.published += 1
+        self._published += 1
 
     async def _announce(self, client: aiomqtt.Client) -> None:
         await self._publish_retained(client, self.bridge_availability_topic, "online")
@@ -744,52 +512,11 @@ class Bridge:
                 await self._publish_queued(client, self._events)
             for _ in range(min(ANSWER_BATCH, len(self._answers))):
                 await self._publish_queued(client, self._answers)
-            if self._telemetry_waiting:
-                self._publish_telemetry(client)
+            if self._telemetry.waiting:
+                self._telemetry.publish(client)
             _raise_if_cancelled()
             if not self._answers:  # else straight on with the next batch
                 await self._wake.wait()
-
-    def _publish_telemetry(self, client: aiomqtt.Client) -> None:
-        """Hand the buffered telemetry (QoS 0) to the MQTT client in one write, without waiting for it; or, while the
-        client has not yet written what it was given (a slow broker), leave it in the buffers and look again
-        TELEMETRY_BATCH_S later: the buffers, not the client, hold what waits, and drop their oldest when full.
-
-        Speed over the plain API (issue 24): aiomqtt's `publish` awaits, for each QoS 0 message, paho's word that
-        it was written, which QoS 0 does not need (written is not delivered): an Event, a `wait_for` task and a
-        timer per message. paho's own `publish` does not wait, but paho writes each packet with a `send` of its
-        own, which on a local broker costs as much as the rest of the message. So the batch is encoded here
-        (`publish_packet`) and queued as one packet with paho's `_packet_queue`, which its `publish` calls: one
-        `send`, one callback, for the lot. What it saves, at 50 printers and 500 messages a second: the awaited
-        publishes were a fifth of the bridge's busy samples and the sends another fifth; with batches (and
-        orjson, and `_sample` making only changed states) the bridge's CPU went from about 3x the plain farm's to
-        about 1.2-1.5x (benchmarks, farm scenario). It needs two private names (aiomqtt's `_client`, paho's
-        `_packet_queue`) and MQTT 3.1.1 framing, the protocol the bridge asks for; lacking either, each message
-        goes through paho's `publish`.
-        """
-        paho = client._client
-        if paho.want_write():
-            asyncio.get_running_loop().call_later(TELEMETRY_BATCH_S, self._wake.set)
-            return
-        queue_packet = getattr(paho, "_packet_queue", None)
-        framed = queue_packet is not None and paho.protocol in (mqtt.MQTTv31, mqtt.MQTTv311)
-        packets: list[bytes] = []
-        for name in self._telemetry_waiting:
-            buffer = self._telemetry[name]
-            topic = self._telemetry_topics[name]
-            while buffer:
-                if framed:
-                    packets.append(publish_packet(topic, buffer.popleft()))
-                else:
-                    _check(paho.publish(topic, buffer.popleft(), 0).rc)
-                self.published += 1
-        self._telemetry_waiting.clear()
-        if packets:
-            assert queue_packet is not None
-            if paho.socket() is None:  # what paho's publish says when the session has just ended
-                _check(mqtt.MQTT_ERR_NO_CONN)
-            # mid 0, which paho never gives a message: its callback for the batch is aiomqtt's for no publish.
-            _check(queue_packet(mqtt.PUBLISH, b"".join(packets), 0, 0, mqtt.MQTTMessageInfo(0)))
 
     async def _publish_queued(self, client: aiomqtt.Client, queue: deque[tuple[str, str]]) -> None:
         """Publish the oldest message of `queue` (QoS 1) and take it off only once the broker has it: a broken link
@@ -800,7 +527,7 @@ class Bridge:
         except ValueError as exc:
             _log.error("could not publish to %r: %s; dropped", topic[:100], exc)
         else:
-            self.published += 1
+            self._published += 1
         queue.popleft()
 
     async def _publish_corrections(self, client: aiomqtt.Client) -> None:
@@ -849,152 +576,5 @@ class Bridge:
     # ------------------------------------------------------------------------------------------- discovery
 
     def discovery_messages(self, name: str, heaters: tuple[str, ...]) -> list[tuple[str, dict[str, Any]]]:
-        """Home Assistant MQTT discovery for one printer: a device with, per heater, a temperature sensor, a target
-        sensor and a power sensor, a link sensor and a sensor of the open prompt's message; each available while
-        the bridge and the printer are. With commands on, also a number per heater target, a button per preset and
-        the emergency stop button.
-
-        As Home Assistant's MQTT documentation asks: an `origin` (this software and its version), the device's
-        firmware as `sw_version`, `device_class: temperature` on temperatures and target numbers, no device class on
-        a heater's power (a duty cycle in percent is not one of the classes), and `expire_after` on the telemetry
-        sensors so a bridge that hangs without dying shows its readings as unavailable.
-        """
-        node = f"marlin_{name}"
-        farm_printer = self.farm.printers[name]
-        device: dict[str, Any] = {
-            "identifiers": [node],
-            "name": name,
-            "manufacturer": "Marlin",
-            "model": farm_printer.machine or "Marlin printer",
-        }
-        if farm_printer.firmware:
-            device["sw_version"] = farm_printer.firmware
-        availability = [
-            {"topic": self.bridge_availability_topic},
-            {"topic": self.topic(name, "availability")},
-        ]
-        base = {
-            "device": device,
-            "origin": {"name": "marlin_aio", "sw_version": marlin_aio.__version__},
-            "availability": availability,
-            "availability_mode": "all",
-        }
-        # Ten telemetry periods, and a minute at least: missed messages at QoS 0 are not an outage.
-        expire_after = max(60, math.ceil(10 / self.settings.rate_hz))
-        messages: list[tuple[str, dict[str, Any]]] = []
-        prefix = self.settings.discovery_prefix
-        for heater in heaters:
-            slug = heater_slug(heater)
-            for what, unit, device_class, label in (
-                ("actual", "°C", "temperature", heater),
-                ("target", "°C", "temperature", f"{heater} target"),
-                ("power_percent", "%", None, f"{heater} power"),
-            ):
-                object_id = f"{slug}_{what}"
-                config = base | {
-                    "name": label,
-                    "unique_id": f"{node}_{object_id}",
-                    "state_topic": self.topic(name, "telemetry"),
-                    "value_template": f"{{{{ value_json.heaters['{heater}'].{what} }}}}",
-                    "unit_of_measurement": unit,
-                    "state_class": "measurement",
-                    "expire_after": expire_after,
-                }
-                if device_class is not None:
-                    config["device_class"] = device_class
-                messages.append((f"{prefix}/sensor/{node}/{object_id}/config", config))
-        if self.settings.allow_commands:
-            spec = self.farm.printers[name].spec
-            for heater in heaters:
-                slug = heater_slug(heater)
-                limit = {"bed": spec.max_bed_celsius, "chamber": spec.max_chamber_celsius}.get(
-                    heater, spec.max_hotend_celsius
-                )
-                command = json.dumps({"action": "set_target", "heater": heater, "celsius": 0})
-                messages.append(
-                    (
-                        f"{prefix}/number/{node}/{slug}_target/config",
-                        base
-                        | {
-                            "name": f"{heater} target",
-                            "unique_id": f"{node}_{slug}_target_set",
-                            "command_topic": self.topic(name, "command"),
-                            # Home Assistant fills in the number: the same check as any command applies.
-                            "command_template": command.replace('"celsius": 0', '"celsius": {{ value }}'),
-                            "state_topic": self.topic(name, "telemetry"),
-                            "value_template": f"{{{{ value_json.heaters['{heater}'].target }}}}",
-                            "min": 0,
-                            "max": limit,
-                            "step": 1,
-                            "mode": "box",
-                            "unit_of_measurement": "°C",
-                            "device_class": "temperature",
-                        },
-                    )
-                )
-            for slug, preset in preset_slugs(self.settings.presets):
-                messages.append(
-                    (
-                        f"{prefix}/button/{node}/preset_{slug}/config",
-                        base
-                        | {
-                            "name": f"preset {preset.name}",
-                            "unique_id": f"{node}_preset_{slug}",
-                            "command_topic": self.topic(name, "command"),
-                            "payload_press": json.dumps({"action": "preset", "name": preset.name}),
-                        },
-                    )
-                )
-            messages.append(
-                (
-                    f"{prefix}/button/{node}/emergency_stop/config",
-                    base
-                    | {
-                        "name": "emergency stop",
-                        "unique_id": f"{node}_emergency_stop",
-                        "command_topic": self.topic(name, "command"),
-                        "payload_press": json.dumps({"action": "emergency_stop"}),
-                    },
-                )
-            )
-        messages.append(
-            (
-                f"{prefix}/sensor/{node}/print_progress/config",
-                base
-                | {
-                    "name": "print progress",
-                    "unique_id": f"{node}_print_progress",
-                    "state_topic": self.topic(name, "state"),
-                    "value_template": "{{ value_json.print.percent if value_json.print else 0 }}",
-                    "unit_of_measurement": "%",
-                    "state_class": "measurement",
-                },
-            )
-        )
-        messages.append(
-            (
-                f"{prefix}/sensor/{node}/prompt/config",
-                base
-                | {
-                    "name": "prompt",
-                    "unique_id": f"{node}_prompt",
-                    "state_topic": self.topic(name, "state"),
-                    # What the printer asks of a person (a filament change), else empty: an automation's trigger.
-                    "value_template": "{{ value_json.prompt.message if value_json.prompt else '' }}",
-                },
-            )
-        )
-        messages.append(
-            (
-                f"{prefix}/sensor/{node}/link/config",
-                base
-                | {
-                    "name": "link",
-                    "unique_id": f"{node}_link",
-                    "state_topic": self.topic(name, "state"),
-                    "value_template": "{{ value_json.link }}",
-                    "availability": [{"topic": self.bridge_availability_topic}],
-                },
-            )
-        )
-        return messages
+        """Home Assistant MQTT discovery for the printer `name` with `heaters` (see `discovery.discovery_messages`)."""
+        return discovery_messages(self.settings, self.farm.printers[name], heaters)
