@@ -555,8 +555,8 @@ class Service:
         path = Path(path_text)
         if not path.is_absolute():
             raise RpcError(INVALID_PARAMS, f"the service needs an absolute path, got {path_text[:200]!r}")
-        if session.remote and path.parent != self.uploads.folder:
-            # A path means a file on this machine: a client elsewhere prints what it uploaded, nothing else.
+        if session.remote and not self.uploads.is_finished(path):
+            # A path means a file on this machine: a client elsewhere prints a finished upload (never a `.part`).
             raise PermissionError("over TCP a print is a file uploaded first (the client's start_print does that)")
         timeout_s = param(params, "timeout_s", (int, float), None)
         if timeout_s is not None and not 0 < timeout_s <= MAX_TIMEOUT_S:
