@@ -506,10 +506,10 @@ def _one_line(exc: BaseException, secret: str) -> str:
 
 
 def _printable(text: str, secret: str) -> str:
-    """`text` without `secret`, control characters or anything past 160 characters."""
+    """`text` without `secret`, control characters or anything past 100 characters."""
     if secret:
         text = text.replace(secret, "<key>")
-    return _UNPRINTABLE.sub("?", text)[:160]
+    return _UNPRINTABLE.sub("?", text)[:100]
 
 
 class _OneLineLog(logging.LoggerAdapter):  # type: ignore[type-arg]  # generic only in typeshed, not at run time
@@ -548,7 +548,7 @@ class _OneLineLog(logging.LoggerAdapter):  # type: ignore[type-arg]  # generic o
         self._in_window += 1
         if self._in_window <= _LOG_BURST:
             # A client's bad request is a warning, not the service's error.
-            self.logger.log(min(level, logging.WARNING), "OctoPrint API: %s", text)
+            self.logger.log(min(level, logging.WARNING), "OctoPrint API: %s", text[:200])
         else:
             self._left_out += 1
 
