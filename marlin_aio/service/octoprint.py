@@ -125,7 +125,7 @@ class OctoPrintApi:
     @web.middleware
     async def _auth(self, request: web.Request, handler: Any) -> web.StreamResponse:
         given = request.headers.get("X-Api-Key") or request.query.get("apikey") or ""
-        if not hmac.compare_digest(given.encode(errors="surrogateescape"), self._key):
+        if not hmac.compare_digest(given.encode(errors="surrogatepass"), self._key):
             return _error(403, "Invalid API key")
         try:
             response: web.StreamResponse = await handler(request)
@@ -372,9 +372,12 @@ class OctoPrintApi:
             raise web.HTTPRequestEntityTooLarge(
                 max_size=self.uploads.max_bytes, actual_size=request.content_length or 0, text=str(exc)
             ) from None
-        except (UploadError, HttpProcessingError) as exc:
-            raise web.HTTPBadRequest(text=_one_line(exc, "")) from None
-        except ValueError as exc:  # aiohttp's multipart reader: a body that is not the form it claims
+        except UploadError as exc:
+            raise web.HTTPBadRequest(text=str(exc)) from None
+        except (
+            HttpProcessingError,
+            ValueError,
+        ) as exc:  # aiohttp's multipart reader: a body that is not the form it claims
             raise web.HTTPBadRequest(text=f"not a well-formed multipart form ({_one_line(exc, '')})") from None
         finally:
             if upload_id is not None:
@@ -384,7 +387,7 @@ class OctoPrintApi:
         if start:
             try:
                 await self._start(stored)
-            except web.HTTPException:
+            except (web.HTTPException, marlin_aio.MarlinError):
                 stored.unlink(missing_ok=True)  # another print won the race: refused, so nothing kept
                 if self.selected == stored:
                     self.selected = None
