@@ -99,7 +99,7 @@ async def test_home_assistants_client_reads_state_sets_targets_and_controls_a_pr
 def test_a_slicer_style_client_uploads_selects_and_starts(octo: tuple[Served, str], tmp_path: Path) -> None:
     _, url = octo
     with pytest.raises(RuntimeError):
-        OctoRest(url=url, apikey="wrong-key-wrong-key").job_info()  # /api/version is open; the rest is not
+        OctoRest(url=url, apikey="wrong-key-wrong-key").job_info()  # every route needs the key
     client = OctoRest(url=url, apikey=KEY)
     assert client.version["api"] == "0.1"
     source = tmp_path / "cube.gcode"

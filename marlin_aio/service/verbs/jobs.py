@@ -44,9 +44,8 @@ def check_printable(owner: Owner, path: Path, files: str) -> None:
     """
     if not path.is_absolute():
         raise RpcError(INVALID_PARAMS, f"the service needs an absolute path, got {str(path)[:200]!r}")
-    uploads = owner.uploads.folder
-    if files == "uploads" and (path.parent != uploads or path.name.startswith(".")):
-        # A path means a file on this machine: a client elsewhere prints what it uploaded (finished), nothing else.
+    if files == "uploads" and not owner.uploads.is_finished(path):
+        # A path means a file on this machine: a client elsewhere prints a finished upload (never a `.part`).
         raise PermissionError("over TCP a print is a file uploaded first (the client's start_print does that)")
     try:
         info = os.stat(path)  # stat, not open: opening a FIFO would wait for a writer
