@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import marlin_aio
 import marlin_aio.protocol
 from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
+from marlin_aio.aio.printhandle import FEED_GUARD, FeedGuard
 
 if TYPE_CHECKING:
     from marlin_aio.simulator import SimulatorServer
@@ -258,6 +259,9 @@ class Farm:
         self.wire_log: WireLog | None = None
         """Where every printer's wire goes, each line with the printer's name (set before `run`), or None."""
         self._group: asyncio.TaskGroup | None = None
+        # --- issue 33 life cycle hook: the service bounds each print's feed by its record (service.lifecycle)
+        self.feed_guard: Callable[[FarmPrinter, Path], FeedGuard] | None = None
+        """Makes the guard of each print started (None: prints are not bounded)."""
 
     async def run(self) -> None:
         """Supervise every printer until cancelled; one task each, named after its printer. The simulated
@@ -296,9 +300,12 @@ class Farm:
         # Marked before the first await: two print commands back to back (a double press, a redelivered message)
         # must not both pass the check above while the first one's M110 is on its way.
         farm_printer.print_starting = True
+        # --- issue 33 life cycle hook: the guard is found by the print's handle before its first line is fed
+        guard = FEED_GUARD.set(None if self.feed_guard is None else self.feed_guard(farm_printer, path))
         try:
             handle = await printer.start_print(path, send_ahead=send_ahead, timeout_s=timeout_s)
         finally:
+            FEED_GUARD.reset(guard)
             farm_printer.print_starting = False
         farm_printer.print_handle = handle
         farm_printer.print_file = path.name

@@ -185,6 +185,8 @@ class Service:
         self._announced: dict[str, object] = {}  # the last progress told per printer, not to repeat it
         self._requests_told: dict[str, object] = {}  # the last state of the firmware's requests told per printer
         self._cancels: dict[str, asyncio.Future[marlin_aio.PrintProgress]] = {}  # a cancel under way per printer
+        # --- issue 33 life cycle hook: prints an earlier service did not see to their end (service.lifecycle)
+        self.interrupted_jobs: dict[str, dict[str, object]] = {}
         self.methods: dict[str, Handler] = {
             "hello": self._hello,
             "printers": self._printers,
@@ -476,6 +478,7 @@ class Service:
         info = self._info(farm_printer)
         info["clients"] = len(self.sessions)
         info["dropped"] = session.dropped
+        info["interrupted_job"] = self.interrupted_jobs.get(farm_printer.name)  # issue 33 life cycle hook
         return info
 
     async def _subscribe(self, session: Session, params: dict[str, Any]) -> object:
