@@ -24,7 +24,7 @@ from rich.live import Live
 from rich.text import Text
 
 import marlin_aio
-from marlin_aio.protocol.printjob import STOPPED_BY_SERVICE
+from marlin_aio.protocol import STOPPED_BY_SERVICE
 
 from ..common.connect import ConnectOptions, Exit, exit_code_for, open_printer
 from ..common.keys import key_presses, on_stop_signals
@@ -270,9 +270,10 @@ async def _failed(
             # twice, so the resume starts after every line that may have run (a service bounds that by what it
             # told before it went away).
             may = max(handle.progress.may_have_run_through or 0, reached)
-            message += f"; line {reached} of {plan.path.name} surely ran"
-            if may > reached:
-                message += f", lines up to {may} may have run"
+            if "surely ran" not in message:  # a served print's error says it already (`ServedPrintHandle.orphaned`)
+                message += f"; line {reached} of {plan.path.name} surely ran"
+                if may > reached:
+                    message += f", lines up to {may} may have run"
             if may:
                 message += (
                     f" (once the printer is checked, go on with: marlin-temp print {plan.path.name} "

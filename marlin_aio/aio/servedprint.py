@@ -89,7 +89,7 @@ class ServedPrintHandle(PrintHandle):
             message = f"{error}: the service went away during the print of {self.file}; line {surely} surely ran"
             if may > surely:
                 message += f", lines up to {may} may have run"
-            message += f" (resume from line {may + 1})"
+            message += f": resume from line {may + 1}"
         self._done.set_exception(ConnectionLostError(message))
         self._done.exception()
 
