@@ -216,3 +216,51 @@ async def test_after_sigkill_mid_print_the_restarted_service_reports_the_job_and
         assert {key: h.target for key, h in reading.temperatures.heaters.items()} == {"T": 0.0, "B": 0.0}
         again.process.send_signal(signal.SIGTERM)
         assert await asyncio.wait_for(again.process.wait(), 30) == 0
+
+
+def test_a_bounded_job_feeds_no_line_past_its_bound_and_reports_the_bound_as_what_may_have_run() -> None:
+    from marlin_aio.protocol import PrintJob
+    from marlin_aio.protocol.rpc import progress_from_json, progress_to_json
+
+    job = PrintJob(["G1 X1", "; a comment", "G1 X2", "", "G1 X3", "G1 X4"])
+    job.feed_limit = 3
+    fed = [job.next_command(), job.next_command()]
+    assert [item[:2] for item in fed if item] == [("G1 X1", 1), ("G1 X2", 3)]
+    assert job.next_command() is None  # line 5 is past the bound: read, held, not fed
+    assert job.held_line == 5 and not job.exhausted
+    assert job.progress(0.0).may_have_run_through == 3  # the bound: lines up to it may go before the next report
+    job.feed_limit = 10
+    assert (job.next_command() or ())[:2] == ("G1 X3", 5)  # the held line, once the bound is past it
+    assert (job.next_command() or ())[:2] == ("G1 X4", 6)
+    assert job.next_command() is None and job.exhausted
+    assert job.progress(0.0).may_have_run_through == 6  # nothing more will be fed: the last line fed
+    # On the wire, and from a service that does not send it.
+    told = progress_to_json(job.progress(0.0))
+    assert progress_from_json(told).may_have_run_through == 6
+    del told["may_have_run_through"]
+    assert progress_from_json(told).may_have_run_through is None
+
+
+def test_an_unbounded_job_reports_the_last_line_fed() -> None:
+    from marlin_aio.protocol import PrintJob
+
+    job = PrintJob(["G1 X1", "G1 X2", "G1 X3"])
+    job.next_command()
+    job.next_command()
+    assert job.progress(0.0).may_have_run_through == 2
+
+
+def test_the_journal_keeps_one_owner_only_record_per_printer_replaced_whole(tmp_path: Path) -> None:
+    from marlin_aio.service.journal import JobRecord, Journal
+
+    journal = Journal(tmp_path / "jobs")
+    assert journal.read("a/b") is None
+    record = JobRecord("a/b", "part.gcode", "running", surely_run=10, may_have_run_through=210)
+    journal.write(record)
+    assert journal.read("a/b") == record
+    assert [p.name for p in (tmp_path / "jobs").iterdir()] == ["a%2Fb.json"]  # one file, no temporary left
+    assert journal.path_of("a/b").stat().st_mode & 0o777 == 0o600
+    assert record.resume_line == 211  # not drained: after every line that may have run
+    assert record.with_state("stopped").resume_line == 11  # drained to its end: the next line exactly
+    journal.path_of("a/b").write_text("{not json")
+    assert journal.read("a/b") is None  # unreadable: ignored (and logged), never a crash at start
