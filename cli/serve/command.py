@@ -24,6 +24,7 @@ from marlin_aio.aio import WireLog
 from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
 from marlin_aio.service import (
     TOKEN_ENV,
+    Lifecycle,
     OctoPrintSettings,
     Service,
     ServiceRunningError,
@@ -31,7 +32,6 @@ from marlin_aio.service import (
     check_private_folder,
     default_socket_path,
 )
-from marlin_aio.service.lifecycle import Lifecycle
 
 from ..common.connect import Exit, UsageProblem
 from .logs import ServeLogs
