@@ -92,7 +92,9 @@ async def service(tmp_path: Path, port: str) -> AsyncIterator[Service]:
     lines: list[str] = []
     served = Service(socket, process, lines, asyncio.create_task(_read_lines(process.stderr, lines)))
     try:
-        await until(lambda: bool(served.said(": connected:")) or served.reader.done(), "the service to connect")
+        await until(
+            lambda: bool(served.said(": connected:")) or served.reader.done(), "the service to connect", limit_s=150
+        )
         assert served.said(": connected:"), lines
         yield served
     finally:
@@ -130,7 +132,9 @@ async def _start_print(served: Service, gcode: Path, tmp_path: Path) -> asyncio.
         except (OSError, ValueError, KeyError):
             return 0
 
-    await until(lambda: surely_run() > 300 or printing.returncode is not None, "the print to run 300 lines")
+    await until(
+        lambda: surely_run() > 300 or printing.returncode is not None, "the print to run 300 lines", limit_s=150
+    )
     assert printing.returncode is None
     # The record is of the running print, owner-only.
     assert record.stat().st_mode & 0o777 == 0o600
@@ -201,7 +205,7 @@ async def test_after_sigkill_mid_print_the_restarted_service_reports_the_job_and
     assert told > ran, output
 
     async with service(tmp_path, sim_port) as again:
-        await until(lambda: bool(again.said("heaters_off")), "the heaters turned off")
+        await until(lambda: bool(again.said("heaters_off")), "the heaters turned off", limit_s=150)
         reported = again.said("interrupted_job")
         assert len(reported) == 1, again.lines
         async with raw_client(again) as client:  # type: ignore[arg-type]
