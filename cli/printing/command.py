@@ -24,6 +24,7 @@ from rich.live import Live
 from rich.text import Text
 
 import marlin_aio
+from marlin_aio.protocol import STOPPED_BY_SERVICE
 
 from ..common.connect import ConnectOptions, Exit, UsageProblem, exit_code_for, open_printer
 from ..common.keys import key_presses, on_stop_signals
@@ -220,6 +221,20 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                     highlight=False,
                 )
                 return Exit.HALTED
+            if (
+                outcome is _Outcome.DONE
+                and final.state is marlin_aio.PrintState.CANCELLED
+                and (final.cancelled_by or "").startswith(STOPPED_BY_SERVICE)
+            ):
+                # The service running the print stopped: it ran the cancel script itself, and every line in flight
+                # was answered, so the line after the last one acknowledged is exactly where to go on.
+                errors.print(
+                    f"{final.cancelled_by}: it cancelled the print after line {final.last_source_line} "
+                    f"({final.lines_acked} commands done) and ran its cancel script; once it runs again, go on with: "
+                    f"marlin-temp print {plan.path.name} --from-line {final.last_source_line + 1} (see --help)",
+                    highlight=False,
+                )
+                return Exit.INTERRUPTED
             if outcome is _Outcome.DONE and final.state is marlin_aio.PrintState.CANCELLED:
                 # The printer asked (//action:cancel, from its screen): a cancel like ours, the heaters with it.
                 said = await _cool_down(printer, script)
@@ -279,11 +294,18 @@ async def _failed(
         message += f"; the print reached line {reached} of {plan.path.name}; Marlin turned its heaters off"
     else:
         if isinstance(exc, marlin_aio.ConnectionLostError):
-            message += f"; the print reached line {reached} of {plan.path.name}"
-            if reached:
+            # Lines sent and never answered may have run: going on after the last one acknowledged could run one
+            # twice, so the resume starts after every line that may have run (a service bounds that by what it
+            # told before it went away).
+            may = max(handle.progress.may_have_run_through or 0, reached)
+            if "surely ran" not in message:  # a served print's error says it already (`ServedPrintHandle.orphaned`)
+                message += f"; line {reached} of {plan.path.name} surely ran"
+                if may > reached:
+                    message += f", lines up to {may} may have run"
+            if may:
                 message += (
                     f" (once the printer is checked, go on with: marlin-temp print {plan.path.name} "
-                    f"--from-line {reached + 1}; see --help)"
+                    f"--from-line {may + 1}; see --help)"
                 )
         silent = isinstance(exc, marlin_aio.ConnectionLostError | TimeoutError)
         # Not turned off here: a failed print may be resumed (--from-line), with the bed kept hot meanwhile.

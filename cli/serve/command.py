@@ -1,5 +1,10 @@
 """`marlin-temp serve` at work: the service runs until --duration, SIGTERM (systemd's stop) or Ctrl-C; every
-printer's events are printed as they happen, one line each."""
+printer's events are printed as they happen, one line each.
+
+SIGTERM and Ctrl-C end the prints first (`marlin_aio.service.lifecycle`: stop feeding, the cancel script, the record,
+the clients told), within a bound; a second one leaves at once. --duration and a failure of the service itself end
+without that (the prints then fail as their link closes, and their record says where a restart should resume).
+"""
 
 from __future__ import annotations
 
@@ -19,6 +24,7 @@ from marlin_aio.aio import WireLog
 from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
 from marlin_aio.service import (
     TOKEN_ENV,
+    Lifecycle,
     OctoPrintSettings,
     Service,
     ServiceRunningError,
@@ -74,6 +80,8 @@ class ServeOptions:
     log_interval_s: float = 1.0
     wire_log: WireLog | None = None
     """Every printer's serial lines, each with the printer's name (--wire-log), or None."""
+    leave_heaters: bool = False
+    """After a restart, leave a printer that heats with no print as it is (--leave-heaters-after-restart)."""
 
 
 def default_log_dir() -> Path:
@@ -101,6 +109,10 @@ async def run_serve(
     def show(event: FarmEvent) -> None:
         stamp = time.strftime("%H:%M:%S", time.localtime(event.time_s))
         errors.print(f"{stamp} {escape(event.printer)}: {escape(event.kind)}: {escape(event.message)}")
+        if lifecycle is not None:
+            lifecycle.on_event(event)
+
+    lifecycle: Lifecycle | None = None
 
     options = options or ServeOptions()
     octoprint = None
@@ -119,10 +131,28 @@ async def run_serve(
     except ValueError as exc:
         raise UsageProblem(str(exc)) from None
     service.farm.wire_log = options.wire_log
+    try:
+        # The socket first: a record of a print is an earlier service's only when no service runs here now.
+        await service.check_socket()
+    except ServiceRunningError as exc:
+        raise UsageProblem(str(exc), Exit.USAGE) from None
+    lifecycle = Lifecycle(service, leave_heaters=options.leave_heaters)
+    lifecycle.install()
     stopped = asyncio.Event()
+    signals: list[str] = []  # the signals received, in order
+    leave_now: list[asyncio.Task[None]] = []  # the stop of the prints, cancelled by a second signal
+
+    def on_signal(name: str) -> None:
+        signals.append(name)
+        stopped.set()
+        if len(signals) > 1:
+            for task in leave_now:
+                task.cancel()
+
     loop = asyncio.get_running_loop()
     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):  # not the main thread, or no signals
-        loop.add_signal_handler(signal.SIGTERM, stopped.set)
+        for number in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(number, on_signal, number.name)
     started = time.monotonic()
 
     async def announce() -> None:
@@ -155,6 +185,8 @@ async def run_serve(
     try:
         async with asyncio.timeout(duration_s):
             await asyncio.wait([running, waiters[0]], return_when=asyncio.FIRST_COMPLETED)
+        if signals and not running.done():
+            await _stop_prints(lifecycle, signals[0], errors, leave_now)
     except TimeoutError:
         pass  # --duration is up
     finally:
@@ -164,7 +196,8 @@ async def run_serve(
             task.cancel()
         outcome = (await asyncio.gather(running, *waiters, return_exceptions=True))[0]
         with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-            loop.remove_signal_handler(signal.SIGTERM)
+            for number in (signal.SIGTERM, signal.SIGINT):
+                loop.remove_signal_handler(number)
     if isinstance(outcome, ServiceRunningError):
         raise UsageProblem(str(outcome), Exit.USAGE)
     if isinstance(outcome, OSError) and outcome.errno in (98, 13) and (octoprint or tcp):  # EADDRINUSE, EACCES
@@ -174,6 +207,27 @@ async def run_serve(
     if isinstance(outcome, Exception):
         raise outcome
     errors.print(f"serve: stopped after {time.monotonic() - started:.0f} s", style="dim")
+    if signals and signals[0] == "SIGINT":
+        raise KeyboardInterrupt  # Ctrl-C ends as everywhere else: "interrupted", exit code 130
+
+
+async def _stop_prints(lifecycle: Lifecycle, why: str, errors: Console, leave_now: list[asyncio.Task[None]]) -> None:
+    """End the running prints as the service stops (see `Lifecycle.stop`); a second signal leaves at once."""
+    farm = lifecycle.service.farm
+    printing = [fp.name for fp in farm.printers.values() if fp.print_handle and not fp.print_handle.finished]
+    if printing:
+        errors.print(
+            f"serve: {why}: stopping the print on {escape(', '.join(printing))} (cancel script, then exit; at most "
+            f"{lifecycle.stop_timeout_s:g} s; {why} again to leave at once)",
+            style="dim",
+        )
+    stop = asyncio.create_task(lifecycle.stop(why, lambda line: errors.print(f"serve: {escape(line)}")), name="stop")
+    leave_now.append(stop)
+    await asyncio.wait([stop])
+    if stop.cancelled():
+        errors.print("serve: left at once: the prints were not stopped; their heaters may be on", style="bold red")
+    elif stop.exception() is not None:
+        raise stop.exception()  # type: ignore[misc]
 
 
 def specs_names(specs: list[PrinterSpec]) -> list[str]:

@@ -31,6 +31,11 @@ SERVE_HELP = (
     "and polled at --interval; prints started through the service run inside it, so a print survives the "
     "terminal or SSH session that started it."
     "\n\n"
+    "Stopping it (SIGTERM, systemd's stop, or Ctrl-C) mid-print stops feeding, runs the cancel script (hotend, "
+    "bed and fan off), records where the print stopped and tells its clients the line to resume from, then exits "
+    "(within 30 s; the signal again leaves at once). A service that was killed says at its next start which print it "
+    "was running and where to resume, and turns off the heaters of a printer still heating with no print."
+    "\n\n"
     "Where things live: the socket is $MARLIN_SERVE_SOCKET, else $XDG_RUNTIME_DIR/marlin-temp/serve.sock, else "
     "/tmp/marlin-temp-UID/serve.sock (--socket overrides), in a folder only you can enter; beside it serve.json "
     "names the ports held, uploads/ the prints sent as content, and api-key the OctoPrint API's key if one was "
@@ -100,6 +105,15 @@ def serve(
         float | None, typer.Option("--duration", help="Stop after this many seconds. Default: until Ctrl-C or SIGTERM.")
     ] = None,
     wire_log: FarmWireLogOption = None,
+    leave_heaters: Annotated[
+        bool,
+        typer.Option(
+            "--leave-heaters-after-restart",
+            help="When the last service ended mid-print without stopping it (killed, or the machine went down), "
+            "leave a printer that still heats with no print as it is, and only say so. Default: turn its heaters "
+            "and fan off once it connects.",
+        ),
+    ] = False,
 ) -> None:
     """Own the printers and share them on a local socket (the help text is `SERVE_HELP`)."""
     from marlin_aio.farm.supervisor import PrinterSpec
@@ -139,6 +153,7 @@ def serve(
         log_dir=None if no_log else (log_dir or default_log_dir()),
         log_interval_s=log_interval,
         wire_log=checked_wire_log(wire_log),
+        leave_heaters=leave_heaters,
     )
     run(run_serve(specs, socket, duration, error_console(), options))
 

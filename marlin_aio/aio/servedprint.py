@@ -75,12 +75,23 @@ class ServedPrintHandle(PrintHandle):
             self._done.set_result(self._progress)
 
     def orphaned(self, error: MarlinError) -> None:
-        """The connection to the service ended: the print goes on there, but this handle can follow it no more."""
-        if not self._done.done():
-            self._done.set_exception(
-                ConnectionLostError(f"{error} (the print goes on in the service: `marlin-temp serve` shows it)")
-            )
-            self._done.exception()
+        """The connection to the service ended. Closed by this client, the print goes on there; else the service
+        went away (stopped, killed, or stuck), and with it, most likely, the print: the error says how far it may
+        have run, from the last bound the service told (it sends no line past it before telling the next one)."""
+        if self._done.done():
+            return
+        if str(error).endswith(" was closed"):  # this client's own close (`RpcClient.aclose`)
+            message = f"{error} (the print goes on in the service: `marlin-temp serve` shows it)"
+        else:
+            progress = self._progress
+            surely = progress.last_source_line
+            may = max(progress.may_have_run_through or 0, surely)
+            message = f"{error}: the service went away during the print of {self.file}; line {surely} surely ran"
+            if may > surely:
+                message += f", lines up to {may} may have run"
+            message += f": resume from line {may + 1}"
+        self._done.set_exception(ConnectionLostError(message))
+        self._done.exception()
 
     def pause(self) -> None:
         """Ask the service to stop feeding lines (what is in flight completes)."""

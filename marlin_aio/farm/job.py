@@ -91,6 +91,8 @@ class Job:
     """Who cancelled it (a door and client, or `printer asked: ...`)."""
     interrupted_at: PrintProgress | None = None
     """The progress when the service stopped under it (an interrupted job's last word)."""
+    recorded_lines: tuple[int, int] | None = None
+    """(surely run, may have run) from the service's record, for a job known only from it (interrupted)."""
     cancel_task: asyncio.Future[None] | None = field(default=None, repr=False)
     """The one cancel under way or done (its script runs once, whoever asks)."""
     _cancelling: bool = False
@@ -143,11 +145,23 @@ class Job:
         self.error = why
         self.ended(None)
 
+    @classmethod
+    def interrupted_from_record(
+        cls, printer: str, file: str, why: str, *, started_s: float, surely_run_line: int, may_have_run_line: int
+    ) -> Job:
+        """The job an earlier service left unfinished, as its record tells it (a restarted service reports it)."""
+        job = cls(printer, file, Path(file), "an earlier service", started_s=started_s)
+        job.recorded_lines = (surely_run_line, may_have_run_line)
+        job.interrupted(why)
+        return job
+
     @property
     def surely_run_line(self) -> int:
         """The file line of the last command the printer acknowledged: it ran."""
         progress = self.progress
-        return 0 if progress is None else progress.last_source_line
+        if progress is None:
+            return 0 if self.recorded_lines is None else self.recorded_lines[0]
+        return progress.last_source_line
 
     @property
     def may_have_run_line(self) -> int:
@@ -155,9 +169,9 @@ class Job:
         may have run. A resume starts after it (`resume_line`), so no line runs twice."""
         progress = self.progress
         if progress is None:
-            return 0
-        # Progress told by a service with the written bound (`last_source_line_sent`); else what was acknowledged.
-        return max(progress.last_source_line, int(getattr(progress, "last_source_line_sent", 0) or 0))
+            return 0 if self.recorded_lines is None else self.recorded_lines[1]
+        # The bound the feed never passes (every line written is at most it); else what was acknowledged.
+        return max(progress.last_source_line, progress.may_have_run_through or 0)
 
     @property
     def resume_line(self) -> int:

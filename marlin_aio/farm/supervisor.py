@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import marlin_aio
 import marlin_aio.protocol
 from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
+from marlin_aio.aio.printhandle import FEED_GUARD, FeedGuard
 from marlin_aio.farm.job import DEFAULT_END_SCRIPT, Job, cancel_script_for
 
 if TYPE_CHECKING:
@@ -269,6 +270,9 @@ class Farm:
         """Where every printer's wire goes, each line with the printer's name (set before `run`), or None."""
         self._group: asyncio.TaskGroup | None = None
         self._cancels: dict[str, asyncio.Future[None]] = {}  # a cancel under way per printer
+        # --- issue 33 life cycle hook: the service bounds each print's feed by its record (service.lifecycle)
+        self.feed_guard: Callable[[FarmPrinter, Path], FeedGuard] | None = None
+        """Makes the guard of each print started (None: prints are not bounded)."""
 
     async def run(self) -> None:
         """Supervise every printer until cancelled; one task each, named after its printer. The simulated
@@ -332,6 +336,8 @@ class Farm:
             remove_file=remove_file,
         )
         farm_printer.job = job
+        # --- issue 33 life cycle hook: the guard is found by the print's handle before its first line is fed
+        guard = FEED_GUARD.set(None if self.feed_guard is None else self.feed_guard(farm_printer, path))
         try:
             job.handle = await printer.start_print(
                 path, send_ahead=send_ahead, timeout_s=timeout_s, window_bytes=window_bytes
@@ -339,6 +345,8 @@ class Farm:
         except BaseException as exc:
             job.ended(one_line(redact(str(exc))) or type(exc).__name__)
             raise
+        finally:
+            FEED_GUARD.reset(guard)
         self._group.create_task(self._follow_print(farm_printer, job), name=f"print on {farm_printer.name}")
         self.emit(farm_printer, "print_started", f"printing {job.file} (started by {started_by})")
         return job

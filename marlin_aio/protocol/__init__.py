@@ -63,7 +63,7 @@ from marlin_aio.protocol.motion import (
     move_commands,
 )
 from marlin_aio.protocol.parsing import EventParser, classify_line, parse_endstops, parse_position
-from marlin_aio.protocol.printjob import PrintJob, PrintProgress, PrintState, check_command
+from marlin_aio.protocol.printjob import STOPPED_BY_SERVICE, PrintJob, PrintProgress, PrintState, check_command
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import (
@@ -88,6 +88,7 @@ __all__ = [
     "MAX_COMMAND_BYTES",
     "MAX_DISTANCE_MM",
     "MAX_FEEDRATE_MM_MIN",
+    "STOPPED_BY_SERVICE",
     "BusyKeepalive",
     "Capability",
     "Command",

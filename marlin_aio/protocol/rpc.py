@@ -302,6 +302,7 @@ def progress_to_json(progress: PrintProgress) -> dict[str, Any]:
         value[name] = getattr(progress, name)
     value["paused_by"] = progress.paused_by
     value["cancelled_by"] = progress.cancelled_by
+    value["may_have_run_through"] = progress.may_have_run_through
     return value
 
 
@@ -316,11 +317,14 @@ def progress_from_json(value: object) -> PrintProgress:
         fields = {name: value[name] for name in _PROGRESS_FIELDS}
         # Optional: a service from before the firmware's requests were served does not send them.
         paused_by, cancelled_by = value.get("paused_by"), value.get("cancelled_by")
+        # Optional too: a service from before the feed was bounded does not say how far lines may have run.
+        may_have_run_through = value.get("may_have_run_through")
         return PrintProgress(
             state=PrintState(value["state"]),
             **fields,
             paused_by=None if paused_by is None else str(paused_by),
             cancelled_by=None if cancelled_by is None else str(cancelled_by),
+            may_have_run_through=None if may_have_run_through is None else int(may_have_run_through),
         )
     except (AssertionError, KeyError, TypeError, ValueError):
         raise RpcError(INVALID_PARAMS, f"not a print's progress: {str(value)[:200]}") from None

@@ -1,11 +1,13 @@
 """`marlin-temp serve`: one process owns the printers and keeps them connected; local clients share them over a
 Unix socket (JSON-RPC 2.0, `marlin_aio.protocol.rpc`), and `marlin_aio.connect("serve:NAME")` is such a client
-with `Printer`'s API. `server` is the service, `history` what it keeps for clients that join later."""
+with `Printer`'s API. `server` is the service, `history` what it keeps for clients that join later,
+`lifecycle` how it ends its prints and what it does after an end it did not choose (`journal`: its records)."""
 
 from __future__ import annotations
 
 from marlin_aio.aio.servicepaths import SOCKET_ENV, TOKEN_ENV, default_socket_path, service_holding
 from marlin_aio.service.history import ConsoleLine, History
+from marlin_aio.service.lifecycle import Lifecycle
 from marlin_aio.service.server import (
     TOPICS,
     OctoPrintSettings,
@@ -21,6 +23,7 @@ __all__ = [
     "TOPICS",
     "ConsoleLine",
     "History",
+    "Lifecycle",
     "OctoPrintSettings",
     "Service",
     "ServiceRunningError",

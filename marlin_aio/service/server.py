@@ -195,6 +195,8 @@ class Service:
         self._requests_told: dict[str, object] = {}  # the last state of the firmware's requests told per printer
         self.presets = tuple(presets)
         self.sent_files: dict[Path, str] = {}  # prints sent as lines: removed when their job ends
+        # Prints an earlier service did not see to their end, by printer (`marlin_aio.service.lifecycle`).
+        self.interrupted_jobs: dict[str, dict[str, object]] = {}
         # The socket's door: every verb of the table it is offered on, called with the session as the caller.
         self.methods: dict[str, Handler] = {
             name: self._door(name) for name, entry in verbs.VERBS.items() if entry.doors & {"socket", "tcp"}

@@ -151,6 +151,8 @@ class Owner(Protocol):
     socket_path: Path
     sent_files: dict[Path, str]
     """Files the service made of prints sent as lines (removed when their job ends), with their given names."""
+    interrupted_jobs: dict[str, dict[str, object]]
+    """By printer: the print an earlier service was running when it was killed or stopped (its own record)."""
 
     @property
     def clients(self) -> int:
@@ -183,6 +185,7 @@ class FarmOwner:
         self.histories = {name: History() for name in farm.printers}
         self.socket_path = Path("(no socket)")
         self.sent_files: dict[Path, str] = {}
+        self.interrupted_jobs: dict[str, dict[str, object]] = {}
 
     @property
     def clients(self) -> int:

@@ -60,6 +60,8 @@ def info(owner: Owner, farm_printer: FarmPrinter) -> dict[str, Any]:
         "latest": None if latest is None else reading_to_json(latest),
         "print": farm_printer.print_status(),
         "job": None if job is None else job.to_json(),
+        # A print the service before this one was running when it was killed or stopped, from its own record.
+        "interrupted_job": owner.interrupted_jobs.get(farm_printer.name),
         # The open prompt, the wait for the user, the last pause/resume/cancel/disconnect request.
         **{key: value for key, value in requests.items() if key != "request"},
     }
