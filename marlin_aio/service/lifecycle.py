@@ -134,7 +134,8 @@ class Lifecycle:
             farm_printer = self.service.farm.printers[event.printer]
             record = self.records.get(event.printer)
             handle = farm_printer.print_handle
-            if record is not None and handle is not None and handle.finished:
+            # A print the stop ended keeps its "stopped" (its resume line is exact), whichever is told first.
+            if record is not None and record.state != "stopped" and handle is not None and handle.finished:
                 self._end_record(record, handle.progress, event.message)
 
     def tell(self, printer: str, file: str, progress: PrintProgress) -> None:
