@@ -50,7 +50,7 @@ from marlin_aio.protocol.rpc import (
     requests_to_json,
 )
 from marlin_aio.service.history import History
-from marlin_aio.service.session import Handler, Session, param
+from marlin_aio.service.session import MAX_AUTHENTICATING, MAX_TCP_CLIENTS, Encoded, Handler, Session, param
 from marlin_aio.service.uploads import Uploads
 
 __all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError", "TcpSettings", "check_private_folder"]
@@ -64,8 +64,6 @@ MAX_HISTORY_READINGS = 3_000
 #: The name of a print a client sent as lines (a number is added to keep each), and how many of them are kept.
 CLIENT_UPLOAD_NAME = "sent.gcode"
 KEEP_CLIENT_UPLOADS = 10
-#: TCP clients at once (the Unix socket's are the owner's own: not bounded).
-MAX_TCP_CLIENTS = 64
 #: The longest timeout a request may give a command (a G28 of a large printer takes minutes, not days).
 MAX_TIMEOUT_S = 24 * 3600.0
 #: How often a running print's progress is told to its subscribers.
@@ -294,9 +292,16 @@ class Service:
         os.replace(temporary, self.registry_path)
 
     async def _tcp_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, token: str) -> None:
-        if sum(session.remote for session in self.sessions) >= MAX_TCP_CLIENTS:
+        if sum(session.remote and not session.authenticating for session in self.sessions) >= MAX_TCP_CLIENTS:
             writer.transport.abort()  # a flood of connections: the ones over the bound are not even read
             return
+        waiting = [session for session in self.sessions if session.authenticating]
+        if len(waiting) >= MAX_AUTHENTICATING:
+            # The one waiting longest makes room: a client with the token authenticates with its first line, so
+            # only clients without it are ever old here, however many of them connect.
+            oldest = min(waiting, key=lambda session: session.number)
+            _log.warning("client %d: %d clients wait to authenticate: disconnected", oldest.number, len(waiting))
+            oldest.close(abort=True)
         await self._client(reader, writer, token)
 
     async def _client(
@@ -496,15 +501,10 @@ class Service:
         farm_printer = self._printer_of(params)
         seconds = float(param(params, "seconds", (int, float), 300.0))
         history = self.histories[farm_printer.name]
-        readings = history.readings(seconds)
-        if len(readings) > MAX_HISTORY_READINGS:
-            # Evenly thinned, so any span fits one message (an hour at 10 Hz would not).
-            step = len(readings) / MAX_HISTORY_READINGS
-            readings = [readings[int(index * step)] for index in range(MAX_HISTORY_READINGS)]
-        return {
-            "readings": [reading_to_json(r) for r in readings],
-            "console": [{"direction": c.direction, "text": c.text, "time_s": c.time_s} for c in history.console],
-        }
+        # Evenly thinned, so any span fits one message (an hour at 10 Hz would not); made of each reading's and
+        # line's JSON made once, so asking again and again costs the loop a join, not an encoding (`history`).
+        readings = await history.readings_json(seconds, MAX_HISTORY_READINGS)
+        return Encoded(b'{"readings":' + readings + b',"console":' + await history.console_json() + b"}")
 
     async def _send(self, session: Session, params: dict[str, Any]) -> object:
         farm_printer = self._printer_of(params)
