@@ -255,9 +255,13 @@ class Session:
             self.take(line)
         return False
 
+    @property
+    def unread_bytes(self) -> int:
+        """Bytes of answers and notifications written for the client and not yet taken by its socket."""
+        return self.queued_bytes + self.writer.transport.get_write_buffer_size()
+
     def _backlogged(self) -> bool:
-        unread = self.queued_bytes + self.writer.transport.get_write_buffer_size()
-        return unread > UNREAD_BOUND_BYTES or len(self.queue) >= CLIENT_QUEUE_MESSAGES // 2
+        return self.unread_bytes > UNREAD_BOUND_BYTES or len(self.queue) >= CLIENT_QUEUE_MESSAGES // 2
 
     async def _caught_up(self) -> None:
         """Wait until the client has read its backlog down to the bound (or is let go).
