@@ -50,7 +50,15 @@ from marlin_aio.protocol.rpc import (
     requests_to_json,
 )
 from marlin_aio.service.history import History
-from marlin_aio.service.session import MAX_AUTHENTICATING, MAX_TCP_CLIENTS, Encoded, Handler, Session, param
+from marlin_aio.service.session import (
+    MAX_AUTHENTICATING,
+    MAX_TCP_CLIENTS,
+    Encoded,
+    Handler,
+    Session,
+    param,
+    tcp_clients,
+)
 from marlin_aio.service.uploads import Uploads
 
 __all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError", "TcpSettings", "check_private_folder"]
@@ -292,7 +300,7 @@ class Service:
         os.replace(temporary, self.registry_path)
 
     async def _tcp_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, token: str) -> None:
-        if sum(session.remote and not session.authenticating for session in self.sessions) >= MAX_TCP_CLIENTS:
+        if tcp_clients(self.sessions) >= MAX_TCP_CLIENTS:
             writer.transport.abort()  # a flood of connections: the ones over the bound are not even read
             return
         waiting = [session for session in self.sessions if session.authenticating]

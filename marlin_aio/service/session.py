@@ -14,6 +14,9 @@ Each client gets its own share and no more:
   without the token never locks out one that has it (which authenticates with its first line).
 - A client that ends its sending side (`printf ... | socat`) still gets the answers to what it sent; one that
   closed altogether (found out when writing to it fails) has its requests cancelled.
+
+A client that reads nothing waits for itself: even its emergency stop is read only once it has read its backlog
+(the library's client reads all the time; an emergency stop goes out at once from any other client).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import json
 import logging
 import select
 from collections import deque
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -57,6 +60,7 @@ __all__ = [
     "ServiceLike",
     "Session",
     "param",
+    "tcp_clients",
 ]
 
 _log = logging.getLogger("marlin_aio.service")
@@ -366,7 +370,7 @@ class Session:
         if not hmac.compare_digest(given.encode("utf-8", "surrogatepass"), self._token.encode()):
             _log.warning("client %d gave a wrong token: disconnected", self.number)
             return error_to_json(RpcError(INVALID_REQUEST, "wrong token"))
-        if sum(session.remote and not session.authenticating for session in self.service.sessions) >= MAX_TCP_CLIENTS:
+        if tcp_clients(self.service.sessions) >= MAX_TCP_CLIENTS:
             # Counted here, not at connect: clients waiting to authenticate have a bound of their own.
             _log.warning("client %d: already %d TCP clients: disconnected", self.number, MAX_TCP_CLIENTS)
             return error_to_json(RpcError(INVALID_REQUEST, f"busy: {MAX_TCP_CLIENTS} TCP clients are connected"))
@@ -411,6 +415,11 @@ class Session:
                 data = encode_message(response(None, error=unanswerable))  # the id itself was too big to echo
         self.answered += 1
         self.push(data, droppable=False)
+
+
+def tcp_clients(sessions: Iterable[Session]) -> int:
+    """How many of `sessions` are TCP clients let in: authenticated, and not being let go."""
+    return sum(session.remote and not session.closing and not session.authenticating for session in sessions)
 
 
 def _encoded_response(request_id: object, result: Encoded) -> bytes:
