@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import json
 import os
 import statistics
 import sys
@@ -28,7 +29,12 @@ from pathlib import Path
 import marlin_aio
 from benchmarks._procs import UNPACED, simulator
 from benchmarks.serve import serving
-from marlin_aio.protocol import rpc
+
+
+def _history_request(number: int) -> bytes:
+    # By hand, as a program in any language would: the service's wire format is JSON-RPC 2.0, one object a line.
+    request = {"jsonrpc": "2.0", "id": number, "method": "history", "params": {"printer": "bench", "seconds": 3600}}
+    return json.dumps(request).encode() + b"\n"
 
 
 async def _round_trips_s(printer: marlin_aio.Printer, seconds: float) -> list[float]:
@@ -45,7 +51,7 @@ async def _round_trips_s(printer: marlin_aio.Printer, seconds: float) -> list[fl
 async def _flooding(socket: str) -> AsyncIterator[list[int]]:
     """The hostile client, for the block: history requests written as fast as the service takes them."""
     written = [0]
-    request = rpc.encode_message(rpc.request(1, "history", {"printer": "bench", "seconds": 3600}))
+    request = _history_request(1)
 
     async def flood() -> None:
         while True:  # reconnecting if the service lets it go
@@ -70,13 +76,13 @@ async def _flooding(socket: str) -> AsyncIterator[list[int]]:
 
 async def _history_s(socket: str) -> tuple[float, int]:
     """One `history` answer's time asked alone (median of 20) and its size in bytes."""
-    reader, writer = await asyncio.open_unix_connection(socket, limit=rpc.MAX_MESSAGE_BYTES)
+    reader, writer = await asyncio.open_unix_connection(socket, limit=4 << 20)
     times = []
     size = 0
     try:
         for number in range(20):
             start = time.perf_counter()
-            writer.write(rpc.encode_message(rpc.request(number, "history", {"printer": "bench", "seconds": 3600})))
+            writer.write(_history_request(number))
             while '"id"' not in (line := (await reader.readline()).decode()):
                 pass  # a notification (`alive`)
             times.append(time.perf_counter() - start)

@@ -17,6 +17,9 @@ Each client gets its own share and no more:
 
 A client that reads nothing waits for itself: even its emergency stop is read only once it has read its backlog
 (the library's client reads all the time; an emergency stop goes out at once from any other client).
+
+Over 400 lines because a client's reading, its writing, its bounds and the dispatch of its requests all turn on
+the same few fields (its queue, its requests under way, its deadline): apart, each part would reach into the others.
 """
 
 from __future__ import annotations
