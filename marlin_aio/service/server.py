@@ -52,7 +52,7 @@ from marlin_aio.protocol.rpc import (
 )
 from marlin_aio.service import verbs
 from marlin_aio.service.history import History
-from marlin_aio.service.session import Handler, Session
+from marlin_aio.service.session import MAX_AUTHENTICATING, MAX_TCP_CLIENTS, Handler, Session, tcp_clients
 from marlin_aio.service.uploads import Uploads
 from marlin_aio.service.verbs import Caller, Door
 from marlin_aio.service.verbs.feeds import TOPICS
@@ -61,8 +61,6 @@ __all__ = ["TOPICS", "OctoPrintSettings", "Service", "ServiceRunningError", "Tcp
 
 _log = logging.getLogger("marlin_aio.service")
 
-#: TCP clients at once (the Unix socket's are the owner's own: not bounded).
-MAX_TCP_CLIENTS = 64
 #: How often a running print's progress is told to its subscribers.
 PROGRESS_INTERVAL_S = 0.5
 
@@ -291,9 +289,16 @@ class Service:
         os.replace(temporary, self.registry_path)
 
     async def _tcp_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, token: str) -> None:
-        if sum(session.remote for session in self.sessions) >= MAX_TCP_CLIENTS:
+        if tcp_clients(self.sessions) >= MAX_TCP_CLIENTS:
             writer.transport.abort()  # a flood of connections: the ones over the bound are not even read
             return
+        waiting = [session for session in self.sessions if session.authenticating]
+        if len(waiting) >= MAX_AUTHENTICATING:
+            # The one waiting longest makes room: a client with the token authenticates with its first line, so
+            # only clients without it are ever old here, however many of them connect.
+            oldest = min(waiting, key=lambda session: session.number)
+            _log.warning("client %d: %d clients wait to authenticate: disconnected", oldest.number, len(waiting))
+            oldest.close(abort=True)
         await self._client(reader, writer, token)
 
     async def _client(

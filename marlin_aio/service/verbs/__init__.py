@@ -40,12 +40,14 @@ __all__ = [
     "Arg",
     "Caller",
     "Door",
+    "Encoded",
     "FarmOwner",
     "Owner",
     "Queue",
     "Subscriber",
     "Verb",
     "call",
+    "heavy_verbs",
     "urgent_verbs",
     "verb",
 ]
@@ -77,6 +79,9 @@ class Queue(Enum):
     is under way: an emergency stop, a pause, a cancel, the answer that ends an M600 the queue waits behind)."""
     ORDERED = "ordered"
     """In order with the caller's other requests, within the door's bound of requests under way."""
+    HEAVY = "heavy"
+    """A big answer (a history: hundreds of kilobytes): one at a time per client, and only once it has read what
+    it was answered before, so a client piling them up delays nobody but itself."""
 
 
 class _Required:
@@ -260,6 +265,18 @@ def verb(
         return handler
 
     return register
+
+
+@dataclass(frozen=True, slots=True)
+class Encoded:
+    """A verb's result already encoded as JSON: answered as it is (for what is costly to encode, and cached)."""
+
+    json: bytes
+
+
+def heavy_verbs() -> frozenset[str]:
+    """The verbs each door runs one at a time per client (`Queue.HEAVY`)."""
+    return frozenset(name for name, entry in VERBS.items() if entry.queue is Queue.HEAVY)
 
 
 def urgent_verbs() -> frozenset[str]:

@@ -9,8 +9,8 @@ from __future__ import annotations
 from typing import Any
 
 import marlin_aio
-from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError, reading_to_json
-from marlin_aio.service.verbs import SOCKETS, Access, Arg, Context, Subscriber, verb
+from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError
+from marlin_aio.service.verbs import SOCKETS, Access, Arg, Context, Encoded, Queue, Subscriber, verb
 from marlin_aio.service.verbs.printer import info
 
 __all__ = ["MAX_HISTORY_READINGS", "TOPICS"]
@@ -86,18 +86,14 @@ async def unsubscribe(context: Context, args: dict[str, Any]) -> object:
     "history",
     Arg("seconds", float, 300.0, "how far back"),
     access=Access.READ,
+    queue=Queue.HEAVY,
     doors=SOCKETS,
     result="{readings, console}",
 )
 async def history(context: Context, args: dict[str, Any]) -> object:
     """The printer's readings of the last `seconds` (thinned to at most 3,000) and its recent console lines."""
     kept = context.owner.histories[context.farm_printer.name]
-    readings = kept.readings(float(args["seconds"]))
-    if len(readings) > MAX_HISTORY_READINGS:
-        # Evenly thinned, so any span fits one message (an hour at 10 Hz would not).
-        step = len(readings) / MAX_HISTORY_READINGS
-        readings = [readings[int(index * step)] for index in range(MAX_HISTORY_READINGS)]
-    return {
-        "readings": [reading_to_json(r) for r in readings],
-        "console": [{"direction": c.direction, "text": c.text, "time_s": c.time_s} for c in kept.console],
-    }
+    # Evenly thinned, so any span fits one message (an hour at 10 Hz would not); made of each reading's and line's
+    # JSON made once, so asking again and again costs the loop a join, not an encoding (`History`).
+    readings = await kept.readings_json(float(args["seconds"]), MAX_HISTORY_READINGS)
+    return Encoded(b'{"readings":' + readings + b',"console":' + await kept.console_json() + b"}")
