@@ -38,7 +38,7 @@ import dataclasses
 import logging
 import os
 from collections import deque
-from collections.abc import AsyncIterator, Iterable, Sequence
+from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
@@ -300,13 +300,13 @@ class ServedBackend:
             raise ConnectionLostError(f"the printer {self.port} is not open")
         self._rpc.call_soon(method, {"printer": self.name})
 
-    def _call(self, method: str, **params: Any) -> Any:
+    def _call(self, method: str, *, on_result: Callable[[Any], None] | None = None, **params: Any) -> Any:
         rpc = self._rpc
         if rpc is None:
             raise ConnectionLostError(f"the printer {self.port} is not open")
         if self._lost is not None:
             raise self._lost
-        return rpc.call(method, {"printer": self.name, **params})
+        return rpc.call(method, {"printer": self.name, **params}, on_result=on_result)
 
     # ------------------------------------------------------------------------------------------- commands
 
@@ -452,10 +452,16 @@ class ServedBackend:
                 for _ in gcode_commands(source, limits):  # a list over the limits is refused whole, as a file is
                     pass
             params["path"] = await upload(self, source)
-        value = await self._call("start_print", **params)
-        handle = ServedPrintHandle(self, progress_from_json(value.get("progress")), str(value.get("file", "")))
-        self._served_print = handle
-        return handle
+
+        def started(value: Any) -> None:
+            # In the read loop, as the answer arrives: a short print's progress (its end, even) may be the very next
+            # message, and must find its handle.
+            progress = progress_from_json(value.get("progress"))
+            self._served_print = ServedPrintHandle(self, progress, str(value.get("file", "")))
+
+        await self._call("start_print", on_result=started, **params)
+        assert self._served_print is not None
+        return self._served_print
 
     # ------------------------------------------------------------------------------------------- state
 

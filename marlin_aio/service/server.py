@@ -203,6 +203,7 @@ class Service:
             "emergency_stop": self._emergency_stop,
             "interrupt_wait": self._interrupt_wait,
             "answer_prompt": self._answer_prompt,
+            "link_stats": self._link_stats,  # issue 33 (backend seam): see `_link_stats` at the end of the class
         }
 
     # ------------------------------------------------------------------------------------------- running
@@ -619,3 +620,18 @@ class Service:
         await self.farm.answer_prompt(farm_printer, index)
         self._tell_requests(farm_printer, None)  # closed here at once: every client hears it now, not at a tick
         return None
+
+    # ------------------------------------------------------------------------------------------- link_stats
+    # (issue 33, the served printer as a backend: one handler, for `Printer.stats` and `round_trips` of a served
+    # printer; the served client fetches it once a second.)
+
+    async def _link_stats(self, session: Session, params: dict[str, Any]) -> object:
+        from dataclasses import asdict
+
+        printer = self._connected(self._printer_of(params))
+        round_trips = list(printer.round_trips)[-256:]  # the latest (asked once a second)
+        return {
+            "stats": asdict(printer.stats),
+            "round_trips": [[answered_s, latency_s] for answered_s, latency_s in round_trips],
+            "now_s": asyncio.get_running_loop().time(),  # the clock of `answered_s`, for a client to shift to its own
+        }
