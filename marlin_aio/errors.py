@@ -17,6 +17,7 @@ __all__ = [
     "HandshakeTimeoutError",
     "LostReplyError",
     "MarlinError",
+    "NotSupportedError",
     "PortBusyError",
     "PortNotFoundError",
     "PortPermissionError",
@@ -163,3 +164,15 @@ class LostReplyError(MarlinError):
     def __init__(self, message: str, *, command: str) -> None:
         super().__init__(message)
         self.command = command
+
+
+class NotSupportedError(MarlinError):
+    """This printer's backend cannot serve the member asked for, and says why (a printer of `marlin-temp serve`
+    has no wire of its own to trace: the service's is).
+
+    `member` names the `Printer` member (`trace`, `sending_ahead`, ...).
+    """
+
+    def __init__(self, member: str, why: str) -> None:
+        super().__init__(f"{member}: {why}")
+        self.member = member

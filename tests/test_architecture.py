@@ -38,6 +38,9 @@ LAYERS: dict[str, tuple[set[str], set[str]]] = {
             "marlin_aio.farm",
             "marlin_aio.protocol",
             "marlin_aio.simulator",
+            # The MQTT door (the bridge's commands) calls the service's table of verbs, as every door does; the
+            # farm's supervisor and jobs never import the service (the import circle check below holds that).
+            "marlin_aio.service.verbs",
         },
         # paho-mqtt is aiomqtt's own MQTT client, which the bridge hands its telemetry batches to; orjson is
         # optional (the `fast` extra).
@@ -50,7 +53,10 @@ LAYERS: dict[str, tuple[set[str], set[str]]] = {
             "marlin_aio",
             "marlin_aio.aio",
             "marlin_aio.errors",
+            # The farm's printers, their print jobs and presets: what the service owns and its verbs act on.
             "marlin_aio.farm.supervisor",
+            "marlin_aio.farm.job",
+            "marlin_aio.farm.presets",
             "marlin_aio.protocol",
             "marlin_aio.service",
             "marlin_aio.simulator",
@@ -153,7 +159,8 @@ FACES = ("marlin_aio", "marlin_aio.protocol", "marlin_aio.aio", "marlin_aio.simu
 
 def test_the_public_faces() -> None:
     # An application's face stays narrow (aiomqtt: 16 names); a driver writer's needs live in marlin_aio.protocol.
-    assert len(marlin_aio.__all__) <= 45
+    # (46: every error an application may catch is on the face, NotSupportedError the latest.)
+    assert len(marlin_aio.__all__) <= 46
     for module_name in FACES:
         module = importlib.import_module(module_name)
         for name in module.__all__:
@@ -221,3 +228,66 @@ def test_a_long_module_says_why_it_is_one(path: Path) -> None:
         f"{path.relative_to(ROOT)} has {lines} lines: its docstring should say why it is one module "
         f"(a paragraph beginning 'Over 400 lines because ...'), or it should be split"
     )
+
+
+def library_modules(root: Path = ROOT) -> dict[str, Path]:
+    """Every module of the library by its dotted name (a package by its own name, for its `__init__`)."""
+    modules = {}
+    for path in sorted((root / "marlin_aio").rglob("*.py")):
+        parts = list(path.relative_to(root).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts.pop()
+        modules[".".join(parts)] = path
+    return modules
+
+
+def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
+    """Which of the library's modules each one imports, at module level or inside a function alike (an import moved
+    into a function is the same circle: it only fails later, at the first call). `from package import name` is
+    an edge to the submodule `name` if there is one, else to the package."""
+    modules = library_modules(root)
+    graph: dict[str, set[str]] = {}
+    for module, path in modules.items():
+        targets: set[str] = set()
+        for name, names in imports(path):
+            targets.update(f"{name}.{n}" if f"{name}.{n}" in modules else name for n in names)
+            if not names:  # `import marlin_aio.x`
+                targets.add(name)
+        graph[module] = targets & modules.keys() - {module}
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Each circle of imports in `graph`, as the modules on it (found by a depth-first walk: small graph)."""
+    cycles: list[list[str]] = []
+    seen: set[frozenset[str]] = set()
+
+    def walk(module: str, path: list[str]) -> None:
+        for target in sorted(graph[module]):
+            if target in path:
+                cycle = path[path.index(target) :]
+                if frozenset(cycle) not in seen:
+                    seen.add(frozenset(cycle))
+                    cycles.append([*cycle, target])
+            elif target not in done:
+                walk(target, [*path, target])
+        done.add(module)
+
+    done: set[str] = set()
+    for module in sorted(graph):
+        if module not in done:
+            walk(module, [module])
+    return cycles
+
+
+def test_no_module_of_the_library_imports_itself_in_a_circle() -> None:
+    # A circle (aio/printer.py -> aio/served.py -> aio/servicepaths.py -> aio/printer.py, once) works only by the
+    # order modules happen to load in, and hides which layer stands on which.
+    cycles = import_cycles(import_graph())
+    assert not cycles, "import circles: " + "; ".join(" -> ".join(cycle) for cycle in cycles)
+
+
+def test_the_circle_finder_finds_a_circle() -> None:
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert import_cycles(graph) == [["a", "b", "c", "a"]]
+    assert import_cycles({"a": {"b"}, "b": set()}) == []

@@ -1,121 +1,70 @@
 """The asyncio client: `async with connect(url) as printer: await printer.send("G28")`.
 
-`Printer` is a thin front over small collaborators, each in its own module: `marlin_aio.aio.link.Link` (the port, the
-protocol core and the callers' futures), `marlin_aio.aio.handshake` (the start-up sequence), `marlin_aio.aio.feed`
-(temperature readings to every subscriber), `marlin_aio.aio.poller` (M105 on a schedule) and
-`marlin_aio.aio.printhandle` (a print in progress). All protocol decisions live in `marlin_aio.protocol.connection`.
-Loop-bound objects are created in `open()`, never in `__init__`, so a `Printer` can be built outside a running
-loop. No user code runs in the read path: what the link reads only resolves futures, updates state and queues
-readings; `on_reading` callbacks run from the loop right after the read (see `marlin_aio.aio.feed`), and one that
-raises is logged, never able to stop the link. (Over 400 lines because it is the API
-reference: about a third of it is the docstrings of `Printer`'s public methods; the logic behind them lives in the
-collaborators.)
+`Printer` is the one public class, a front that hands each call to a backend chosen when it is made (bleak's
+`BleakClient` shape; the seam is `marlin_aio.aio.backend.PrinterBackend`): a port of this process
+(`marlin_aio.aio.serialbackend`: the link, the handshake, the poller, prints streamed from here) or a printer of
+`marlin-temp serve` for a `serve:NAME` port (`marlin_aio.aio.served`: JSON-RPC to the service). What is built on
+the backend (moves, homing, fans, heater limits, waits for temperatures, whole prints) is here, once for both.
+Listeners of link events and the firmware's requests live in `marlin_aio.aio.listeners`, readings in
+`marlin_aio.aio.feed`. A member a backend cannot serve raises `NotSupportedError` saying why; none does nothing.
+Loop-bound objects are made in `open()`, never in `__init__`, so a `Printer` can be built outside a running loop.
+
+(Over 400 lines because it is the API reference: most of it is the docstrings of `Printer`'s public members; the
+logic behind them lives in the backends and their collaborators.)
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
-import logging
-import time
 from collections import deque
-from collections.abc import AsyncGenerator, AsyncIterator, Callable, Generator, Iterable, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import AsyncGenerator, AsyncIterator, Callable, Iterable
+from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
-from typing import Literal, Self
+from typing import Any, Self
 
+from marlin_aio.aio.backend import PrinterBackend
 from marlin_aio.aio.feed import TemperatureFeed
-from marlin_aio.aio.gcodefile import job_from_path
-from marlin_aio.aio.handshake import BAUD_RATES, handshake, send_until_processed
-from marlin_aio.aio.link import Link
-from marlin_aio.aio.poller import Poller
+from marlin_aio.aio.gcodecommands import GcodeCommands
+from marlin_aio.aio.handshake import BAUD_RATES
+from marlin_aio.aio.heatwait import wait_for_targets
+from marlin_aio.aio.listeners import LinkEvent, Listeners
 from marlin_aio.aio.printhandle import PrintHandle
-from marlin_aio.aio.wirelog import WireLog, WireSession
-from marlin_aio.errors import ConnectionLostError, MarlinError, PrinterHaltedError, TemperatureTimeoutError
+from marlin_aio.aio.serialbackend import SerialBackend
+from marlin_aio.aio.served import ServedBackend
+from marlin_aio.aio.servicepaths import SERVE_PREFIX
+from marlin_aio.aio.wirelog import WireLog
+from marlin_aio.errors import MarlinError
 from marlin_aio.protocol.commands import (
     DEFAULT_MAX_BED_CELSIUS,
     DEFAULT_MAX_CHAMBER_CELSIUS,
     DEFAULT_MAX_HOTEND_CELSIUS,
 )
-from marlin_aio.protocol.connection import Connection, Reply
-from marlin_aio.protocol.events import BusyKeepalive, Capability, Event, FirmwareInfo, HostAction, Ok, Start
-from marlin_aio.protocol.heaters import (
-    HeaterLimits,
-    describe_heaters,
-    target_commands,
-    targets_reached,
-    wanted_targets,
-)
-from marlin_aio.protocol.hostrequests import (
-    PRINT_CANCELS,
-    PRINT_PAUSES,
-    PRINT_RESUMES,
-    HostRequest,
-    HostRequests,
-    Prompt,
-)
+from marlin_aio.protocol.connection import Reply
+from marlin_aio.protocol.events import FirmwareInfo
+from marlin_aio.protocol.heaters import HeaterLimits, wanted_targets
+from marlin_aio.protocol.hostrequests import HostRequest, Prompt
 from marlin_aio.protocol.linkstate import LinkState
-from marlin_aio.protocol.motion import (
-    command_timeout_s,
-    disable_motors_command,
-    extrude_commands,
-    home_command,
-    move_commands,
-)
-from marlin_aio.protocol.parsing import parse_endstops, parse_position
-from marlin_aio.protocol.printjob import PrintJob, PrintProgress, gcode_commands
+from marlin_aio.protocol.printjob import PrintProgress
 from marlin_aio.protocol.stats import LinkStats
-from marlin_aio.protocol.temperatures import ReadingSource, TemperatureReading, heater_name
+from marlin_aio.protocol.temperatures import TemperatureReading
 from marlin_aio.protocol.trace import Trace
 
-__all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "LinkEvent", "PrintHandle", "Printer", "connect"]
-
-
-@dataclass(frozen=True, slots=True)
-class LinkEvent:
-    """Something that happened to a printer's link, for `Printer.on_link_event`.
-
-    `kind` is `connected` (the handshake is done), `reset` (the board restarted while connected: it printed
-    `start`, and its targets and settings are gone), `halted` (a kill or emergency stop: it needs a reset; `error`
-    says why) or `disconnected` (the port went away, or was closed, `close()` included; `error` says why).
-    `message` says it for people.
-    """
-
-    kind: Literal["connected", "reset", "halted", "disconnected"]
-    message: str
-    error: MarlinError | None = None
-    time_s: float = field(default_factory=time.time)
-    """Wall-clock time (epoch seconds)."""
-
+__all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "LinkEvent", "PrintHandle", "Printer", "ServedPrinter", "connect"]
 
 DEFAULT_BAUDRATE = BAUD_RATES[0]
 
-#: A port that starts with this names a printer of `marlin-temp serve` (`serve:NAME`), not a device.
-SERVE_PREFIX = "serve:"
 
-_log = logging.getLogger("marlin_aio")
-
-
-def _limit(name: str, celsius: float) -> float:
-    """A heater limit as given, if it is a positive finite number of degrees.
-
-    Raises:
-        ValueError: it is not.
-    """
-    if isinstance(celsius, bool) or not isinstance(celsius, int | float) or not 0 < celsius < float("inf"):
-        raise ValueError(f"{name} must be a positive number of degrees Celsius, got {celsius!r}")
-    return float(celsius)
-
-
-class Printer:
+class Printer(GcodeCommands):
     """A connection to one Marlin printer: `async with connect(port, ...) as printer:` (or `Printer(port, ...)`).
 
     Any number of tasks may call its coroutines at once: commands go out in the order they were sent, and each
     resolves with its own reply. A printer that was closed can be opened again (`async with` once more).
 
     Args:
-        port: a device path (`/dev/ttyUSB0`) or a pyserial URL (`socket://host:port`).
+        port: a device path (`/dev/ttyUSB0`), a pyserial URL (`socket://host:port`), or `serve:NAME` for the
+            printer NAME of a running `marlin-temp serve` (see `marlin_aio.aio.served`: the same API, spoken to
+            the service; what only the service can do raises `NotSupportedError`).
         baudrate: the port's speed.
         timeout_s: bounds each handshake step and, by default, the wait for each command's `ok` (busy keepalives
             extend it).
@@ -133,21 +82,16 @@ class Printer:
             the handshake on; passwords redacted. A `serve:NAME` printer's wire is the service's: nothing is
             written for it here.
 
-    Attributes:
-        firmware: the M115 identity line, once the handshake asked for it.
-        capabilities: the M115 `Cap:` flags, e.g. {"AUTOREPORT_TEMP": True}.
-        print_poll_interval_s: while a print streams, polls slow down to this interval.
+    (`baudrate`, `handshake`, `numbered`, the window and `password` are the service's business for `serve:NAME`.)
 
     Raises:
         ValueError: `timeout_s` is not positive, or the password cannot travel in M511.
     """
 
     def __new__(cls, port: str, *args: object, **kwargs: object) -> Self:
-        # `Printer("serve:NAME")` is a printer that a `marlin-temp serve` process owns: the same API, spoken to the
-        # service over its socket (`marlin_aio.aio.served`), so every program written for a port works with it.
+        # `Printer("serve:NAME")` is a `ServedPrinter`: the same class with the service's backend, and the few
+        # members only a service has (`call`, `name`).
         if cls is Printer and isinstance(port, str) and port.startswith(SERVE_PREFIX):
-            from marlin_aio.aio.served import ServedPrinter
-
             return ServedPrinter.__new__(ServedPrinter, port)  # type: ignore[return-value]
         return super().__new__(cls)
 
@@ -177,100 +121,61 @@ class Printer:
             raise ValueError("password must be one word of ASCII without ';' or '*'")
         self.port = port
         self.baudrate = baudrate
-        self.timeout_s = timeout_s
-        self._heater_limits = HeaterLimits(
-            _limit("max_hotend_celsius", max_hotend_celsius),
-            _limit("max_bed_celsius", max_bed_celsius),
-            _limit("max_chamber_celsius", max_chamber_celsius),
-        )
-        self._handshake_enabled = handshake
-        self._boot_quiet_s = boot_quiet_s
-        self._password = password
-        self._window = (max_in_flight, rx_buffer_bytes)
-        self._numbered = numbered
-        self._wire_log = wire_log
-        self._wire: WireSession | None = None
-        self.firmware: FirmwareInfo | None = None
-        self.capabilities: dict[str, bool] = {}
-        self.print_poll_interval_s = 1.0
+        super().__init__(HeaterLimits(max_hotend_celsius, max_bed_celsius, max_chamber_celsius))
         self._feed = TemperatureFeed()
-        self._link = self._new_link()
-        self._poller = Poller(self._link, timeout_s, self._poll_slow_down)
-        self._print: PrintHandle | None = None
-        self._connecting = False  # the handshake is under way
-        self._reset_on_open = False
-        self._failure_waiters: list[asyncio.Future[MarlinError]] = []
-        self._link_listeners: list[Callable[[LinkEvent], None]] = []
-        self._requests = HostRequests()
-        self._request_listeners: list[Callable[[HostRequest], None]] = []
-        self._request_queues: list[asyncio.Queue[HostRequest | MarlinError]] = []  # of `host_requests()` readers
+        self._listeners = Listeners(self._feed)
+        self._backend: PrinterBackend
+        if port.startswith(SERVE_PREFIX):
+            self._backend = ServedBackend(port, self._listeners, timeout_s=timeout_s, limits=self.heater_limits)
+        else:
+            self._backend = SerialBackend(
+                port,
+                self._listeners,
+                baudrate=baudrate,
+                timeout_s=timeout_s,
+                handshake=handshake,
+                numbered=numbered,
+                window=(max_in_flight, rx_buffer_bytes),
+                boot_quiet_s=boot_quiet_s,
+                limits=self.heater_limits,
+                password=password,
+                wire_log=wire_log,
+            )
 
     @property
-    def heater_limits(self) -> HeaterLimits:
-        """The three limits below as one `HeaterLimits`: what every command and print line is checked against."""
-        return self._heater_limits
+    def timeout_s(self) -> float:
+        """The default wait for each command's `ok` (and each handshake step)."""
+        return self._backend.timeout_s
+
+    @timeout_s.setter
+    def timeout_s(self, timeout_s: float) -> None:
+        self._backend.timeout_s = timeout_s
 
     @property
-    def max_hotend_celsius(self) -> float:
-        """The highest hotend target any command may set (checked as the firmware reads each command)."""
-        return self._heater_limits.hotend
-
-    @max_hotend_celsius.setter
-    def max_hotend_celsius(self, celsius: float) -> None:
-        self._set_limits(replace(self._heater_limits, hotend=_limit("max_hotend_celsius", celsius)))
+    def firmware(self) -> FirmwareInfo | None:
+        """The M115 identity line, once the handshake asked for it."""
+        return self._backend.firmware
 
     @property
-    def max_bed_celsius(self) -> float:
-        """The highest bed target any command may set."""
-        return self._heater_limits.bed
-
-    @max_bed_celsius.setter
-    def max_bed_celsius(self, celsius: float) -> None:
-        self._set_limits(replace(self._heater_limits, bed=_limit("max_bed_celsius", celsius)))
+    def capabilities(self) -> dict[str, bool]:
+        """The M115 `Cap:` flags, e.g. {"AUTOREPORT_TEMP": True}."""
+        return self._backend.capabilities
 
     @property
-    def max_chamber_celsius(self) -> float:
-        """The highest chamber target any command may set."""
-        return self._heater_limits.chamber
+    def print_poll_interval_s(self) -> float:
+        """While a print streams, polls slow down to this interval (seconds; 1.0 unless set).
 
-    @max_chamber_celsius.setter
-    def max_chamber_celsius(self, celsius: float) -> None:
-        self._set_limits(replace(self._heater_limits, chamber=_limit("max_chamber_celsius", celsius)))
+        Raises:
+            NotSupportedError: a served printer: the service polls at its own rate (`marlin-temp serve --interval`).
+        """
+        return self._backend.print_poll_interval_s
 
-    def _set_limits(self, limits: HeaterLimits) -> None:
-        self._heater_limits = limits
-        self._connection.limits = limits  # the connection is the gate every command and print line passes
+    @print_poll_interval_s.setter
+    def print_poll_interval_s(self, interval_s: float) -> None:
+        self._backend.print_poll_interval_s = interval_s
 
-    def _new_link(self) -> Link:
-        connection = Connection(
-            numbered=self._numbered,
-            max_in_flight=self._window[0],
-            rx_buffer_bytes=self._window[1],
-            limits=self._heater_limits,
-        )
-        self._connection = connection
-        return Link(
-            self.port,
-            self.baudrate,
-            connection,
-            on_event=self._on_event,
-            on_failure=self._failed,
-            after_results=self._after_results,
-            after_read=self._feed.deliver,
-        )
-
-    def _failed(self, error: MarlinError) -> None:
-        # The printer halted or the link went away: readers of temperatures and `wait_for_failure()` learn of it.
-        self._feed.fail(error)
-        waiters, self._failure_waiters = self._failure_waiters, []
-        for waiter in waiters:
-            if not waiter.done():
-                waiter.set_result(error)
-        kind: Literal["halted", "disconnected"] = "halted" if isinstance(error, PrinterHaltedError) else "disconnected"
-        self._link_event(LinkEvent(kind, str(error), error))
-        for queue in self._request_queues:
-            # After the requests already scheduled (a disconnect request comes before the loss it causes).
-            self._link.loop.call_soon(queue.put_nowait, error)
+    def _limits_changed(self, limits: HeaterLimits) -> None:
+        self._backend.set_limits(limits)
 
     def on_link_event(self, callback: Callable[[LinkEvent], None]) -> Callable[[], None]:
         """Call `callback` with each `LinkEvent` from now on (connected, reset, halted, disconnected); return the
@@ -280,24 +185,7 @@ class Printer:
         the event loop, soon after the line that told (never inside the link's read handler); if it raises, the
         error is logged (logger "marlin_aio") and the link and the other listeners go on.
         """
-        self._link_listeners.append(callback)
-
-        def stop() -> None:
-            if callback in self._link_listeners:
-                self._link_listeners.remove(callback)
-
-        return stop
-
-    def _link_event(self, event: LinkEvent) -> None:
-        if self._link_listeners:
-            self._link.loop.call_soon(self._tell_link_listeners, event)
-
-    def _tell_link_listeners(self, event: LinkEvent) -> None:
-        for listener in list(self._link_listeners):
-            try:
-                listener(event)
-            except Exception:  # a listener's bug must not reach the link
-                _log.exception("a link event listener failed on %s", event.kind)
+        return self._listeners.on_link_event(callback)
 
     # ------------------------------------------------------------------------------------------- lifecycle
 
@@ -311,76 +199,32 @@ class Printer:
         await self.close()
 
     async def open(self) -> None:
-        """Open the port and, unless disabled, run the handshake. A closed printer opens afresh.
+        """Open the port and, unless disabled, run the handshake (a served printer: reach the service and its
+        printer). A closed printer opens afresh.
 
         Raises:
             RuntimeError: the printer is already open.
-            ConnectError: the port could not be opened (its subclasses say why).
+            ConnectError: the port could not be opened (its subclasses say why); a served printer: the service's
+                printer is not connected now.
             HandshakeError: the printer did not answer the start-up sequence; `step` says where it stopped.
         """
-        if self._link.is_open:
-            raise RuntimeError(f"the printer on {self.port} is already open")
-        if self._link.lost is not None:
-            # Closed before: a fresh link, counters and all, on the same port.
-            self._link = self._new_link()
-            self._poller = Poller(self._link, self.timeout_s, self._poll_slow_down)
-            self._print = None
-            self._requests = HostRequests()
-        # Connecting from before the port opens: a boot banner read the moment it is open is the handshake's, never
-        # a reset of a connected printer.
-        self._connecting = self._handshake_enabled
-        if self._wire_log is not None:
-            self._end_wire("closed")  # a session of an earlier open that was never closed
-            self._wire = self._wire_log.connection(self.port, self.baudrate)
-            self._connection.trace.tap = self._wire.line
-        try:
-            try:
-                await self._link.open()
-            except BaseException as exc:
-                self._end_wire(f"not opened ({exc})")
-                raise
-            _log.info("opened %s at %d baud", self.port, self.baudrate)
-            if not self._handshake_enabled:
-                return
-            try:
-                self._reset_on_open = await handshake(
-                    self._link, timeout_s=self.timeout_s, boot_quiet_s=self._boot_quiet_s, password=self._password
-                )
-            except BaseException as exc:
-                self._end_wire(f"closed: the handshake failed ({exc})")
-                await self.close()
-                raise
-        finally:
-            self._connecting = False
-        _log.info("connected to %s: %s", self.port, self.firmware.name if self.firmware else "unknown firmware")
-        self._link_event(
-            LinkEvent("connected", f"{self.port} ({self.firmware.name if self.firmware else 'firmware unknown'})")
-        )
-        if self._reset_on_open:
-            _log.warning("the board on %s reset when the port was opened; targets set earlier were cleared", self.port)
+        await self._backend.open()
 
     @property
     def reset_on_open(self) -> bool:
         """True if the board reset as this connection opened the port (it printed its boot banner): targets, fan
-        and other settings made by an earlier connection are gone.
+        and other settings made by an earlier connection are gone. (Always False for a served printer: this
+        connection opens no port.)
 
         Boards whose USB bridge wires DTR to reset do this on the first open after plugging in; later opens by
         this library leave DTR raised (HUPCL cleared) so they keep running, where the platform allows it.
         """
-        return self._reset_on_open
+        return self._backend.reset_on_open
 
     async def close(self) -> None:
-        """Close the port. Commands still waiting fail with `ConnectionLostError`; safe to call twice."""
-        self._poller.cancel()
-        await self._link.close()
-        lost = self._link.lost
-        self._end_wire("closed" if lost is None or "was closed" in str(lost) else f"closed after: {lost}")
-
-    def _end_wire(self, reason: str) -> None:
-        wire, self._wire = self._wire, None
-        if wire is not None:
-            self._connection.trace.tap = None
-            wire.end(reason)
+        """Close the port (a served printer: leave the service; a print started from here goes on there).
+        Commands still waiting fail with `ConnectionLostError`; safe to call twice."""
+        await self._backend.close()
 
     # ------------------------------------------------------------------------------------------- commands
 
@@ -389,6 +233,7 @@ class Printer:
 
         Busy keepalives and M109/M190 wait lines push the deadline out, so long commands only time out when the
         printer falls silent. If the caller is cancelled before the command was written, it is never written.
+        (Served: commands of all clients go out in the order the service received them; `numbered` is its own.)
 
         Raises:
             ValueError: the command is malformed (line break, non-ASCII, over 95 bytes, empty), or it sets a
@@ -398,11 +243,10 @@ class Printer:
             PrinterHaltedError: the printer halted (ThermalRunawayError if its thermal protection tripped).
             PrinterResetError: the printer reset before answering.
             LostReplyError: the command ran, but its reply cannot be proven its own (an ok was lost).
-            ConnectionLostError: the link went away.
+            ConnectionLostError: the link (or the service) went away.
         """
-        return await self._link.send(
-            command, timeout_s=self.timeout_s if timeout_s is None else timeout_s, numbered=numbered
-        )
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        return await self._backend.send(command, timeout_s=timeout, numbered=numbered)
 
     def emergency_stop(self) -> None:
         """Write M112 at once, ahead of anything queued; the printer halts and needs a reset.
@@ -412,8 +256,7 @@ class Printer:
         Raises:
             ConnectionLostError: the port is closed or lost, so M112 cannot reach the printer (cut its power).
         """
-        self._link.emergency_stop()
-        _log.warning("emergency stop (M112) sent to %s", self.port)
+        self._backend.emergency_stop()
 
     def interrupt_wait(self) -> bool:
         """End a heater wait (M109, M190, M191) or a pause (M0/M1) now, if the firmware can: write M108 at once,
@@ -424,79 +267,7 @@ class Printer:
         Raises:
             ConnectionLostError: the port is closed or lost.
         """
-        if not self.capabilities.get("EMERGENCY_PARSER", False):
-            return False
-        self._link.interrupt_wait()
-        _log.info("M108 sent to %s to end a wait", self.port)
-        return True
-
-    async def home(self, *axes: str, timeout_s: float | None = None) -> Reply:
-        """Home the axes given (`home()` homes all, `home("x", "y")` two) with G28; return its reply.
-
-        Homing is answered only when it is done, so unless `timeout_s` says otherwise the wait is at least
-        `LONG_COMMAND_TIMEOUT_S` (3 minutes), for boards that stay silent meanwhile (see `marlin_aio.protocol.motion`).
-
-        Raises:
-            ValueError: an axis is not X, Y or Z.
-            MarlinError: as `send`.
-        """
-        command = home_command(axes)
-        if timeout_s is None:
-            timeout_s = command_timeout_s(command, self.timeout_s)
-        return await self.send(command, timeout_s=timeout_s)
-
-    async def move(
-        self,
-        *,
-        x: float | None = None,
-        y: float | None = None,
-        z: float | None = None,
-        feedrate_mm_min: float | None = None,
-        relative: bool = False,
-        timeout_s: float | None = None,
-    ) -> Reply:
-        """Move in a straight line to (`x`, `y`, `z`) in millimetres, or by that much with `relative`; return the
-        move's reply. Marlin answers once the move is planned, not when it is done (M400 waits for that).
-
-        The mode is sent with the move (G90 or G91 before it) and the printer is left in absolute mode.
-        `feedrate_mm_min` is G-code's `F`; without it the printer's current speed is used.
-
-        Raises:
-            ValueError: no axis given, a coordinate is not a finite number, the feed rate is not positive, ...
-                (nothing is sent).
-            MarlinError: as `send`.
-        """
-        commands = move_commands(x=x, y=y, z=z, feedrate_mm_min=feedrate_mm_min, relative=relative)
-        return (await self._send_together(commands, timeout_s))[1]
-
-    async def extrude(
-        self, length_mm: float, *, feedrate_mm_min: float = 300.0, timeout_s: float | None = None
-    ) -> Reply:
-        """Push `length_mm` of filament through the hotend (negative retracts) at `feedrate_mm_min`; return the
-        move's reply. Marlin refuses below its minimum extrusion temperature and says so in the reply's lines.
-
-        Raises:
-            ValueError: the length is 0 or not a finite number, the feed rate is not positive, ... (nothing is sent).
-            MarlinError: as `send`.
-        """
-        commands = extrude_commands(length_mm, feedrate_mm_min=feedrate_mm_min)
-        return (await self._send_together(commands, timeout_s))[1]
-
-    async def disable_motors(self, *axes: str) -> Reply:
-        """Turn the stepper motors of the axes given (X, Y, Z, E) off with M84, or all of them; return its reply.
-
-        Marlin finishes the moves already planned first. The position is lost: home again before moving.
-
-        Raises:
-            ValueError: an axis is not X, Y, Z or E.
-            MarlinError: as `send`.
-        """
-        return await self.send(disable_motors_command(axes))
-
-    async def _send_together(self, commands: list[str], timeout_s: float | None) -> list[Reply]:
-        # Each `send` queues its command before its first await, so gathering them queues these back to back: no
-        # other task's command can land between a G91 and the move it is meant for.
-        return await asyncio.gather(*(self.send(command, timeout_s=timeout_s) for command in commands))
+        return self._backend.interrupt_wait()
 
     # ------------------------------------------------------------------------------------------- temperatures
 
@@ -511,18 +282,15 @@ class Printer:
         Raises:
             MarlinError: as `send`; also if the printer's answer holds no temperatures.
         """
-        reply = await self.send("M105")
-        if reply.temperatures is None or not reply.temperatures.heaters:
-            raise MarlinError(f"M105 was answered without temperatures: {reply.ok.payload!r}")
-        # Built from this reply, not `latest`: an auto-report arriving in the same read may already have replaced it.
-        return self._feed.reading(reply.temperatures, reply.answered_s, ReadingSource.POLL)
+        return await self._backend.read_temperatures()
 
     async def temperatures(self) -> TemperatureReading:
         """The same as `read_temperatures()` (the older name)."""
         return await self.read_temperatures()
 
     def temperature_readings(self) -> AsyncGenerator[TemperatureReading, None]:
-        """Yield every temperature report from now on, whatever produced it (polls, auto-report, wait lines).
+        """Yield every temperature report from now on, whatever produced it (polls, auto-report, wait lines; a
+        served printer: the service's polls).
 
         Each reader has its own queue of up to 1,000 readings; one that falls further behind loses its oldest
         readings (counted in `readings_dropped`), never the error that ends them.
@@ -530,7 +298,7 @@ class Printer:
         Raises:
             ConnectionLostError, PrinterHaltedError, PrinterResetError: when the link or printer goes away.
         """
-        return self._feed.readings(self._link.lost)
+        return self._feed.readings(self._backend.readings_ended())
 
     def on_reading(self, callback: Callable[[TemperatureReading], None]) -> Callable[[], None]:
         """Call `callback` with every temperature reading from now on; return the function that stops the calls
@@ -562,50 +330,15 @@ class Printer:
         At most one M105 is in flight, the schedule is deadline-based (no drift), and a poll that falls behind a
         long command is not repeated to catch up. With `auto_report` and a firmware that has it (Cap
         AUTOREPORT_TEMP), M155 S1 is turned on as well so readings keep coming while G28/M109/M190 block the queue.
+        A served printer asks for nothing more: the service polls at its own rate for all its clients.
 
         Raises:
             ValueError: `interval_s` is not positive.
         """
         if not interval_s > 0:
             raise ValueError(f"interval_s must be positive, got {interval_s}")
-        use_auto = auto_report and self.capabilities.get("AUTOREPORT_TEMP", False)
-        if use_auto:
-            await self.send("M155 S1")
-        poller = self._poller
-        poller.start(interval_s)
-        try:
+        async with self._backend.poll_temperatures(interval_s, auto_report):
             yield
-        finally:
-            poller.stop(interval_s)
-            if use_auto and self._link.lost is None and self._link.halted is None:
-                with contextlib.suppress(MarlinError):
-                    await self.send("M155 S0")
-
-    def _polled(self) -> bool:
-        """True while readings come without asking (a poller runs)."""
-        return self._poller.active
-
-    def _poll_slow_down(self) -> float | None:
-        return self.print_poll_interval_s if self._print is not None and not self._print.finished else None
-
-    async def set_temperatures(
-        self,
-        *,
-        hotend: float | None = None,
-        bed: float | None = None,
-        chamber: float | None = None,
-        tool: int | None = None,
-    ) -> None:
-        """Set heater targets (M104, M140, M141) without waiting. 0 turns a heater off.
-
-        Every target is checked before anything is written.
-
-        Raises:
-            ValueError: a target is not a number, negative, or above the client's limit; `tool` is negative.
-            MarlinError: as `send`.
-        """
-        for command in target_commands(self._heater_limits, hotend=hotend, bed=bed, chamber=chamber, tool=tool):
-            await self.send(command)
 
     async def wait_for_temperatures(
         self,
@@ -631,37 +364,19 @@ class Printer:
         """
         if not tolerance_c >= 0:
             raise ValueError(f"tolerance_c must not be negative, got {tolerance_c}")
-        wanted = wanted_targets(self._heater_limits, hotend=hotend, bed=bed, chamber=chamber, tool=tool)
+        wanted = wanted_targets(self.heater_limits, hotend=hotend, bed=bed, chamber=chamber, tool=tool)
 
-        async def watch() -> TemperatureReading:
-            readings = self.temperature_readings()
-            try:
-                # A reading from before the call may predate the targets just set: only trust it for explicit ones.
-                latest = self.latest
-                if wanted and latest is not None and targets_reached(latest, wanted, tool, tolerance_c):
-                    return latest
-                async for reading in readings:
-                    if targets_reached(reading, wanted, tool, tolerance_c):
-                        return reading
-            finally:
-                await readings.aclose()
-            raise ConnectionLostError(f"the connection to {self.port} ended while waiting for temperatures")
-
-        poller = self.poll_temperatures(poll_interval_s, auto_report=False) if not self._polled() else None
-        async with contextlib.AsyncExitStack() as stack:
-            if poller is not None:
-                await stack.enter_async_context(poller)
-            try:
-                async with asyncio.timeout(timeout_s):
-                    return await watch()
-            except TimeoutError:
-                latest = self.latest
-                state = "no reading" if latest is None else describe_heaters(latest)
-                waited_for = ", ".join(heater_name(key) for key in wanted) or "all heaters"
-                raise TemperatureTimeoutError(
-                    f"{waited_for} did not reach the target within {timeout_s:g} s ({state})"
-                ) from None
-        raise AssertionError("unreachable")  # pragma: no cover  (mypy cannot see that `async with` returns)
+        poller = self.poll_temperatures(poll_interval_s, auto_report=False) if not self._backend.polled() else None
+        return await wait_for_targets(
+            self.temperature_readings,
+            lambda: self.latest,
+            wanted,
+            tool=tool,
+            tolerance_c=tolerance_c,
+            timeout_s=timeout_s,
+            poller=poller,
+            where=self.port,
+        )
 
     # ------------------------------------------------------------------------------------------- printing
 
@@ -685,6 +400,8 @@ class Printer:
         that cuts the next line in two, the firmware may run the rest of it on its own. No host can prevent that
         with lines on the wire; the print then stops with a `RemoteProtocolError` that says so.
         Polls and `send()` keep working meanwhile; polls slow to `print_poll_interval_s`.
+        A served printer's print runs inside the service (a file it can read, or lines sent to it first) and goes
+        on if this client leaves.
 
         Raises:
             ValueError: with `check`, a line of the file is not a valid command (nothing is sent).
@@ -692,39 +409,11 @@ class Printer:
             RuntimeError: a print is already running.
             MarlinError: as `send` (for the M110 that starts the print).
         """
-        if self._print is not None and not self._print.finished:
-            raise RuntimeError(f"a print is already running ({self._print.job.name})")
         if window_bytes is not None and not 16 < window_bytes <= 65536:
             raise ValueError(f"window_bytes must be between 17 and 65536, got {window_bytes}")
-        link = self._link
-        if isinstance(source, str | Path):
-            # A file is read whole to be checked before its first line: millions of lines take seconds, which must
-            # not stall the event loop (other printers, polls, a service's clients) meanwhile.
-            job = await asyncio.to_thread(self._print_job, source, check)
-        else:
-            job = self._print_job(source, check)
-        await send_until_processed(link, "M110 N0", timeout_s=self.timeout_s)  # the print's numbering starts fresh
-        job.start_s = link.now()
-        saved = link.window
-        link.set_window(64 if send_ahead else 1, window_bytes or saved[1])
-        handle = PrintHandle(link, job, self.timeout_s, saved)
-        self._print = handle
-        link.attach(job, timeout_s=self.timeout_s if timeout_s is None else timeout_s)
-        _log.info("print of %s started (%s)", job.name, "send-ahead" if send_ahead else "ping-pong")
-        return handle
-
-    def _print_job(self, source: str | Path | Iterable[str], check: bool) -> PrintJob:
-        """The job for `source`, checked whole first where it can be read twice (a path, a list of lines)."""
-        limits = self._heater_limits
-        if isinstance(source, str | Path):
-            return job_from_path(Path(source), check=check, limits=limits)
-        if check and isinstance(source, Sequence):
-            # Before the first line is sent, as for a file: a list over the limits is refused whole, and counted in
-            # the same pass. (An iterator can be read only once: each of its lines is checked as it is fed, and a
-            # bad one stops the print.)
-            commands = sum(1 for _ in gcode_commands(source, limits))
-            return PrintJob(source, lines_total=commands, limits=limits)
-        return PrintJob(source, limits=limits)
+        return await self._backend.start_print(
+            source, send_ahead=send_ahead, window_bytes=window_bytes, check=check, timeout_s=timeout_s
+        )
 
     async def print_file(
         self,
@@ -746,118 +435,68 @@ class Printer:
         )
         return await handle.wait()
 
-    # ------------------------------------------------------------------------------------------- other helpers
-
-    async def endstops(self) -> dict[str, bool]:
-        """Read the endstops (M119): {"x_min": False, "z_min": True, ...}, True meaning triggered.
-
-        Raises:
-            MarlinError: as `send`.
-        """
-        return parse_endstops((await self.send("M119")).lines)
-
-    async def position(self) -> dict[str, float]:
-        """Read the current position in millimetres (M114): {"X": 10.0, "Y": 20.0, "Z": 5.0, "E": 0.0}.
-
-        Raises:
-            MarlinError: as `send`; also if the reply holds no position.
-        """
-        reply = await self.send("M114")
-        # Some firmwares answer on the ok line itself (`ok X:10.00 Y:0.00 ...`).
-        position = parse_position(reply.lines) or parse_position((reply.ok.payload,))
-        if position is None:
-            raise MarlinError(f"M114 was answered without a position: {reply.lines!r}")
-        return position
-
-    async def set_fan(self, fraction: float, *, fan: int = 0) -> None:
-        """Set a part-cooling fan's speed, from 0.0 (off, M107) to 1.0 (full, M106 S255).
-
-        Raises:
-            ValueError: `fraction` is not between 0 and 1, or `fan` is negative.
-            MarlinError: as `send`.
-        """
-        if not (isinstance(fraction, int | float) and 0.0 <= fraction <= 1.0):
-            raise ValueError(f"fan speed must be a fraction from 0.0 to 1.0, got {fraction!r}")
-        if isinstance(fan, bool) or not isinstance(fan, int) or fan < 0:
-            raise ValueError(f"fan must be a non-negative integer, got {fan!r}")
-        index = f" P{fan}" if fan else ""
-        if fraction == 0:
-            await self.send(f"M107{index}")
-        else:
-            await self.send(f"M106{index} S{round(fraction * 255)}")
-
     # ------------------------------------------------------------------------------------------- state
 
     @property
     def trace(self) -> Trace:
-        """The last lines sent and received, with times on the event loop's clock."""
-        return self._link.trace
+        """The last lines sent and received, with times on the event loop's clock.
+
+        Raises:
+            NotSupportedError: a served printer: its wire is the service's (`marlin-temp serve --wire-log`).
+        """
+        return self._backend.trace
 
     @property
     def stats(self) -> LinkStats:
         """A snapshot of the link's counters (commands answered and failed, timeouts, resends, resets, lost oks,
-        bytes received), taken now; it does not change afterwards."""
-        return self._link.stats()
+        bytes received), taken now; it does not change afterwards. A served printer's are the service's link's
+        (every client's commands and its polls), fetched once a second."""
+        return self._backend.stats
 
     @property
     def round_trips(self) -> deque[tuple[float, float]]:
         """(answered at, round trip) of the latest replies (up to 8,192), polls included, on the loop's clock:
-        latency figures."""
-        return self._link.round_trips
+        latency figures. A served printer's are the service's link's, fetched once a second."""
+        return self._backend.round_trips
 
     @property
     def send_ahead_window_bytes(self) -> int:
         """How many unanswered bytes a send-ahead print keeps on the wire by default: the printer's receive buffer
-        less the room kept for a probe or a command of yours."""
-        return self._link.send_ahead_window_bytes
+        less the room kept for a probe or a command of yours.
 
-    @contextlib.contextmanager
-    def sending_ahead(self, max_in_flight: int) -> Generator[None]:
+        Raises:
+            NotSupportedError: a served printer: the service sets the window of its prints.
+        """
+        return self._backend.send_ahead_window_bytes
+
+    def sending_ahead(self, max_in_flight: int) -> AbstractContextManager[None]:
         """Let up to `max_in_flight` commands share the wire while the block runs (a benchmark's concurrent
         `send()`s); the window is restored afterwards. Commands whose answers could be confused still go one at a
         time (see `marlin_aio.protocol.matching`).
 
         Raises:
             ValueError: `max_in_flight` is below 1.
+            NotSupportedError: a served printer: the service's wire carries every client's commands.
         """
-        saved = self._link.window
-        self._link.set_window(max_in_flight, saved[1])
-        try:
-            yield
-        finally:
-            self._link.set_window(*saved)
+        return self._backend.sending_ahead(max_in_flight)
 
     @property
     def state(self) -> LinkState:
         """Where the link stands: CONNECTING, READY, LOCKED, STOPPED (M999 resumes), HALTED (needs a reset) or
-        LOST (closed, or the port went away)."""
-        state = self._link.state
-        return LinkState.CONNECTING if self._connecting and state is not LinkState.LOST else state
+        LOST (closed, or the port went away). A served printer is READY or LOST."""
+        return self._backend.state
 
     @property
     def is_connected(self) -> bool:
         """True while the link is open and has not been lost."""
-        return self._link.is_open
+        return self._backend.is_connected
 
     async def wait_for_failure(self) -> MarlinError:
         """Wait until the printer halts or the link is lost or closed, and return why (the error commands fail with
         from then on); at once if that has happened already. For a supervisor that keeps a printer connected: no
         task wakes up per reading while it waits.
         """
-        failure = self._failure()
-        if failure is not None:
-            return failure
-        waiter: asyncio.Future[MarlinError] = asyncio.get_running_loop().create_future()
-        self._failure_waiters.append(waiter)
-        try:
-            return await waiter
-        finally:
-            if waiter in self._failure_waiters:
-                self._failure_waiters.remove(waiter)
-
-    def _failure(self) -> MarlinError | None:
-        """Why the printer can take no more commands (the link lost, the printer halted), or None."""
-        return self._link.lost if self._link.lost is not None else self._link.halted
+        return await self._listeners.wait_for_failure(self._backend.failure())
 
     # ------------------------------------------------------------------------------------------- firmware requests
 
@@ -867,17 +506,17 @@ class Printer:
 
         Answer it with `answer_prompt(index)`; the firmware closes it with `//action:prompt_end`.
         """
-        return self._requests.prompt
+        return self._backend.prompt
 
     @property
     def waiting_for_user(self) -> bool:
         """True while a command waits for a person (`echo:busy: paused for user`: M600, M0/M1), until it ends."""
-        return self._requests.waiting_for_user
+        return self._backend.waiting_for_user
 
     @property
     def last_host_request(self) -> HostRequest | None:
         """The firmware's last pause, paused, resume, resumed, cancel or disconnect request, or None."""
-        return self._requests.last
+        return self._backend.last_host_request
 
     def on_host_request(self, callback: Callable[[HostRequest], None]) -> Callable[[], None]:
         """Call `callback` with each `HostRequest` from now on (prompts shown and closed, pause, resume, cancel,
@@ -886,117 +525,55 @@ class Printer:
         It is called on the event loop soon after the line that asked (never inside the link's read handler); if
         it raises, the error is logged (logger "marlin_aio") and the link and the other listeners go on.
         """
-        self._request_listeners.append(callback)
+        return self._listeners.on_host_request(callback)
 
-        def stop() -> None:
-            if callback in self._request_listeners:
-                self._request_listeners.remove(callback)
-
-        return stop
-
-    async def host_requests(self) -> AsyncGenerator[HostRequest, None]:
+    def host_requests(self) -> AsyncGenerator[HostRequest, None]:
         """Yield each `HostRequest` from now on (see `on_host_request`), until the link ends.
 
         Raises:
             MarlinError: the link was lost or closed, or the printer halted (at once if it already was).
         """
-        queue: asyncio.Queue[HostRequest | MarlinError] = asyncio.Queue()
-        stop = self.on_host_request(queue.put_nowait)
-        self._request_queues.append(queue)
-        try:
-            failure = self._failure()
-            if failure is not None:
-                raise failure
-            while True:
-                item = await queue.get()
-                if isinstance(item, MarlinError):
-                    raise item
-                yield item
-        finally:
-            stop()
-            self._request_queues.remove(queue)
+        return self._listeners.host_requests(self._backend.failure)
 
     async def answer_prompt(self, index: int) -> None:
         """Answer the open prompt with its button `index` (0 the first): `M876 S<index>`.
 
         With the firmware's EMERGENCY_PARSER (its M115 says so) it is written at once, ahead of anything queued,
-        as a printer waiting for a person (M600) reads nothing else; without, it is sent like any command.
+        as a printer waiting for a person (M600) reads nothing else; without, it is sent like any command. (A
+        served printer: the service checks `index` against the prompt open there, and writes it.)
 
         Raises:
             ValueError: no prompt is open, or it has no button `index` (nothing is written).
             MarlinError: as `send`.
         """
-        prompt = self._requests.prompt
-        if prompt is None:
-            raise ValueError("no prompt is open: there is nothing to answer")
-        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < len(prompt.buttons):
-            buttons = ", ".join(f"{number} {label}" for number, label in enumerate(prompt.buttons)) or "none"
-            raise ValueError(f"the prompt {prompt.message!r} has no button {index!r} (its buttons: {buttons})")
-        command = f"M876 S{index}"
-        if self.capabilities.get("EMERGENCY_PARSER"):
-            self._link.write_emergency(command)
-        else:
-            await self.send(command)
-        self._requests.answered()
+        await self._backend.answer_prompt(index)
 
-    def _host_request(self, request: HostRequest, now: float) -> None:
-        """Act on a request of the firmware (in the read path: only state changes here, the rest is scheduled)."""
-        _log.info("the printer asked: //action:%s %s", request.action, request.argument)
-        handle = self._print
-        if handle is not None and not handle.finished:
-            job = handle.job
-            if request.action in PRINT_PAUSES:
-                job.pause(request.reason)
-            elif request.action in PRINT_RESUMES:
-                # Resuming writes the next line: from the loop, not from inside this read's step.
-                self._link.loop.call_soon(handle.resume)
-            elif request.action in PRINT_CANCELS:
-                job.cancel(now, request.reason)
-        if request.action == "disconnect":
-            self._link.loop.call_soon(self._disconnect_requested, request)
-        if self._request_listeners:
-            self._link.loop.call_soon(self._tell_request_listeners, request)
 
-    def _disconnect_requested(self, request: HostRequest) -> None:
-        self._poller.cancel()
-        extra = f" ({request.argument})" if request.argument else ""
-        self._link.drop(ConnectionLostError(f"the printer asked the host to disconnect (//action:disconnect{extra})"))
+class ServedPrinter(Printer):
+    """A `Printer` of `marlin-temp serve` (what `Printer("serve:NAME")` makes): the same members, on the service's
+    backend (`marlin_aio.aio.served`), and what only a service has: `name` and `call`."""
 
-    def _tell_request_listeners(self, request: HostRequest) -> None:
-        for listener in list(self._request_listeners):
-            try:
-                listener(request)
-            except Exception:  # a listener's bug must not reach the link
-                _log.exception("a host request listener failed on %s", request.action)
+    _backend: ServedBackend
 
-    # ------------------------------------------------------------------------------------------- events
+    def __init__(self, port: str, **options: Any) -> None:
+        if not port.startswith(SERVE_PREFIX):
+            raise ValueError(f"not a served printer: {port!r} (expected serve:NAME)")
+        super().__init__(port, **options)
 
-    def _on_event(self, event: Event, now: float) -> None:
-        if type(event) is Ok:  # most events are oks (a hundred polls a second): no pattern to try first
-            self._feed.on_event(event, now)
-            if self._requests.waiting_for_user:
-                self._requests.receive(event)
-            return
-        if isinstance(event, HostAction | BusyKeepalive):
-            request = self._requests.receive(event)
-            if request is not None:
-                self._host_request(request, now)
-        match event:
-            case Capability(name=name, enabled=enabled):
-                self.capabilities[name] = enabled
-            case FirmwareInfo():
-                self.firmware = event
-            case Start() if not self._connecting:
-                # The boot banner during the handshake is the handshake's; after it, the board restarted.
-                self._link_event(LinkEvent("reset", "the printer reset (it printed 'start'); its targets were cleared"))
-                self._requests.clear()
-                self._feed.on_event(event, now)
-            case _:
-                self._feed.on_event(event, now)
+    @property
+    def name(self) -> str | None:
+        """The service's name of the printer (None before `open()` for `serve:` alone: the service's only one)."""
+        return self._backend.name
 
-    def _after_results(self) -> None:
-        if self._print is not None:
-            self._print.check()
+    async def call(self, method: str, **params: Any) -> Any:
+        """Send the service a request about this printer (`method` and its parameters, as `marlin_aio.protocol.rpc`
+        lists them) and return its result: for what `Printer`'s API has no name for.
+
+        Raises:
+            ConnectionLostError: not open, or the service went away.
+            MarlinError, ValueError, RuntimeError, OSError: as the service raised them.
+        """
+        return await self._backend.call(method, **params)
 
 
 #: `connect(port, ...)` makes a `Printer` with the same options (one definition of them: `Printer`'s); open it

@@ -52,6 +52,7 @@ class RpcClient:
         self._where = where
         self._ids = itertools.count(1)
         self._waiting: dict[int, asyncio.Future[Any]] = {}
+        self._on_result: dict[int, Callable[[Any], None]] = {}
         self.closed: MarlinError | None = None
         self._steering: dict[int, str] = {}  # requests written with call_soon, by id: their refusals are logged
         loop = asyncio.get_running_loop()
@@ -80,8 +81,11 @@ class RpcClient:
         self._steering[request_id] = method
         self._writer.write(encode_message(request(request_id, method, params)))
 
-    async def call(self, method: str, params: dict[str, Any]) -> Any:
+    async def call(self, method: str, params: dict[str, Any], *, on_result: Callable[[Any], None] | None = None) -> Any:
         """Send a request and return its result, or raise the error the service answered with.
+
+        `on_result` is called with the result in the read loop, before any later message is handed on: what must
+        be in place for the notifications that follow the answer (a print's handle, for its progress).
 
         Raises:
             ConnectionLostError: the service went away before answering.
@@ -92,6 +96,8 @@ class RpcClient:
         request_id = next(self._ids)
         future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
         self._waiting[request_id] = future
+        if on_result is not None:
+            self._on_result[request_id] = on_result
         try:
             self._writer.write(encode_message(request(request_id, method, params)))
             return await future
@@ -105,6 +111,7 @@ class RpcClient:
         finally:
             # Given up (cancelled) or answered: either way nobody waits for this id any more.
             self._waiting.pop(request_id, None)
+            self._on_result.pop(request_id, None)
 
     async def _read(self) -> None:
         reason = f"the service at {self._where} closed the connection"
@@ -144,8 +151,16 @@ class RpcClient:
             return  # the answer to a request given up, or to one written with call_soon
         if "error" in message:
             future.set_exception(error_from_json(message["error"]))
-        else:
-            future.set_result(message.get("result"))
+            return
+        result = message.get("result")
+        on_result = self._on_result.pop(request_id, None)  # type: ignore[arg-type]
+        if on_result is not None:
+            try:
+                on_result(result)
+            except Exception as exc:  # a malformed result: the caller's error, never the read loop's
+                future.set_exception(exc)
+                return
+        future.set_result(result)
 
     def _close(self, error: MarlinError) -> None:
         if self.closed is not None:

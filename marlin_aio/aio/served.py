@@ -1,8 +1,8 @@
-"""A printer that `marlin-temp serve` owns, with `Printer`'s API: `marlin_aio.connect("serve:NAME")`.
+"""A printer that `marlin-temp serve` owns: `Printer`'s backend for `serve:NAME` (`marlin_aio.connect("serve:NAME")`).
 
 The service holds the serial port and keeps the printer connected; any number of clients share it through its
-Unix socket (JSON-RPC 2.0, one message per line: `marlin_aio.protocol.rpc`). `ServedPrinter` is a `Printer` whose
-commands travel as requests instead of G-code lines, so a program written for a port runs against a served
+Unix socket (JSON-RPC 2.0, one message per line: `marlin_aio.protocol.rpc`). `ServedBackend` turns each of
+`Printer`'s calls into a request instead of G-code lines, so a program written for a port runs against a served
 printer unchanged: `send`, `set_temperatures`, `wait_for_temperatures`, `temperature_readings`, `on_reading`,
 `start_print` and the rest, each request answered by its own reply. What differs, and why:
 
@@ -13,7 +13,10 @@ printer unchanged: `send`, `set_temperatures`, `wait_for_temperatures`, `tempera
 - The firmware's requests (`prompt`, `waiting_for_user`, `last_host_request`, `on_host_request`,
   `host_requests()`) are the service's: it tells each as its printer makes it, and `answer_prompt` is a request
   (the service checks the index against the prompt open there, and writes M876).
-- The link's own counters (`stats`, `trace`, `round_trips`) are the service's business: here they stay empty.
+- The link's figures are the service's link's: `stats` and `round_trips` are a copy of them fetched once a
+  second (`link_stats`), every client's commands and the service's polls included. The wire itself (`trace`), its
+  window (`sending_ahead`, `send_ahead_window_bytes`) and the pace of polls during prints
+  (`print_poll_interval_s`) are the service's to set: those raise `NotSupportedError`, saying where to look.
 - When the service loses the printer, this printer fails as a lost port would (`wait_for_failure()` returns,
   readers of temperatures end, commands fail with the service's error); open it again once the service has
   reconnected (`keep_connected` does that).
@@ -22,22 +25,25 @@ Where: `serve:NAME@tcp://HOST:PORT` reaches a service's TCP listener (its token 
 `serve:NAME` is printer NAME at the default socket (`default_socket_path()`), `serve:NAME@/path/to.sock`
 at that socket, and `serve:` alone the service's only printer.
 
-Over 400 lines because it is `Printer`'s API replaced method by method (commands, temperatures, prints, the
-firmware's requests) over one connection: spread over modules, a reader would no longer see in one place which of
-`Printer`'s methods a served printer answers differently.
+Over 400 lines because it is `Printer`'s backend member by member (commands, temperatures, prints, the firmware's
+requests, the link's figures) over one connection: spread over modules, a reader would no longer see in one place
+how a served printer answers each of `Printer`'s members.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import os
-from collections.abc import AsyncGenerator, AsyncIterator, Iterable, Sequence
+from collections import deque
+from collections.abc import AsyncIterator, Callable, Iterable, Sequence
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
-from marlin_aio.aio.printer import LinkEvent, Printer
+from marlin_aio.aio.listeners import LinkEvent, Listeners
 from marlin_aio.aio.printhandle import PrintHandle
 from marlin_aio.aio.rpcclient import RpcClient
 from marlin_aio.aio.servedprint import ServedPrintHandle, absolute, check_file, file_lines, upload
@@ -46,11 +52,15 @@ from marlin_aio.errors import (
     ConnectError,
     ConnectionLostError,
     MarlinError,
+    NotSupportedError,
     PortNotFoundError,
     PortPermissionError,
     PrinterHaltedError,
+    RemoteProtocolError,
 )
+from marlin_aio.protocol.commands import validate_command
 from marlin_aio.protocol.events import FirmwareInfo
+from marlin_aio.protocol.heaters import HeaterLimits, check_gcode_targets
 from marlin_aio.protocol.hostrequests import HostRequest, Prompt
 from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.printjob import gcode_commands
@@ -64,27 +74,39 @@ from marlin_aio.protocol.rpc import (
     reading_from_json,
     reply_from_json,
 )
+from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import TemperatureReading
+from marlin_aio.protocol.trace import Trace
 
-__all__ = ["ServedPrinter"]
+__all__ = ["LINK_STATS_INTERVAL_S", "ServedBackend"]
 
 _log = logging.getLogger("marlin_aio")
 
+#: How often the copy of the service's link figures (`stats`, `round_trips`) is fetched while open.
+LINK_STATS_INTERVAL_S = 1.0
 
-class ServedPrinter(Printer):
-    """A printer owned by `marlin-temp serve`, reached through its socket: `Printer("serve:NAME")` makes one.
+_STAT_FIELDS = tuple(field.name for field in dataclasses.fields(LinkStats))
+_NO_STATS = LinkStats(**dict.fromkeys(_STAT_FIELDS, 0))
 
-    The arguments are `Printer`'s; those about the serial link (`baudrate`, `handshake`, `numbered`, the window,
-    `password`) are the service's business and are ignored here. The heater limits still apply: a target over them
-    is refused before anything is sent (and the service checks against its own).
+
+class ServedBackend:
+    """A printer owned by `marlin-temp serve`, reached through its socket (see the module's docstring).
+
+    Of `Printer`'s arguments only the port, `timeout_s` and the heater limits mean something here: a target over
+    them is refused before anything is sent (and the service checks against its own).
     """
 
-    _rpc: RpcClient | None = None
-
-    def __init__(self, port: str, **options: Any) -> None:
-        super().__init__(port, **options)
+    def __init__(self, port: str, listeners: Listeners, *, timeout_s: float, limits: HeaterLimits) -> None:
+        self.port = port
+        self.timeout_s = timeout_s
+        self._limits = limits
+        self._listeners = listeners
+        self._feed = listeners.feed
         self.name, self.socket_path = parse_served_port(port)
         self._remote = self.socket_path.startswith(TCP_PREFIX)
+        self.firmware: FirmwareInfo | None = None
+        self.capabilities: dict[str, bool] = {}
+        self._rpc: RpcClient | None = None
         self._lost: MarlinError | None = None
         self._served_print: ServedPrintHandle | None = None
         self._link_up = False
@@ -93,6 +115,16 @@ class ServedPrinter(Printer):
         self._prompt: Prompt | None = None
         self._waiting_for_user = False
         self._last_request: HostRequest | None = None
+        # The service's link figures as last fetched (`link_stats`), round trips on this process's clock.
+        self._stats = _NO_STATS
+        self._round_trips: deque[tuple[float, float]] = deque(maxlen=8192)
+        self._round_trips_until_s = float("-inf")  # the newest round trip copied, on the service's clock
+        self._no_link_stats: str | None = None  # why the service tells none (it is older than this client)
+        self._refresher: asyncio.Task[None] | None = None
+
+    def set_limits(self, limits: HeaterLimits) -> None:
+        """Check every command and print line against `limits` from now on (before it is sent)."""
+        self._limits = limits
 
     # ------------------------------------------------------------------------------------------- lifecycle
 
@@ -132,7 +164,7 @@ class ServedPrinter(Printer):
             raise ConnectError(
                 f"cannot reach the service at {where}: {getattr(exc, 'strerror', None) or exc}"
             ) from None
-        self._loop = asyncio.get_running_loop()
+        self._loop = self._listeners.loop = asyncio.get_running_loop()
         self._lost = None
         self._served_print = None
         self._rpc = RpcClient(reader, writer, self._notified, self._service_closed, where)
@@ -146,15 +178,15 @@ class ServedPrinter(Printer):
                 "hello", {"printer": self.name, "subscribe": ["readings", "link", "progress", "requests"]}
             )
             self._take_hello(hello)
+            await self._fetch_link_stats(first=True)
         except BaseException:
             await self.close()
             raise
+        if self._no_link_stats is None:
+            self._refresher = self._loop.create_task(self._refresh_link_stats(), name=f"link stats of {self.port}")
         _log.info("connected to %s through the service at %s", self.name, where)
-        self._link_event(
-            LinkEvent(
-                "connected", f"{self.port} (served: {self.firmware.name if self.firmware else 'firmware unknown'})"
-            )
-        )
+        firmware = self.firmware.name if self.firmware else "firmware unknown"
+        self._listeners.link_event(LinkEvent("connected", f"{self.port} (served: {firmware})"))
 
     def _take_hello(self, hello: Any) -> None:
         if not isinstance(hello, dict) or not isinstance(hello.get("printer"), dict):
@@ -180,13 +212,19 @@ class ServedPrinter(Printer):
 
     async def close(self) -> None:
         """Leave the service (the printer stays connected there, and a print started from here goes on)."""
+        refresher, self._refresher = self._refresher, None
+        if refresher is not None:
+            refresher.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await refresher
         rpc, self._rpc = self._rpc, None
         if rpc is not None:
             await rpc.aclose()
 
     @property
     def reset_on_open(self) -> bool:
-        """Always False: whether the board reset when the service opened its port is the service's news."""
+        """Always False: this connection opens no port, so it cannot reset the board (the service's can: its
+        news)."""
         return False
 
     # ------------------------------------------------------------------------------------------- notifications
@@ -202,7 +240,7 @@ class ServedPrinter(Printer):
             kind = params.get("kind")
             message = str(params.get("message", ""))
             if kind == "reset":
-                self._link_event(LinkEvent("reset", message))
+                self._listeners.link_event(LinkEvent("reset", message))
             elif kind in ("connection_lost", "halted", "thermal_runaway"):
                 error_type = PrinterHaltedError if kind != "connection_lost" else ConnectionLostError
                 self._printer_failed(error_type(f"{self.name} (served): {message}"))
@@ -215,8 +253,8 @@ class ServedPrinter(Printer):
             except RpcError:
                 _log.warning("the service told a malformed request of the printer: %s", str(params)[:200])
                 return
-            if request is not None and self._request_listeners and self._loop is not None:
-                self._loop.call_soon(self._tell_request_listeners, request)
+            if request is not None:
+                self._listeners.host_request(request)
 
     def _take_requests(self, params: dict[str, Any]) -> None:
         """The state of the firmware's requests from a `request` notification or a printer's info.
@@ -229,36 +267,22 @@ class ServedPrinter(Printer):
         self._prompt, self._last_request = prompt, last
         self._waiting_for_user = bool(params.get("waiting_for_user"))
 
-    def _failed(self, error: MarlinError) -> None:
-        # `Printer._failed` tells the `host_requests()` readers on its link's loop; this printer has no link open.
-        queues, self._request_queues = self._request_queues, []
-        try:
-            super()._failed(error)
-        finally:
-            self._request_queues = queues
-        if self._loop is not None:
-            for queue in queues:
-                self._loop.call_soon(queue.put_nowait, error)
-
     def _printer_failed(self, error: MarlinError) -> None:
         if self._lost is not None:
             return
         self._lost = error
         self._link_up = False
-        self._failed(error)  # readers, failure waiters, the link event: as a lost port tells them
+        self._listeners.failed(error)  # readers, failure waiters, the link event: as a lost port tells them
 
     def _service_closed(self, error: MarlinError) -> None:
         if self._served_print is not None:
             self._served_print.orphaned(error)
         self._printer_failed(error)
 
-    def _link_event(self, event: LinkEvent) -> None:
-        if self._link_listeners and self._loop is not None:
-            self._loop.call_soon(self._tell_link_listeners, event)
+    # ------------------------------------------------------------------------------------------- requests
 
     async def call(self, method: str, **params: Any) -> Any:
-        """Send the service a request about this printer (`method` and its parameters, as `marlin_aio.protocol.rpc`
-        lists them) and return its result: for what `Printer`'s API has no name for.
+        """Send the service a request about this printer and return its result (see `ServedPrinter.call`).
 
         Raises:
             ConnectionLostError: not open, or the service went away.
@@ -276,34 +300,30 @@ class ServedPrinter(Printer):
             raise ConnectionLostError(f"the printer {self.port} is not open")
         self._rpc.call_soon(method, {"printer": self.name})
 
-    def _call(self, method: str, **params: Any) -> Any:
+    def _call(self, method: str, *, on_result: Callable[[Any], None] | None = None, **params: Any) -> Any:
         rpc = self._rpc
         if rpc is None:
             raise ConnectionLostError(f"the printer {self.port} is not open")
         if self._lost is not None:
             raise self._lost
-        return rpc.call(method, {"printer": self.name, **params})
+        return rpc.call(method, {"printer": self.name, **params}, on_result=on_result)
 
     # ------------------------------------------------------------------------------------------- commands
 
-    async def send(self, command: str, *, timeout_s: float | None = None, numbered: bool | None = None) -> Reply:
-        """Send one command through the service and return its reply (see `Printer.send`; `numbered` is the
-        service's choice). Commands of all clients go out in the order the service received them.
+    async def send(self, command: str, *, timeout_s: float, numbered: bool | None) -> Reply:
+        """Send one command through the service and return its reply (`numbered` is the service's choice).
+        Commands of all clients go out in the order the service received them.
 
         Raises:
             ValueError: the command is malformed or over the limits (checked here first, nothing sent).
             MarlinError: as `Printer.send`, raised by the service; ConnectionLostError if the service went away.
         """
-        from marlin_aio.protocol.commands import validate_command
-        from marlin_aio.protocol.heaters import check_gcode_targets
-
         text = validate_command(command)
-        check_gcode_targets(text, self._heater_limits)
-        timeout = self.timeout_s if timeout_s is None else timeout_s
-        return reply_from_json(await self._call("send", command=text, timeout_s=timeout))
+        check_gcode_targets(text, self._limits)
+        return reply_from_json(await self._call("send", command=text, timeout_s=timeout_s))
 
     def emergency_stop(self) -> None:
-        """Have the service write M112 at once, ahead of anything queued (see `Printer.emergency_stop`).
+        """Have the service write M112 at once, ahead of anything queued.
 
         Raises:
             ConnectionLostError: the service is gone, so the stop cannot reach the printer (cut its power).
@@ -314,7 +334,11 @@ class ServedPrinter(Printer):
         _log.warning("emergency stop (M112) asked of the service for %s", self.name)
 
     def interrupt_wait(self) -> bool:
-        """Have the service end a heater wait with M108, where the firmware can (see `Printer.interrupt_wait`)."""
+        """Have the service end a heater wait with M108, where the firmware can.
+
+        Raises:
+            ConnectionLostError: the service is gone.
+        """
         if not self.capabilities.get("EMERGENCY_PARSER", False):
             return False
         if self._rpc is None:
@@ -360,28 +384,34 @@ class ServedPrinter(Printer):
         Raises:
             MarlinError: as `send`.
         """
-        assert self._loop is not None or self._rpc is None
         value = await self._call("read_temperatures")
-        loop = asyncio.get_running_loop()
-        return reading_from_json(value, loop.time())
+        return reading_from_json(value, asyncio.get_running_loop().time())
 
-    def temperature_readings(self) -> AsyncGenerator[TemperatureReading, None]:
-        """Every reading the service takes from now on (see `Printer.temperature_readings`)."""
-        return self._feed.readings(self._lost if self._rpc is not None else ConnectionLostError("not open"))
+    def readings_ended(self) -> MarlinError | None:
+        """Why a new reader gets no readings: not open, or the service or its printer went away."""
+        return self._lost if self._rpc is not None else ConnectionLostError(f"the printer {self.port} is not open")
 
     @contextlib.asynccontextmanager
-    async def poll_temperatures(self, interval_s: float = 0.01, *, auto_report: bool = True) -> AsyncIterator[None]:
-        """The service polls the printer at its own rate for every client at once: this asks for nothing more.
-
-        Raises:
-            ValueError: `interval_s` is not positive.
-        """
-        if not interval_s > 0:
-            raise ValueError(f"interval_s must be positive, got {interval_s}")
+    async def poll_temperatures(self, interval_s: float, auto_report: bool) -> AsyncIterator[None]:
+        """The service polls the printer at its own rate for every client at once: this asks for nothing more."""
         yield
 
-    def _polled(self) -> bool:
-        return True  # the service's own poller runs while it is connected
+    def polled(self) -> bool:
+        """True: the service's own poller runs while it is connected."""
+        return True
+
+    @property
+    def print_poll_interval_s(self) -> float:
+        """Not here: the service sets its own pace of polls.
+
+        Raises:
+            NotSupportedError: always.
+        """
+        raise self._unsupported("print_poll_interval_s", "the service polls its printer at its own rate")
+
+    @print_poll_interval_s.setter
+    def print_poll_interval_s(self, interval_s: float) -> None:
+        raise self._unsupported("print_poll_interval_s", "the service polls its printer at its own rate")
 
     # ------------------------------------------------------------------------------------------- printing
 
@@ -389,13 +419,13 @@ class ServedPrinter(Printer):
         self,
         source: str | Path | Iterable[str],
         *,
-        send_ahead: bool = False,
-        window_bytes: int | None = None,
-        check: bool = True,
-        timeout_s: float | None = None,
+        send_ahead: bool,
+        window_bytes: int | None,
+        check: bool,
+        timeout_s: float | None,
     ) -> PrintHandle:
         """Have the service print `source` (a file it can read, or a list of lines); the print runs there and
-        goes on if this client leaves. See `Printer.start_print`.
+        goes on if this client leaves.
 
         Raises:
             ValueError: a line is not a valid command or is over the limits (nothing is sent).
@@ -408,7 +438,7 @@ class ServedPrinter(Printer):
             params["window_bytes"] = window_bytes
         if timeout_s is not None:
             params["timeout_s"] = timeout_s
-        limits = self._heater_limits
+        limits = self._limits
         if isinstance(source, str | Path):
             path = absolute(source)
             if check:
@@ -422,11 +452,16 @@ class ServedPrinter(Printer):
                 for _ in gcode_commands(source, limits):  # a list over the limits is refused whole, as a file is
                     pass
             params["path"] = await upload(self, source)
-        value = await self._call("start_print", **params)
-        assert self._loop is not None
-        handle = ServedPrintHandle(self, progress_from_json(value.get("progress")), str(value.get("file", "")))
-        self._served_print = handle
-        return handle
+
+        def started(value: Any) -> None:
+            # In the read loop, as the answer arrives: a short print's progress (its end, even) may be the very next
+            # message, and must find its handle.
+            progress = progress_from_json(value.get("progress"))
+            self._served_print = ServedPrintHandle(self, progress, str(value.get("file", "")))
+
+        await self._call("start_print", on_result=started, **params)
+        assert self._served_print is not None
+        return self._served_print
 
     # ------------------------------------------------------------------------------------------- state
 
@@ -440,5 +475,98 @@ class ServedPrinter(Printer):
         """True while attached to the service and its printer is connected."""
         return self._rpc is not None and self._rpc.closed is None and self._lost is None and self._link_up
 
-    def _failure(self) -> MarlinError | None:
-        return self._lost  # the service lost the printer, or this client lost the service
+    def failure(self) -> MarlinError | None:
+        """Why the printer can take no more commands: the service lost it, or this client lost the service."""
+        return self._lost
+
+    # ------------------------------------------------------------------------------------------- the link's figures
+
+    @property
+    def stats(self) -> LinkStats:
+        """The service's link counters, as last fetched (at most `LINK_STATS_INTERVAL_S` old while open).
+
+        Raises:
+            NotSupportedError: the service tells none (it is older than this client).
+        """
+        if self._no_link_stats is not None:
+            raise self._unsupported("stats", self._no_link_stats)
+        return self._stats
+
+    @property
+    def round_trips(self) -> deque[tuple[float, float]]:
+        """The service's round trips (every client's commands and its polls), on this process's loop clock.
+
+        Raises:
+            NotSupportedError: the service tells none (it is older than this client).
+        """
+        if self._no_link_stats is not None:
+            raise self._unsupported("round_trips", self._no_link_stats)
+        return self._round_trips
+
+    @property
+    def trace(self) -> Trace:
+        """Not here: the wire is the service's.
+
+        Raises:
+            NotSupportedError: always.
+        """
+        raise self._unsupported(
+            "trace", "the wire of a served printer is the service's; use `marlin-temp serve --wire-log`"
+        )
+
+    @property
+    def send_ahead_window_bytes(self) -> int:
+        """Not here: the service sets the window of the prints it runs.
+
+        Raises:
+            NotSupportedError: always.
+        """
+        raise self._unsupported(
+            "send_ahead_window_bytes", "the service sets the window of the prints it runs (start_print's window_bytes)"
+        )
+
+    def sending_ahead(self, max_in_flight: int) -> AbstractContextManager[None]:
+        """Not here: the service's wire carries every client's commands, one window for all.
+
+        Raises:
+            NotSupportedError: always.
+        """
+        raise self._unsupported("sending_ahead", "the service's wire carries every client's commands in its window")
+
+    def _unsupported(self, member: str, why: str) -> NotSupportedError:
+        return NotSupportedError(member, f"{why} ({self.port} is a printer of marlin-temp serve)")
+
+    async def _fetch_link_stats(self, *, first: bool = False) -> None:
+        """Copy the service's link figures (`link_stats`); the first time, learn whether it tells them.
+
+        Raises:
+            MarlinError: the service or its printer went away.
+        """
+        try:
+            value = await self._call("link_stats")
+        except RemoteProtocolError as exc:
+            if not first:
+                raise
+            self._no_link_stats = f"the service does not tell its link's figures ({exc}); upgrade it"
+            return
+        try:
+            stats = value["stats"]
+            self._stats = LinkStats(**{name: int(stats[name]) for name in _STAT_FIELDS})
+            # Its loop's clock is not this one's (another process, maybe another machine): shifted by the difference
+            # now, so round trips line up with this process's readings (off by the answer's way here, a millisecond).
+            assert self._loop is not None
+            shift_s = self._loop.time() - float(value.get("now_s", self._loop.time()))
+            for answered_s, latency_s in value["round_trips"]:
+                if answered_s > self._round_trips_until_s:
+                    self._round_trips.append((float(answered_s) + shift_s, float(latency_s)))
+                    self._round_trips_until_s = answered_s
+        except (KeyError, TypeError, ValueError) as exc:
+            _log.warning("the service answered link_stats with what it should not (%r): %s", exc, str(value)[:200])
+
+    async def _refresh_link_stats(self) -> None:
+        while True:
+            await asyncio.sleep(LINK_STATS_INTERVAL_S)  # a pace, not a wait for something: figures this fresh
+            try:
+                await self._fetch_link_stats()
+            except (MarlinError, ValueError):
+                return  # the service or its printer went away: the figures stay as last fetched

@@ -7,10 +7,18 @@ import os
 import tempfile
 from pathlib import Path
 
-from marlin_aio.aio.printer import SERVE_PREFIX
+__all__ = [
+    "SERVE_PREFIX",
+    "SOCKET_ENV",
+    "TCP_PREFIX",
+    "TOKEN_ENV",
+    "default_socket_path",
+    "parse_served_port",
+    "service_holding",
+]
 
-__all__ = ["SOCKET_ENV", "TCP_PREFIX", "TOKEN_ENV", "default_socket_path", "parse_served_port", "service_holding"]
-
+#: A port that starts with this names a printer of `marlin-temp serve` (`serve:NAME`), not a device.
+SERVE_PREFIX = "serve:"
 #: `serve:NAME@tcp://HOST:PORT` names a service's TCP listener instead of its socket.
 TCP_PREFIX = "tcp://"
 #: The token a TCP client gives the service first (`marlin-temp serve --tcp` says where its token is).

@@ -50,8 +50,7 @@ from typing import Any
 
 import marlin_aio
 import marlin_aio.protocol
-from marlin_aio.service import verbs
-from marlin_aio.service.verbs import Caller, Owner, Queue
+from marlin_aio.service.verbs import VERBS, Caller, Owner, Queue, call
 
 from .presets import DEFAULT_PRESETS, Preset
 from .supervisor import FarmPrinter
@@ -533,38 +532,38 @@ async def run_command(command: FarmCommand, owner: Owner) -> Any:
         raise CommandError(f"printer {farm_printer.name!r} is not connected")
     caller = Caller("mqtt", "mqtt")  # a print's path was checked against --allowed-dir by parse_command
 
-    async def call(verb_name: str, **params: Any) -> Any:
-        return await verbs.call(owner, verb_name, {"printer": command.printer, **params}, caller)
+    async def run(verb_name: str, **params: Any) -> Any:
+        return await call(owner, verb_name, {"printer": command.printer, **params}, caller)
 
     match command.action:
         case "set_temperatures" if command.preset is not None:
-            return await call("apply_preset", name=command.preset)
+            return await run("apply_preset", name=command.preset)
         case "set_temperatures":
-            await call("set_temperatures", **command.targets)
+            await run("set_temperatures", **command.targets)
             return {"targets": command.targets}
         case "gcode":
             replies = []
             for text in command.gcode:
-                reply = await call("send", command=text)
+                reply = await run("send", command=text)
                 replies.append({"command": text, "lines": reply["lines"]})
             return {"replies": replies}
         case "print":
             assert command.path is not None
-            job = await call("start_print", path=str(command.path))
+            job = await run("start_print", path=str(command.path))
             return {"started": job["file"]}
         case "emergency_stop":
-            await call("emergency_stop")
+            await run("emergency_stop")
             return {"sent": "M112"}
         case "answer_prompt":
-            return await call("answer_prompt", index=command.index)
+            return await run("answer_prompt", index=command.index)
         case "cancel":
-            job = (await call("cancel"))["job"]
+            job = (await run("cancel"))["job"]
             return {"cancelled_at_line": job["surely_run_line"], "job": job}
         case _:
-            job = await call(command.action)
+            job = await run(command.action)
             return {"state": job["progress"]["state"], "job": job}
 
 
-UNQUEUED_ACTIONS = frozenset(action for action, name in ACTION_VERBS.items() if verbs.VERBS[name].queue is Queue.URGENT)
+UNQUEUED_ACTIONS = frozenset(action for action, name in ACTION_VERBS.items() if VERBS[name].queue is Queue.URGENT)
 """Actions whose verb is urgent (`Queue.URGENT`): never refused for being too many waiting (a flood of slow
 commands must not keep the emergency stop out, nor the answer that ends an M600 they wait behind)."""

@@ -21,6 +21,9 @@ kept when the print cannot start (another one running, the printer offline).
 Errors are one line each: a malformed request (aiohttp logs it with a traceback and the offending header, which may
 hold the API key) becomes one short line with no secret, at most 10 every 10 s; a handler's unexpected exception is a
 500 and one line.
+
+Over 400 lines because it is the HTTP door whole: each route translates OctoPrint's shapes to and from the service's
+verbs (`marlin_aio.service.verbs`), and the bounds of each part of a request sit beside the route they guard.
 """
 
 from __future__ import annotations

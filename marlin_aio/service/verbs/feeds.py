@@ -10,8 +10,8 @@ from typing import Any
 
 import marlin_aio
 from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError
-from marlin_aio.service.verbs import SOCKETS, Access, Arg, Context, Encoded, Queue, Subscriber, verb
 from marlin_aio.service.verbs.printer import info
+from marlin_aio.service.verbs.table import SOCKETS, Access, Arg, Context, Encoded, Queue, Subscriber, verb
 
 __all__ = ["MAX_HISTORY_READINGS", "TOPICS"]
 

@@ -16,8 +16,8 @@ from typing import Any
 from marlin_aio.farm.job import Job
 from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError, progress_to_json
-from marlin_aio.service.verbs import REQUIRED, SOCKETS, SOCKETS_AND_HTTP, Access, Arg, Context, Owner, Queue, verb
 from marlin_aio.service.verbs.printer import MAX_TIMEOUT_S, connected
+from marlin_aio.service.verbs.table import REQUIRED, SOCKETS, SOCKETS_AND_HTTP, Access, Arg, Context, Owner, Queue, verb
 
 __all__ = ["check_printable", "start_job"]
 
@@ -104,7 +104,7 @@ async def upload(context: Context, args: dict[str, Any]) -> object:
     """Send a print as lines, in pieces; the last piece makes the file, removed once its print ends unless kept."""
     owner = context.owner
     if args["printer"] is not None:
-        from marlin_aio.service.verbs import printer_of
+        from marlin_aio.service.verbs.table import printer_of
 
         _refuse_if_busy(printer_of(owner, args["printer"]))  # before a byte is stored: a refused print costs nothing
     upload_id = args["upload_id"]

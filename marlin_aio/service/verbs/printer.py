@@ -3,6 +3,8 @@ emergency stop. Each is declared once (`marlin_aio.service.verbs`) and reached t
 
 from __future__ import annotations
 
+import asyncio
+import dataclasses
 from typing import Any
 
 import marlin_aio
@@ -10,7 +12,7 @@ from marlin_aio.farm.presets import find_preset, preset_targets
 from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.protocol import check_gcode_targets, check_target, validate_command
 from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError, reading_to_json, reply_to_json, requests_to_json
-from marlin_aio.service.verbs import (
+from marlin_aio.service.verbs.table import (
     NOT_HTTP,
     REQUIRED,
     SOCKETS,
@@ -123,9 +125,12 @@ async def status(context: Context, args: dict[str, Any]) -> object:
 async def link_stats(context: Context, args: dict[str, Any]) -> object:
     """The service's link counters for the printer and its latest round trips, `[answered_s, round_trip_s]`."""
     printer = connected(context.farm_printer)
-    stats = printer.stats
-    fields = {name: getattr(stats, name) for name in getattr(stats, "__dataclass_fields__", {})}
-    return {"stats": fields, "round_trips": [list(pair) for pair in list(printer.round_trips)[-256:]]}
+    round_trips = list(printer.round_trips)[-256:]  # the latest (a served printer asks once a second)
+    return {
+        "stats": dataclasses.asdict(printer.stats),
+        "round_trips": [[answered_s, latency_s] for answered_s, latency_s in round_trips],
+        "now_s": asyncio.get_running_loop().time(),  # the clock of `answered_s`, for a client to shift to its own
+    }
 
 
 # ------------------------------------------------------------------------------------------- commands
