@@ -535,7 +535,7 @@ class WatchControls:
         assert self.job is not None
         if key == "p":
             return ResumeJob() if self.job.state == "paused" else PauseJob()
-        self.question = f"cancel the print of {self.job.file}? y = yes, any other key = go on"
+        self.question = f"cancel the print of {self.job.file}?"  # the key help says y and any other key
         return None
 
     def _answer(self, key: str) -> Action | None:

@@ -366,19 +366,20 @@ def _key_helps(controls: WatchControls, width: int | None) -> list[Text]:
     items = controls.help_items()
     helps = [flow([_help_item(item) for item in items], width)]
     if controls.question is not None:
-        return helps  # two short items, and the question above says the same
+        return [*helps, _help_item(items[0])]  # at the least, the one key that cancels
     if controls.prompt is not None:
         helps.append(flow([_help_item(item) for item in items[:2]], width))
         return helps
     if controls.keys_enabled:
-        helps.append(_keys_only(items))
+        helps.append(_keys_only(items, width))
     # "Ctrl-C quits (keys need a terminal on stdin)": its first words are what must stay.
     helps.append(_help_item(items[-1].split(" (")[0]))
     return helps
 
 
-def _keys_only(items: list[str]) -> Text:
-    """The keys of `items` without their words, runs of digits as one range (1-2), the last item (q quit) whole."""
+def _keys_only(items: list[str], width: int | None = None) -> Text:
+    """The keys of `items` without their words, runs of digits as one range (1-2), the last item (q quit) whole;
+    at `width`, q quit goes to a line of its own rather than be split (a print job's p and c make it longer)."""
     keys = [item.partition(" ")[0] for item in items[:-1]]
     merged: list[str] = []
     run: list[str] = []
@@ -393,10 +394,7 @@ def _keys_only(items: list[str]) -> Text:
             run.append(key)
         elif key:
             merged.append(key)
-    text = Text(" ".join(merged), style="bold")
-    text.append("  ")
-    text.append_text(_help_item(items[-1]))
-    return text
+    return flow([Text(" ".join(merged), style="bold"), _help_item(items[-1])], width)
 
 
 def _help_item(item: str) -> Text:
