@@ -276,7 +276,7 @@ _JOB_STATE_STYLE = {
     "failed": "bold red",
     "interrupted": "bold red",
 }
-_BAR_CELLS = 20
+_BAR_CELLS = 12  # the whole line fits 80 columns with a starter of "socket client 12"
 _BAR_FROM_WIDTH = 60  # narrower, the bar would take a line of its own: the percent says it
 
 
