@@ -5,19 +5,23 @@ Pure data, no I/O and no rich: the live view, the plain-line output and the test
 Readings arrive about every 10 ms, so adding one must be cheap: it appends to a deque, trims the front and updates
 a bucket (`history.HeaterHistory`, whose docstring states the memory bound).
 
-`WatchControls` turns key presses into actions (set targets, fan, a G-code line, quit) without touching the
-printer: every target is checked here, with the limits `set` uses, so a refused one becomes a notice in the view
-and never an action. `watch/command.py` performs the actions and hands their outcome back as a `Notice`.
+`WatchControls` turns key presses into actions (set targets, fan, a G-code line, pause, resume or cancel a served
+printer's print job, quit) without touching the printer: every target is checked here, with the limits `set` uses,
+so a refused one becomes a notice in the view and never an action. `watch/command.py` performs the actions and
+hands their outcome back as a `Notice`.
 
 Over 400 lines because the view's data and the keys' meaning are read together: `WatchControls` checks a target
-against what `WatchModel` shows (the heaters the printer has), and both are pure, so one test file covers them.
+against what `WatchModel` shows (the heaters the printer has), and offers the job's keys only while `JobStatus`
+says a job runs; all of it is pure, so the tests need no printer.
 """
 
 from __future__ import annotations
 
 import statistics
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from marlin_aio import HeaterLimits, TemperatureReading
 from marlin_aio.farm.presets import DEFAULT_PRESETS, Preset
@@ -35,11 +39,15 @@ __all__ = [
     "WINDOWS_S",
     "Action",
     "AnswerPrompt",
+    "CancelJob",
     "HeaterStatus",
+    "JobStatus",
     "LinkHealth",
     "Notice",
+    "PauseJob",
     "Preset",
     "Quit",
+    "ResumeJob",
     "SendCommand",
     "SetFan",
     "SetTargets",
@@ -71,6 +79,59 @@ class HeaterStatus:
     rate_c_per_s: float | None
     state: str  # "heating", "cooling", "holding", "off"; with no target known "heating?" (powered) or "unknown"
     eta_s: float | None
+
+
+#: The job states in which the job holds its printer (the service's `JobState.active`, as its `job` verb says them).
+_ACTIVE_JOB_STATES = frozenset({"starting", "printing", "paused", "cancelling"})
+
+
+@dataclass(frozen=True, slots=True)
+class JobStatus:
+    """A served printer's print job as the view shows it: the service's `job` answer, read into fields."""
+
+    file: str
+    printer: str
+    state: str  # starting, printing, paused, cancelling, done, cancelled, failed, interrupted
+    percent: float | None
+    started_by: str
+    cancelled_by: str | None = None
+    error: str | None = None
+    surely_run_line: int = 0
+    may_have_run_line: int = 0
+    resume_line: int | None = None
+
+    @classmethod
+    def from_json(cls, value: Mapping[str, Any]) -> JobStatus:
+        """Read the service's job (`Job.to_json()`).
+
+        Raises:
+            KeyError, TypeError, ValueError: `value` is not a job.
+        """
+        percent = value.get("percent")
+        resume = value.get("resume_line")
+        return cls(
+            file=str(value["file"]),
+            printer=str(value["printer"]),
+            state=str(value["state"]),
+            percent=None if percent is None else float(percent),
+            started_by=str(value.get("started_by") or "?"),
+            cancelled_by=value.get("cancelled_by"),
+            error=value.get("error"),
+            surely_run_line=int(value.get("surely_run_line") or 0),
+            may_have_run_line=int(value.get("may_have_run_line") or 0),
+            resume_line=None if resume is None else int(resume),
+        )
+
+    @property
+    def active(self) -> bool:
+        """True while the job holds its printer (its keys are offered)."""
+        return self.state in _ACTIVE_JOB_STATES
+
+    @property
+    def resumable(self) -> bool:
+        """It ended before its end (cancelled, failed, interrupted) after the printer ran some of it: a resume
+        line means something."""
+        return self.state in ("cancelled", "failed", "interrupted") and self.surely_run_line > 0
 
 
 #: The footer's latency figures are of the round trips answered in this many seconds up to the latest: recent
@@ -291,7 +352,22 @@ class AnswerPrompt:
     label: str
 
 
-Action = SetTargets | TurnOff | SetFan | SendCommand | Quit | AnswerPrompt
+@dataclass(frozen=True, slots=True)
+class PauseJob:
+    """Pause the served printer's print job (the service stops feeding it; heaters stay as they are)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ResumeJob:
+    """Resume the served printer's paused print job."""
+
+
+@dataclass(frozen=True, slots=True)
+class CancelJob:
+    """Cancel the served printer's print job (asked, then confirmed with y): the service runs its cancel script."""
+
+
+Action = SetTargets | TurnOff | SetFan | SendCommand | Quit | AnswerPrompt | PauseJob | ResumeJob | CancelJob
 
 
 @dataclass(frozen=True, slots=True)
@@ -333,6 +409,9 @@ class WatchControls:
     cancels. Nothing here sends anything: a target above its limit, or not a number, becomes an error `notice`
     and no action.
 
+    While a served printer's print job runs (`show_job`), p pauses or resumes it and c asks whether to cancel it:
+    only y then cancels, any other key (or a paste) keeps it printing, so one stray key never ends a print.
+
     Args:
         limits: the highest targets allowed: the same `--max-hotend` and `--max-bed` as `marlin-temp set`.
         keys_enabled: whether key presses can arrive at all (stdin is a terminal); the view says so.
@@ -360,6 +439,10 @@ class WatchControls:
         self.heated = False
         """A key (a preset, h, b, +, or a target typed on the : line) set a heater's target above 0: on the way
         out, watch says what is still on."""
+        self.job: JobStatus | None = None
+        """The served printer's print job (None: no job yet, or not a served printer): `show_job` sets it."""
+        self.question: str | None = None
+        """The open cancel question, while c waits for its y."""
 
     # ------------------------------------------------------------------ what the view shows
 
@@ -367,12 +450,15 @@ class WatchControls:
         """The key help, one item per key (the view lays them out to fit the width)."""
         if not self.keys_enabled:
             return ["Ctrl-C quits (keys need a terminal on stdin)"]
+        if self.question is not None:
+            return ["y cancels the print", "any other key goes on"]
         if self._prompt is not None:
             if self._prompt.what == "command":
                 return ["Enter sends", "Esc cancels", "one G-code line, e.g. M114"]
             return ["digits, then Enter sets", "Esc cancels"]
         presets = [f"{key} {preset.name}" for key, preset in zip(PRESET_KEYS, self.presets, strict=False)]
         return [
+            *self._job_items(),
             "h hotend",
             "b bed",
             "o off",
@@ -383,6 +469,20 @@ class WatchControls:
             "w window",
             "q quit",
         ]
+
+    def _job_items(self) -> list[str]:
+        """The job's keys, first: while it prints or is paused (starting or cancelling, there is nothing to do)."""
+        if self.job is None or self.job.state not in ("printing", "paused"):
+            return []
+        return ["p resume" if self.job.state == "paused" else "p pause", "c cancel print"]
+
+    def show_job(self, job: JobStatus | None) -> None:
+        """The job as the service last told it; a cancel question about a job that ended meanwhile is closed."""
+        self.job = job
+        if self.question is not None and (job is None or not job.active):
+            self.question = None
+            ended = "" if job is None else f": {job.state}"
+            self.notice = Notice(f"the print ended{ended}; nothing cancelled")
 
     # ------------------------------------------------------------------ keys in
 
@@ -395,6 +495,8 @@ class WatchControls:
     def press(self, key: str, model: WatchModel) -> Action | None:
         """Handle one key (a character, or a whole escape sequence) or a paste (`PASTE` and its text); return the
         action it asks for, if any."""
+        if self.question is not None:
+            return self._answer(key)
         if key.startswith(PASTE):
             return self._paste(key[len(PASTE) :])
         if self._prompt is not None:
@@ -420,11 +522,28 @@ class WatchControls:
         if key == "o":
             self._wanted.clear()
             return TurnOff()
+        if key in "pc" and self._job_items():
+            return self._job_key(key)
         if key in "+=-_":
             return self._step(STEP_CELSIUS if key in "+=" else -STEP_CELSIUS, model)
         for preset_key, preset in zip(PRESET_KEYS, self.presets, strict=False):
             if key == preset_key:
                 return self._targets(preset.hotend_celsius, preset.bed_celsius, preset.name)
+        return None
+
+    def _job_key(self, key: str) -> Action | None:
+        assert self.job is not None
+        if key == "p":
+            return ResumeJob() if self.job.state == "paused" else PauseJob()
+        self.question = f"cancel the print of {self.job.file}?"  # the key help says y and any other key
+        return None
+
+    def _answer(self, key: str) -> Action | None:
+        """The key after c: y (either case) cancels; anything else, a paste included, keeps the print going."""
+        self.question = None
+        if key in ("y", "Y"):
+            return CancelJob()
+        self.notice = Notice("not cancelled: the print goes on")
         return None
 
     def _edit(self, key: str) -> Action | None:

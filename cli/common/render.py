@@ -6,7 +6,8 @@ reply) is a `rich.text.Text`, which reads no markup and no emoji codes: `Cap:REP
 Every part is laid out for the width it is given, from 30 columns up: the table takes the widest of its layouts
 that fits, and the lines made of several parts (footer, legend, key help) break between parts, never inside one.
 Given a height too, the view gives way in an order: the chart first, then the footer and the key help shorten,
-so the key help (how to quit) is always on screen.
+so the key help (how to quit) is always on screen. A served printer's print job is a line of its own above the
+table (`job_line`), and a part of each plain line (`plain_job`).
 
 Over 400 lines because the parts of the view are laid out together: the rows the chart gets, and which form of
 the footer and the key help fits, depend on what the table, the footer, a reply and the key help take at the same
@@ -28,14 +29,16 @@ from rich.text import Text
 from marlin_aio import TemperatureReading
 
 from .chart import Curve, flow, heater_colour, legend, plot_columns, time_chart
-from .model import HeaterStatus, LinkHealth, WatchControls, WatchModel, heater_name, target_text
+from .model import HeaterStatus, JobStatus, LinkHealth, WatchControls, WatchModel, heater_name, target_text
 
 __all__ = [
     "chart",
     "controls_view",
     "footer",
     "heater_table",
+    "job_line",
     "json_line",
+    "plain_job",
     "plain_line",
     "table_lines",
     "watch_view",
@@ -263,6 +266,69 @@ def footer(
     return flow(parts, width)
 
 
+_JOB_STATE_STYLE = {
+    "starting": "yellow",
+    "printing": "bold green",
+    "paused": "bold yellow",
+    "cancelling": "bold yellow",
+    "done": "green",
+    "cancelled": "bold red",
+    "failed": "bold red",
+    "interrupted": "bold red",
+}
+_BAR_CELLS = 12  # the whole line fits 80 columns with a starter of "socket client 12"
+_BAR_FROM_WIDTH = 60  # narrower, the bar would take a line of its own: the percent says it
+
+
+def _resume_parts(job: JobStatus) -> list[Text]:
+    """Where an ended print stopped: the line surely run, the ones that may have run, and where to resume."""
+    if not job.resumable:
+        return []
+    ran = f"ran line {job.surely_run_line}"
+    if job.may_have_run_line > job.surely_run_line:
+        ran += f" (maybe up to {job.may_have_run_line})"
+    parts = [Text(ran, style="dim")]
+    if job.resume_line is not None:
+        parts.append(Text(f"resume with --from-line {job.resume_line}", style="bold"))
+    return parts
+
+
+def job_line(job: JobStatus, width: int | None = None) -> Text:
+    """A served printer's print job, over the table: `print  part.gcode  42.0 %  ━━━━──  printing  started by
+    socket client 3`; once ended, how (cancelled by whom, the error) and where it stopped, with the resume line.
+
+    It breaks between its parts at `width`, never inside one; the file's name is shown as given (no markup read).
+    """
+    parts = [Text("print", style="bold"), Text(job.file, style="bold cyan")]
+    if job.active:
+        parts.append(Text("-" if job.percent is None else f"{job.percent:.1f} %", style="bold"))
+        if width is None or width >= _BAR_FROM_WIDTH:
+            done = 0 if job.percent is None else round(_BAR_CELLS * min(max(job.percent, 0.0), 100.0) / 100)
+            bar = Text("━" * done, style="green")
+            bar.append("─" * (_BAR_CELLS - done), style="dim")
+            parts.append(bar)
+    state = job.state + (f" by {job.cancelled_by}" if job.cancelled_by else "")
+    parts.append(Text(state, style=_JOB_STATE_STYLE.get(job.state, "")))
+    if job.active:
+        parts.append(Text(f"started by {job.started_by}", style="dim"))
+    else:
+        if job.percent is not None and job.state != "done":
+            parts.append(Text(f"at {job.percent:.1f} %"))
+        if job.error:
+            parts.append(Text(job.error, style="red"))
+        parts += _resume_parts(job)
+    return flow(parts, width)
+
+
+def plain_job(job: JobStatus) -> str:
+    """The job's part of a plain line: `job part.gcode printing 42.0%`, once ended with its resume line."""
+    percent = "" if job.percent is None else f" {job.percent:.1f}%"
+    text = f"job {job.file} {job.state}{percent}"
+    if job.resumable and job.resume_line is not None:
+        text += f" resume --from-line {job.resume_line}"
+    return text
+
+
 def controls_view(controls: WatchControls, width: int | None = None) -> Text:
     """Under the chart: the last action's outcome (a reply, or an error in red), the input line, the key help."""
     text = _notice_and_prompt(controls)
@@ -276,6 +342,8 @@ def _notice_and_prompt(controls: WatchControls, notice_lines: int | None = None)
     text = Text()
     if controls.printer_prompt_text is not None:
         text.append(controls.printer_prompt_text + "\n", style="bold yellow")
+    if controls.question is not None:
+        text.append(controls.question + "\n", style="bold red")
     notice = controls.notice
     if notice is not None:
         style = "bold red" if notice.error else "bold"
@@ -297,18 +365,21 @@ def _key_helps(controls: WatchControls, width: int | None) -> list[Text]:
     (`h b o +/- 1-4 f : w  q quit`); then only how to leave (the input line's Enter and Esc, or q)."""
     items = controls.help_items()
     helps = [flow([_help_item(item) for item in items], width)]
+    if controls.question is not None:
+        return [*helps, _help_item(items[0])]  # at the least, the one key that cancels
     if controls.prompt is not None:
         helps.append(flow([_help_item(item) for item in items[:2]], width))
         return helps
     if controls.keys_enabled:
-        helps.append(_keys_only(items))
+        helps.append(_keys_only(items, width))
     # "Ctrl-C quits (keys need a terminal on stdin)": its first words are what must stay.
     helps.append(_help_item(items[-1].split(" (")[0]))
     return helps
 
 
-def _keys_only(items: list[str]) -> Text:
-    """The keys of `items` without their words, runs of digits as one range (1-2), the last item (q quit) whole."""
+def _keys_only(items: list[str], width: int | None = None) -> Text:
+    """The keys of `items` without their words, runs of digits as one range (1-2), the last item (q quit) whole;
+    at `width`, q quit goes to a line of its own rather than be split (a print job's p and c make it longer)."""
     keys = [item.partition(" ")[0] for item in items[:-1]]
     merged: list[str] = []
     run: list[str] = []
@@ -323,10 +394,7 @@ def _keys_only(items: list[str]) -> Text:
             run.append(key)
         elif key:
             merged.append(key)
-    text = Text(" ".join(merged), style="bold")
-    text.append("  ")
-    text.append_text(_help_item(items[-1]))
-    return text
+    return flow([Text(" ".join(merged), style="bold"), _help_item(items[-1])], width)
 
 
 def _help_item(item: str) -> Text:
@@ -356,6 +424,7 @@ def watch_view(
     and how to quit stay on screen (30x12 and up).
     """
     statuses = [model.status(key) for key in model.heater_keys()]
+    job = None if controls is None or controls.job is None else job_line(controls.job, width)
     quit_hint = "q quits" if controls is None else ""
     link = model.link()
     footers: list[Text | None] = [
@@ -367,7 +436,7 @@ def watch_view(
     bottom, under = footers[0], controls_view(controls, width) if controls is not None else None
     if height is not None:
         # One line spare: the cursor's line after the view. Above the chart: the table and a blank line.
-        room = height - 1 - table_lines(statuses, width) - 1
+        room = height - 1 - table_lines(statuses, width) - 1 - (_lines(job, width) if job is not None else 0)
         for footer_index, help_index, notice_lines in _SHORTENINGS:
             bottom = footers[footer_index]
             under = None
@@ -381,7 +450,8 @@ def watch_view(
         # The chart's own time axis and legend, and a blank line under it.
         left -= 2 + _lines(legend(_curves(model), width), width)
         chart_height = min(left, 30) if left >= 4 else 0
-    parts: list[RenderableType] = [heater_table(statuses, width), Text("")]
+    parts: list[RenderableType] = [] if job is None else [job]
+    parts += [heater_table(statuses, width), Text("")]
     if chart_height:
         parts += [chart(model, width=width, height=chart_height), Text("")]
     if bottom is not None:
@@ -405,8 +475,9 @@ _SHORTENINGS: tuple[tuple[int, int, int | None], ...] = (
 )
 
 
-def plain_line(model: WatchModel, wall_time_s: float | None = None) -> str:
-    """One line per refresh for logs and pipes: `12:00:01 hotend 25.3/200 C 100% +3.30 C/s heating | bed ...`."""
+def plain_line(model: WatchModel, wall_time_s: float | None = None, job: JobStatus | None = None) -> str:
+    """One line per refresh for logs and pipes: `12:00:01 hotend 25.3/200 C 100% +3.30 C/s heating | bed ...`,
+    and a served printer's job last (`plain_job`)."""
     stamp = time.strftime("%H:%M:%S", time.localtime(wall_time_s if wall_time_s is not None else time.time()))
     parts = []
     for key in model.heater_keys():
@@ -416,7 +487,8 @@ def plain_line(model: WatchModel, wall_time_s: float | None = None) -> str:
         rate = "" if status.rate_c_per_s is None else f" {status.rate_c_per_s:+.2f} C/s"
         parts.append(f"{status.name} {status.actual:.1f}/{target} C{power}{rate} {status.state}")
     link = model.link()
-    return f"{stamp} " + " | ".join(parts) + f" | {link.polls_per_s:.0f} polls/s"
+    line = f"{stamp} " + " | ".join(parts) + f" | {link.polls_per_s:.0f} polls/s"
+    return line if job is None else f"{line} | {plain_job(job)}"
 
 
 def json_line(reading: TemperatureReading) -> str:

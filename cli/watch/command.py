@@ -11,6 +11,11 @@ polling, and hands each outcome back to the view: the port is held by watch, so 
 An action the library refuses (a target above the limits typed on the `:` line) is one line in the view, never a
 traceback; quitting while a target set by the keys is still on says so, in `set`'s words.
 
+On a printer of `marlin-temp serve`, the service's print job is read about once a second (its `job` verb, cheap)
+and shown over the table, in the plain lines and in the JSON lines; while it runs, p pauses or resumes it and c
+cancels it after a y (the actions go through the same task, as the service's `pause`, `resume` and `cancel`). A
+printer on a serial port has no job: none of it shows.
+
 The printer's text (replies, its firmware name) reaches the view as `rich.text.Text`, and the lines printed on
 stderr have markup and emoji codes off: nothing the printer or the user typed is read as rich markup.
 
@@ -25,8 +30,10 @@ import contextlib
 import json
 import time
 from collections import deque
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -43,8 +50,12 @@ from ..common.keys import key_presses, on_stop_signals
 from ..common.model import (
     Action,
     AnswerPrompt,
+    CancelJob,
+    JobStatus,
     Notice,
+    PauseJob,
     Quit,
+    ResumeJob,
     SendCommand,
     SetFan,
     SetTargets,
@@ -56,6 +67,7 @@ from ..common.prompts import prompt_text
 from ..common.render import plain_line, watch_view
 from ..farm.view import FarmKeys, detail_view, farm_row, farm_view, json_lines, plain_lines
 from ..heaters.command import say_heaters_left_on
+from ..job.command import describe_job
 from ..logs.files import TemperatureLog
 
 __all__ = ["WatchSettings", "watch_farm", "watch_printer"]
@@ -127,7 +139,7 @@ def _copy_round_trips(model: WatchModel, round_trips: deque[tuple[float, float]]
     return fresh[0][0] if fresh else since
 
 
-def _json_status(model: WatchModel) -> str:
+def _json_status(model: WatchModel, job: dict[str, Any] | None = None, served: bool = False) -> str:
     link = model.link()
     heaters = {}
     for key in model.heater_keys():
@@ -141,16 +153,17 @@ def _json_status(model: WatchModel) -> str:
             "state": status.state,
             "eta_s": status.eta_s,
         }
-    return json.dumps(
-        {
-            "time": time.time(),
-            "heaters": heaters,
-            "polls_per_s": link.polls_per_s,
-            "latency_median_ms": link.latency_median_ms,
-            "timeouts": link.timeouts,
-            "errors": link.errors,
-        }
-    )
+    line: dict[str, object] = {
+        "time": time.time(),
+        "heaters": heaters,
+        "polls_per_s": link.polls_per_s,
+        "latency_median_ms": link.latency_median_ms,
+        "timeouts": link.timeouts,
+        "errors": link.errors,
+    }
+    if served:
+        line["job"] = job  # the service's own shape (`marlin-temp job status --json`), null before the first
+    return json.dumps(line)
 
 
 _REPLY_LINES = 8  # of a G-code reply shown under the chart; M503 prints dozens
@@ -158,6 +171,41 @@ _REPLY_LINES = 8  # of a G-code reply shown under the chart; M503 prints dozens
 
 def _celsius(value: float) -> str:
     return "off" if value == 0 else f"{value:g} °C"
+
+
+#: How often the served printer's job is read (at most; a key that changes it reads it at once).
+JOB_EVERY_S = 1.0
+
+JobCall = Callable[..., Awaitable[Any]]
+
+
+def _job_call(printer: marlin_aio.Printer) -> JobCall | None:
+    """The served printer's requests to its service (`ServedPrinter.call`), or None: a printer on a serial port has
+    no job to read."""
+    call: JobCall | None = getattr(printer, "call", None)
+    return call
+
+
+async def _perform_job(printer: marlin_aio.Printer, action: PauseJob | ResumeJob | CancelJob) -> Notice:
+    """Pause, resume or cancel the served printer's job through the service's verbs.
+
+    Raises:
+        MarlinError: as the service raised it (the link went away).
+    """
+    call = _job_call(printer)
+    if call is None:
+        return Notice("this printer has no print job (not a printer of marlin-temp serve)", error=True)
+    verb = {PauseJob: "pause", ResumeJob: "resume", CancelJob: "cancel"}[type(action)]
+    try:
+        value = await call(verb)
+    except RuntimeError as exc:  # the service's refusal: none running, still starting
+        return Notice(" ".join(str(exc).split()), error=True)
+    job = value.get("job", value) if verb == "cancel" else value
+    if verb == "pause":
+        return Notice(f"paused {job['file']}: no new lines are sent; the heaters stay as they are (p resumes)")
+    if verb == "resume":
+        return Notice(f"resumed {job['file']}")
+    return Notice(describe_job(job))
 
 
 async def _perform(printer: marlin_aio.Printer, action: Action, model: WatchModel) -> Notice:
@@ -188,6 +236,8 @@ async def _perform(printer: marlin_aio.Printer, action: Action, model: WatchMode
     if isinstance(action, AnswerPrompt):
         await printer.answer_prompt(action.index)
         return Notice(f"answered the printer: {action.label} (M876 S{action.index})")
+    if isinstance(action, PauseJob | ResumeJob | CancelJob):
+        return await _perform_job(printer, action)
     if isinstance(action, SendCommand):
         reply = await printer.send(action.text)
         lines = list(reply.lines)
@@ -229,6 +279,36 @@ async def _session(
     wake = asyncio.Event()  # a key was pressed or an action finished: redraw now, not at the next refresh
 
     first = asyncio.Event()  # the first reading is shown as soon as it is read, not a refresh period later
+    call = _job_call(printer)
+    read_job = asyncio.Event()  # a job key was acted on: read the job now, not at the next tick
+    latest_job: dict[str, Any] | None = None
+    controls.show_job(None)  # a job of an earlier connection (--reconnect) is not this one's
+
+    async def follow_job(call: JobCall) -> None:
+        """Read the job about once a second; piped, say it in a line of its own when it starts or changes state."""
+        nonlocal latest_job
+        said: tuple[object, object] | None = None
+        while True:
+            read_job.clear()
+            try:
+                value = await call("job")
+            except marlin_aio.ConnectionLostError:
+                return  # the readings end too, and say why
+            except (marlin_aio.MarlinError, RuntimeError, ValueError, OSError) as exc:
+                controls.notice = Notice(f"the service tells no print job: {' '.join(str(exc).split())}", error=True)
+                wake.set()
+                return
+            job = None if value is None else JobStatus.from_json(value)
+            if job != controls.job:
+                latest_job = value
+                controls.show_job(job)
+                wake.set()
+            piped = not live_view and not settings.json_lines
+            if piped and value is not None and (value["id"], value["state"]) != said:
+                said = (value["id"], value["state"])
+                print(f"job: {describe_job(value)}", flush=True)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(read_job.wait(), min(settings.refresh_s, JOB_EVERY_S))
 
     async def consume() -> None:
         async for reading in printer.temperature_readings():
@@ -244,8 +324,14 @@ async def _session(
                 # M109, G28 and the like take a while: say it went out rather than show nothing.
                 controls.notice = Notice(f"> {action.text}", ("(waiting for the reply)",))
                 wake.set()
+            elif isinstance(action, CancelJob) and controls.job is not None:
+                # The service stops feeding, waits for what is in flight and runs the cancel script: seconds.
+                controls.notice = Notice(f"cancelling {controls.job.file}", ("(the service runs its cancel script)",))
+                wake.set()
             notice = await _outcome(printer, action, model)
             controls.finished(action, notice)
+            if isinstance(action, PauseJob | ResumeJob | CancelJob):
+                read_job.set()
             wake.set()
 
     def on_key(key: str) -> None:
@@ -281,6 +367,9 @@ async def _session(
         stopper = asyncio.create_task(stop.wait(), name="marlin-temp stop")
         waker = asyncio.create_task(wake.wait(), name="marlin-temp redraw")
         first_reading: asyncio.Task[bool] | None = asyncio.create_task(first.wait(), name="marlin-temp first reading")
+        job_follower: asyncio.Task[None] | None = None
+        if call is not None:
+            job_follower = asyncio.create_task(follow_job(call), name="marlin-temp print job")
         live = Live(console=console, screen=True, auto_refresh=False, transient=True) if live_view else None
         try:
             with (
@@ -296,11 +385,16 @@ async def _session(
                     waiting: set[asyncio.Task[object]] = {consumer, performer, stopper, waker}
                     if first_reading is not None:
                         waiting.add(first_reading)
+                    if job_follower is not None:
+                        waiting.add(job_follower)
                     done, _ = await asyncio.wait(waiting, timeout=timeout, return_when="FIRST_COMPLETED")
                     if consumer in done:
                         consumer.result()  # raises what ended the readings (link lost, printer halted)
                     if performer in done:
                         performer.result()  # it only ends by a bug: let it show
+                    if job_follower is not None and job_follower in done:
+                        job_follower.result()  # it ends when the link does (said by the readings), or by a bug
+                        job_follower = None
                     if waker in done:
                         wake.clear()
                         waker = asyncio.create_task(wake.wait(), name="marlin-temp redraw")
@@ -316,13 +410,20 @@ async def _session(
                     if live is not None:
                         live.update(view(), refresh=True)  # type: ignore[arg-type]
                     elif model.series and (scheduled or (deadline is not None and loop.time() >= deadline)):
-                        print(_json_status(model) if settings.json_lines else plain_line(model), flush=True)
+                        line = (
+                            _json_status(model, latest_job, served=call is not None)
+                            if settings.json_lines
+                            else plain_line(model, job=controls.job)
+                        )
+                        print(line, flush=True)
                     if stopper in done or (deadline is not None and loop.time() >= deadline):
                         return
         finally:
             tasks: list[asyncio.Task[object]] = [consumer, performer, stopper, waker]
             if first_reading is not None:
                 tasks.append(first_reading)
+            if job_follower is not None:
+                tasks.append(job_follower)
             stop_requests()
             for task in tasks:
                 task.cancel()

@@ -58,6 +58,9 @@ WATCH_HELP = "\n\n".join(
         "footer and the key help shorten (down to 30x12 the keys stay on screen).",
         "A prompt the printer opens (a filament change, a runout) is shown under the chart with its buttons; "
         "while it is open, its digit keys answer it (M876) instead of choosing a preset.",
+        "On a printer of marlin-temp serve (--port serve:NAME), the service's print job is shown over the table "
+        "(file, percent, state, who started it; once ended, how and the line to resume from): p pauses and "
+        "resumes it, and c cancels it after a question only y answers (any other key keeps it printing).",
         "With two or more hotends each one (hotend 0, hotend 1, ...) has its own row with its actual, target and "
         "power, and its own curve in the chart, whichever tool is active. When stdout is not a terminal it prints "
         "one plain line per refresh instead (or JSON lines with --json), and q is the only key.",
