@@ -195,3 +195,34 @@ async def test_a_second_print_is_one_line_naming_the_running_job_and_stores_noth
             assert "a print is already running" in answer["error"]["message"], answer
         assert (sorted(path.name for path in uploads.iterdir()) if uploads.exists() else []) == before
         await handle.cancel()
+
+
+async def test_a_print_sent_by_the_cli_keeps_its_name_everywhere_and_its_copy_is_removed(tmp_path: Path) -> None:
+    gcode = tmp_path / "benchy part.gcode"
+    gcode.write_text(moves(30))
+    async with serving(tmp_path) as served, raw_client(served) as raw:
+        process = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "marlin_temp",
+            "print",
+            str(gcode),
+            "--port",
+            served.url(),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
+            env=served.env(),
+        )
+        out, err = await asyncio.wait_for(process.communicate(), 120)
+        assert process.returncode == 0, (out, err)
+        job = (await raw.call("job", printer="sim"))["result"]
+        assert job["file"] == "benchy part.gcode" and job["state"] == "done", job
+        assert job["started_by"].startswith("socket client")
+        await until(lambda: any("print_finished" in line for line in served.lines), "the end told")
+        told = [line for line in served.lines if "print_started" in line or "print_finished" in line]
+        assert told and all("benchy part.gcode" in line for line in told), told
+        assert not any("sent" in line and ".gcode" in line for line in served.lines), served.lines
+        uploads = served.socket.parent / "uploads"
+        assert not (uploads.exists() and [p.name for p in uploads.iterdir() if not p.name.startswith(".")]), list(
+            uploads.iterdir()
+        )  # the service's copy went with its job

@@ -199,7 +199,10 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
             await _refuse_if_served_job(printer, label, options)
             try:
                 handle = await printer.start_print(
-                    plan.lines(), send_ahead=settings.send_ahead, window_bytes=settings.window_bytes
+                    plan.lines(),
+                    send_ahead=settings.send_ahead,
+                    window_bytes=settings.window_bytes,
+                    name=plan.path.name,
                 )
             except RuntimeError as exc:  # the service's job, started by someone else since the check above
                 raise UsageProblem(f"{exc} ({_job_hint(options)})", Exit.PORT_BUSY) from None

@@ -83,6 +83,7 @@ class PrinterBackend(Protocol):
         window_bytes: int | None,
         check: bool,
         timeout_s: float | None,
+        name: str | None = None,
     ) -> PrintHandle:
         """See `Printer.start_print`."""
 

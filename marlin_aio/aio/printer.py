@@ -388,6 +388,7 @@ class Printer(GcodeCommands):
         window_bytes: int | None = None,
         check: bool = True,
         timeout_s: float | None = None,
+        name: str | None = None,
     ) -> PrintHandle:
         """Start streaming G-code: a file path, or any iterable of lines (read lazily, so any size streams).
 
@@ -401,7 +402,8 @@ class Printer(GcodeCommands):
         with lines on the wire; the print then stops with a `RemoteProtocolError` that says so.
         Polls and `send()` keep working meanwhile; polls slow to `print_poll_interval_s`.
         A served printer's print runs inside the service (a file it can read, or lines sent to it first) and goes
-        on if this client leaves.
+        on if this client leaves. `name` is what the print is called (default: the file's name): a print of lines
+        made from `part.gcode` is `part.gcode` in every message and, served, to every client.
 
         Raises:
             ValueError: with `check`, a line of the file is not a valid command (nothing is sent).
@@ -412,7 +414,7 @@ class Printer(GcodeCommands):
         if window_bytes is not None and not 16 < window_bytes <= 65536:
             raise ValueError(f"window_bytes must be between 17 and 65536, got {window_bytes}")
         return await self._backend.start_print(
-            source, send_ahead=send_ahead, window_bytes=window_bytes, check=check, timeout_s=timeout_s
+            source, send_ahead=send_ahead, window_bytes=window_bytes, check=check, timeout_s=timeout_s, name=name
         )
 
     async def print_file(

@@ -277,6 +277,7 @@ class SerialBackend:
         window_bytes: int | None,
         check: bool,
         timeout_s: float | None,
+        name: str | None = None,
     ) -> PrintHandle:
         """Start streaming `source` on the link (see `Printer.start_print`).
 
@@ -292,6 +293,8 @@ class SerialBackend:
             job = await asyncio.to_thread(self._print_job, source, check)
         else:
             job = self._print_job(source, check)
+        if name is not None:
+            job.name = name  # what its messages call it (the file's name as its starter gave it)
         await send_until_processed(link, "M110 N0", timeout_s=self.timeout_s)  # the print's numbering starts fresh
         job.start_s = link.now()
         saved = link.window

@@ -423,6 +423,7 @@ class ServedBackend:
         window_bytes: int | None,
         check: bool,
         timeout_s: float | None,
+        name: str | None = None,
     ) -> PrintHandle:
         """Have the service print `source` (a file it can read, or a list of lines); the print runs there and
         goes on if this client leaves.
@@ -446,12 +447,18 @@ class ServedBackend:
                 # as a file of millions of lines takes a while.
                 await asyncio.to_thread(check_file, path, limits)
             # Over TCP the service is another machine: the file goes with the request, not its path.
-            params["path"] = await upload(self, file_lines(path)) if self._remote else path
+            if self._remote:
+                params["path"] = await upload(self, file_lines(path), name or Path(path).name)
+            else:
+                params["path"] = path
+            if name is not None:
+                params["name"] = name
         else:
             if check and isinstance(source, Sequence):
                 for _ in gcode_commands(source, limits):  # a list over the limits is refused whole, as a file is
                     pass
-            params["path"] = await upload(self, source)
+            # The job is called by its name everywhere (the service log, /api/job), not by the service's copy's.
+            params["path"] = await upload(self, source, name or "upload.gcode")
 
         def started(value: Any) -> None:
             # In the read loop, as the answer arrives: a short print's progress (its end, even) may be the very next

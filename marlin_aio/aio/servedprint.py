@@ -104,13 +104,15 @@ class ServedPrintHandle(PrintHandle):
     def _ask(self, method: str) -> None:
         self._printer.call_soon(method)
 
-    async def cancel(self, script: list[str] | tuple[str, ...] = ()) -> PrintProgress:
-        """Have the service stop the print, wait for it to end, then send `script` (see `PrintHandle.cancel`).
+    async def cancel(self, script: list[str] | tuple[str, ...] | None = None) -> PrintProgress:
+        """Have the service cancel the print (stop feeding, wait for the lines in flight), then run the job's cancel
+        script, as every door's cancel does: by default every heater and the fan off. `script` replaces it for this
+        cancel (`()`: none, the heaters left as they are).
 
         Raises:
             MarlinError: the print failed before it could be cancelled, or the script failed.
         """
-        await self._printer.call("cancel", script=list(script))
+        await self._printer.call("cancel", **({} if script is None else {"script": list(script)}))
         return await self.wait()
 
     async def wait(self) -> PrintProgress:
@@ -128,7 +130,7 @@ class ServedPrintHandle(PrintHandle):
         """Nothing to do: the service tells when the print ends."""
 
 
-async def upload(printer: ServedPrinterLike, lines: Iterable[str]) -> str:
+async def upload(printer: ServedPrinterLike, lines: Iterable[str], name: str = "upload.gcode") -> str:
     """Send `lines` to the service in pieces of at most `UPLOAD_PIECE_BYTES`; return the file it made of them.
     (A list or an iterator of any length: the service keeps the print, so it must have all of it.)"""
     upload_id: str | None = None
@@ -137,7 +139,7 @@ async def upload(printer: ServedPrinterLike, lines: Iterable[str]) -> str:
 
     async def send(done: bool) -> Any:
         nonlocal upload_id, piece, size
-        params: dict[str, Any] = {"lines": piece, "done": done, "name": "upload.gcode"}
+        params: dict[str, Any] = {"lines": piece, "done": done, "name": name}
         if upload_id is not None:
             params["upload_id"] = upload_id
         result = await printer.call("upload", **params)

@@ -177,7 +177,7 @@ async def resume(context: Context, args: dict[str, Any]) -> object:
 
 @verb(
     "cancel",
-    Arg("script", list, None, "commands to run instead of the job's cancel script (empty: the job's)"),
+    Arg("script", list, None, "commands to run instead of the job's cancel script ([]: none)"),
     access=Access.CONTROL,
     queue=Queue.URGENT,
     result="job (ended)",
@@ -188,7 +188,7 @@ async def cancel(context: Context, args: dict[str, Any]) -> object:
     farm_printer = context.farm_printer
     script = args["script"]
     running = farm_printer.job
-    if script and running is not None and running.active and running.cancel_task is None:
+    if script is not None and running is not None and running.active and running.cancel_task is None:
         running.cancel_script = tuple(script)
     job = await context.owner.farm.cancel_print(farm_printer, context.caller.who)
     context.owner.tell_progress(farm_printer)
