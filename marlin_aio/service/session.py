@@ -197,11 +197,9 @@ class Session:
     async def run(self) -> None:
         """Serve the client until it leaves or is let go."""
         writer_task = asyncio.create_task(self.write_loop(), name=f"client {self.number} writer")
-        ended_sending = False
         try:
-            ended_sending = await self._read()
-            if ended_sending and not self.closing:
-                await self._finish_taken()
+            if await self._read() and not self.closing:
+                await self._finish_taken()  # it ended its sending side: what it sent is still answered
         finally:
             for task in self.requests:
                 task.cancel()  # a client that left waits for nothing; a print it started goes on in the farm
