@@ -226,3 +226,18 @@ async def test_a_print_sent_by_the_cli_keeps_its_name_everywhere_and_its_copy_is
         assert not (uploads.exists() and [p.name for p in uploads.iterdir() if not p.name.startswith(".")]), list(
             uploads.iterdir()
         )  # the service's copy went with its job
+
+
+async def test_the_farm_ends_a_print_on_sigterm_as_serve_does(tmp_path: Path, broker: Broker) -> None:
+    """`marlin-temp farm` is the service plus its bridge: its SIGTERM runs the same life cycle as serve's."""
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text(moves(4_000))
+    args = ("--sims", "1", "--sim-speed", "50", "--interval", "0.05", "--broker", f"127.0.0.1:{broker.port}")
+    async with serving(tmp_path, *args, command="farm") as served, marlin_aio.connect(served.url("sim1")) as printer:
+        handle = await printer.start_print(gcode)
+        await until(lambda: handle.progress.lines_acked > 20, "the print under way")
+    # serving() sent SIGTERM and saw exit 0: the print was stopped with its cancel script, then the farm left.
+    stopped = [line for line in served.lines if "print_stopped" in line]
+    assert len(stopped) == 1 and "cancel script run (M104 S0; M140 S0; M107)" in stopped[0], served.lines
+    record = json.loads((served.socket.parent / "jobs" / "sim1.json").read_text())
+    assert record["state"] == "stopped" and record["surely_run"] > 20, record

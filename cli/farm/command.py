@@ -22,9 +22,10 @@ from rich.markup import escape
 from marlin_aio.aio import WireLog
 from marlin_aio.farm.bridge import Bridge, BridgeSettings, BrokerSettings
 from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
-from marlin_aio.service import Service, ServiceRunningError
+from marlin_aio.service import Lifecycle, Service, ServiceRunningError
 
 from ..common.connect import UsageProblem
+from ..serve.command import stop_prints
 
 __all__ = ["PASSWORD_ENV", "FarmOptions", "broker_settings", "run_farm"]
 
@@ -107,6 +108,7 @@ async def run_farm(
 
     def show(event: FarmEvent) -> None:
         bridge.on_event(event)
+        lifecycle.on_event(event)
         if not options.quiet:
             stamp = time.strftime("%H:%M:%S", time.localtime(event.time_s))
             errors.print(f"{stamp} {escape(event.printer)}: {escape(event.kind)}: {escape(event.message)}")
@@ -121,6 +123,10 @@ async def run_farm(
         await service.check_socket()
     except ServiceRunningError as exc:
         raise UsageProblem(f"{exc}: the farm is a service itself; stop that one, or give --socket") from None
+    # The service's life cycle, as `marlin-temp serve`'s: prints fed under a recorded bound, stopped with their
+    # cancel script on SIGTERM, reported after a kill.
+    lifecycle = Lifecycle(service)
+    lifecycle.install()
     names = ", ".join(spec.name for spec in specs)
     if not options.quiet:
         errors.print(
@@ -143,6 +149,7 @@ async def run_farm(
                 group.create_task(bridge.run(), name="bridge"),
             ]
             await stopped.wait()
+            await stop_prints(lifecycle, "SIGTERM", errors, [])
             for task in running:
                 task.cancel()
     except TimeoutError:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import os
 import secrets
 import signal
@@ -19,6 +20,7 @@ from pathlib import Path
 
 from rich.console import Console
 from rich.markup import escape
+from rich.text import Text
 
 from marlin_aio.aio import WireLog
 from marlin_aio.farm.supervisor import FarmEvent, PrinterSpec
@@ -36,7 +38,7 @@ from marlin_aio.service import (
 from ..common.connect import Exit, UsageProblem
 from .logs import ServeLogs
 
-__all__ = ["API_KEY_ENV", "ServeOptions", "default_log_dir", "run_serve", "secret"]
+__all__ = ["API_KEY_ENV", "ServeOptions", "default_log_dir", "run_serve", "secret", "stop_prints"]
 
 
 #: Where the OctoPrint API key can come from when no file is named.
@@ -98,13 +100,46 @@ async def run_serve(
     options: ServeOptions | None = None,
 ) -> None:
     """Serve `specs` at `socket` until `duration_s` passed, SIGTERM, or the task is cancelled; with `http`, the
-    OctoPrint API on that host and port too.
+    OctoPrint API on that host and port too. The service's warnings (a client let go, a malformed HTTP request,
+    each one line with no secret) are printed on `errors` meanwhile.
 
     Raises:
         UsageProblem: another service already listens at the socket (exit 2: it is the user's to stop), or the
             OctoPrint options do not fit.
         OSError: the socket cannot be made, or the HTTP port is in use.
     """
+    handler = _ConsoleHandler(errors)
+    logger = logging.getLogger("marlin_aio.service")
+    logger.addHandler(handler)
+    try:
+        await _run_serve(specs, socket, duration_s, errors, options)
+    finally:
+        logger.removeHandler(handler)
+
+
+class _ConsoleHandler(logging.Handler):
+    """The service's warnings as one dim line each on the serve command's stderr (the messages are the service's
+    own, made one line and redacted where they are made)."""
+
+    def __init__(self, errors: Console) -> None:
+        super().__init__(logging.WARNING)
+        self._errors = errors
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            line = record.getMessage().splitlines()[0] if record.getMessage() else record.levelname
+            self._errors.print(Text(f"serve: {line}"), style="dim", soft_wrap=True)
+        except Exception:  # logging must never end the service
+            self.handleError(record)
+
+
+async def _run_serve(
+    specs: list[PrinterSpec],
+    socket: Path | None,
+    duration_s: float | None,
+    errors: Console,
+    options: ServeOptions | None,
+) -> None:
 
     def show(event: FarmEvent) -> None:
         stamp = time.strftime("%H:%M:%S", time.localtime(event.time_s))
@@ -186,7 +221,7 @@ async def run_serve(
         async with asyncio.timeout(duration_s):
             await asyncio.wait([running, waiters[0]], return_when=asyncio.FIRST_COMPLETED)
         if signals and not running.done():
-            await _stop_prints(lifecycle, signals[0], errors, leave_now)
+            await stop_prints(lifecycle, signals[0], errors, leave_now)
     except TimeoutError:
         pass  # --duration is up
     finally:
@@ -211,7 +246,7 @@ async def run_serve(
         raise KeyboardInterrupt  # Ctrl-C ends as everywhere else: "interrupted", exit code 130
 
 
-async def _stop_prints(lifecycle: Lifecycle, why: str, errors: Console, leave_now: list[asyncio.Task[None]]) -> None:
+async def stop_prints(lifecycle: Lifecycle, why: str, errors: Console, leave_now: list[asyncio.Task[None]]) -> None:
     """End the running prints as the service stops (see `Lifecycle.stop`); a second signal leaves at once."""
     farm = lifecycle.service.farm
     printing = [fp.name for fp in farm.printers.values() if fp.print_handle and not fp.print_handle.finished]
