@@ -242,7 +242,7 @@ def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
     modules = library_modules(root)
     graph: dict[str, set[str]] = {}
     for module, path in modules.items():
-        targets = set()
+        targets: set[str] = set()
         for name, names in imports(path):
             targets.update(f"{name}.{n}" if f"{name}.{n}" in modules else name for n in names)
             if not names:  # `import marlin_aio.x`
