@@ -298,9 +298,9 @@ async def _session(
                 controls.notice = Notice(f"the service tells no print job: {' '.join(str(exc).split())}", error=True)
                 wake.set()
                 return
+            latest_job = value  # whole, for the JSON lines
             job = None if value is None else JobStatus.from_json(value)
             if job != controls.job:
-                latest_job = value
                 controls.show_job(job)
                 wake.set()
             piped = not live_view and not settings.json_lines
