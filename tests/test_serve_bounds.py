@@ -114,7 +114,8 @@ async def test_a_client_piling_up_unread_history_answers_delays_no_other_client_
                 acked.append(status["print"]["lines_acked"])
                 await asyncio.sleep(0.25)  # sampling the print's progress over two seconds; not a synchronisation
         assert all(b > a for a, b in itertools.pairwise(acked)), f"the print stalled: {acked}"
-        assert max(status_s) < 0.5, status_s  # 2.7 s on main 24a5b95
+        # A median: one sample on a machine loaded 15 times over its cores took 1.8 s, flood or not.
+        assert statistics.median(status_s) < 0.5, status_s  # 2.7 s on main 24a5b95
         assert "result" in await polite.call("cancel", printer="sim")
 
 
