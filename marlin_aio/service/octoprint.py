@@ -10,43 +10,39 @@ Served by aiohttp (a well-kept server, not a hand-written one), on 127.0.0.1 unl
 `GET /api/version` too, needs the API key (`X-Api-Key` header, or `apikey` in the query), compared in constant time;
 without it the answer is 403, as OctoPrint's, so a slicer's "test connection" fails on a wrong key.
 
-Bounds on every part of a request, so no client can make the service hold or write more than it means to: a request
-line and each header at most 8 KiB (64 headers), a JSON body 64 KiB, a form field beside the file 4 KiB (read in a
-bounded piece, never whole), 16 parts a form. Uploads go through the service's `Uploads` (a size bound and a quota
-for the folder, text only, a safe file name, never over another file), streamed to disk as they arrive: a body whose
-Content-Length shows it is over a bound is refused (413) before a byte is written, and one that grows past it while
-streaming is refused with its partial file removed. An upload with `print=true` is refused (409) before anything is
-kept when the print cannot start (another one running, the printer offline).
+Every part of a request is bounded (`httpbounds`): its headers, a JSON body, an upload's fields, its file (a
+size bound and a quota for the folder, checked before a byte is written when the length is told, and as it
+streams), and a bad request is one short log line with no secret. An upload with `print=true` is refused (409)
+before anything is kept when the print cannot start (another one running, the printer offline); a handler's
+unexpected exception is a 500 and one line.
 
-Errors are one line each: a malformed request (aiohttp logs it with a traceback and the offending header, which may
-hold the API key) becomes one short line with no secret, at most 10 every 10 s; a handler's unexpected exception is a
-500 and one line.
-
-Over 400 lines because it is the HTTP door whole: each route translates OctoPrint's shapes to and from the service's
-verbs (`marlin_aio.service.verbs`), and the bounds of each part of a request sit beside the route they guard.
+Over 400 lines because it is the HTTP door whole: each route translates OctoPrint's shapes to and from the
+service's verbs (`marlin_aio.service.verbs`), read in one place.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hmac
 import logging
-import math
-import re
-import time
 from pathlib import Path
 from typing import Any
-from urllib.parse import unquote
 
-from aiohttp import BodyPartReader, web
-from aiohttp.http_exceptions import HttpProcessingError
+from aiohttp import web
 
 import marlin_aio
 from marlin_aio.farm.job import JobState
 from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.protocol.rpc import RpcError, progress_from_json
 from marlin_aio.service import verbs
-from marlin_aio.service.uploads import UploadError, Uploads, UploadTooLargeError, check_name
+from marlin_aio.service.httpbounds import (
+    MAX_JSON_BYTES,
+    bounded_runner,
+    check_length,
+    one_line,
+    read_upload_form,
+    upload_errors,
+)
+from marlin_aio.service.uploads import Uploads, check_name
 from marlin_aio.service.verbs import Caller, Owner
 
 __all__ = ["OCTOPRINT_VERSION", "OctoPrintApi"]
@@ -65,24 +61,6 @@ _STATES = {
     JobState.PAUSED: "Paused",
     JobState.CANCELLING: "Cancelling",
 }
-
-#: The request line (path and query) and one header: aiohttp's own defaults, written down as a choice.
-MAX_LINE_BYTES = 8190
-MAX_FIELD_BYTES = 8190
-MAX_HEADERS = 64
-#: A JSON body (heater targets, job commands) is tens of bytes.
-MAX_JSON_BYTES = 64 * 1024
-#: A form field beside the file (`select`, `print`, `path`) is a word; the parts of a form a handful.
-MAX_FORM_FIELD_BYTES = 4096
-MAX_FORM_PARTS = 16
-#: What an upload's body may hold besides its file (boundaries, part headers, the small fields): a body longer than
-#: the upload bound by more than this is refused before it is read.
-FORM_SLACK_BYTES = 64 * 1024
-#: The form fields an upload's answer depends on; others are read (bounded) and dropped.
-_FORM_FIELDS = ("select", "print")
-#: At most this many malformed-request lines a window: a client sending garbage in a loop cannot fill the log.
-_LOG_BURST = 10
-_LOG_WINDOW_S = 10.0
 
 
 class OctoPrintApi:
@@ -149,7 +127,7 @@ class OctoPrintApi:
         except web.HTTPException:
             raise
         except Exception as exc:  # a bug of ours: the client gets a 500, the log one line, never a traceback
-            _log.error("%s %s failed: %s", request.method, request.path[:200], _one_line(exc, self._key.decode()))
+            _log.error("%s %s failed: %s", request.method, request.path[:200], one_line(exc, self._key.decode()))
             return _error(500, "Internal error")
         return response
 
@@ -159,14 +137,7 @@ class OctoPrintApi:
         Raises:
             OSError: the address is in use or not allowed.
         """
-        runner = web.AppRunner(
-            self.app,
-            access_log=None,
-            logger=_OneLineLog(_log, self._key.decode()),
-            max_line_size=MAX_LINE_BYTES,
-            max_field_size=MAX_FIELD_BYTES,
-            max_headers=MAX_HEADERS,
-        )
+        runner = bounded_runner(self.app, _log, self._key.decode())
         await runner.setup()
         site = web.TCPSite(runner, host, port)
         try:
@@ -373,32 +344,22 @@ class OctoPrintApi:
         over a bound (413), not text or not a well-formed form (400), or its print cannot start (409)."""
         if not request.content_type.startswith("multipart/"):
             raise web.HTTPBadRequest(text="upload a file as multipart/form-data")
-        if request.content_length is not None:
-            try:
-                self.uploads.check_room(max(0, request.content_length - FORM_SLACK_BYTES))
-            except UploadTooLargeError as exc:
-                raise web.HTTPRequestEntityTooLarge(
-                    max_size=self.uploads.max_bytes, actual_size=request.content_length, text=str(exc)
-                ) from None
+        check_length(request, self.uploads)
+
+        def before_file(fields: dict[str, str]) -> None:
+            if fields.get("print", "").lower() == "true":
+                self._check_can_start()  # before a byte of the file is written
+
         upload_id: str | None = None
         try:
-            fields, upload_id, name = await self._read_form(request)
-            select = fields.get("select", "false").lower() == "true"
-            start = fields.get("print", "false").lower() == "true"
-            if start:
-                self._check_can_start()  # again: the file may have come before the print field
-            stored = self.uploads.finish(upload_id, name)
-        except UploadTooLargeError as exc:
-            raise web.HTTPRequestEntityTooLarge(
-                max_size=self.uploads.max_bytes, actual_size=request.content_length or 0, text=str(exc)
-            ) from None
-        except UploadError as exc:
-            raise web.HTTPBadRequest(text=str(exc)) from None
-        except (
-            HttpProcessingError,
-            ValueError,
-        ) as exc:  # aiohttp's multipart reader: a body that is not the form it claims
-            raise web.HTTPBadRequest(text=f"not a well-formed multipart form ({_one_line(exc, '')})") from None
+            with upload_errors(self.uploads, request):
+                form = await read_upload_form(request, self.uploads, ("select", "print"), before_file)
+                upload_id = form.upload_id
+                select = form.fields.get("select", "false").lower() == "true"
+                start = form.fields.get("print", "false").lower() == "true"
+                if start:
+                    self._check_can_start()  # again: the file may have come before the print field
+                stored = self.uploads.finish(upload_id, form.name)
         finally:
             if upload_id is not None:
                 self.uploads.discard(upload_id)  # nothing if finished
@@ -416,62 +377,14 @@ class OctoPrintApi:
         answer = {"files": files, "done": True, "effectiveSelect": select, "effectivePrint": start}
         return web.json_response(answer, status=201)
 
-    async def _read_form(self, request: web.Request) -> tuple[dict[str, str], str, str]:
-        """The form's small fields, its file as an upload under way (the caller finishes or discards it), and the
-        file's name as given."""
-        reader = await request.multipart()
-        fields: dict[str, str] = {}
-        file: tuple[str, str] | None = None
-        try:
-            for _ in range(MAX_FORM_PARTS):
-                part = await reader.next()
-                if part is None:
-                    break
-                if not isinstance(part, BodyPartReader):
-                    raise web.HTTPBadRequest(text="a form inside the form is not taken")
-                if part.name == "file":
-                    if file is not None:
-                        raise web.HTTPBadRequest(text="one file per upload")
-                    # Some clients percent-encode the name (RFC 5987 style): decoded, then made safe all the same.
-                    name = check_name(unquote(part.filename or "upload.gcode"))
-                    if fields.get("print", "").lower() == "true":
-                        self._check_can_start()  # before a byte of the file is written
-                    file = (await self._receive(part), name)
-                else:
-                    value = await _field(part)
-                    if part.name in _FORM_FIELDS:
-                        fields[part.name] = value
-            else:
-                if await reader.next() is not None:
-                    raise web.HTTPBadRequest(text=f"a form of more than {MAX_FORM_PARTS} parts")
-        except BaseException:
-            if file is not None:
-                self.uploads.discard(file[0])
-            raise
-        if file is None:
-            raise web.HTTPBadRequest(text="no file in the upload")
-        return fields, file[0], file[1]
-
-    async def _receive(self, part: BodyPartReader) -> str:
-        upload_id = self.uploads.begin()
-        try:
-            while chunk := await part.read_chunk(65536):
-                self.uploads.append_bytes(upload_id, chunk)
-        except BaseException:
-            self.uploads.discard(upload_id)
-            raise
-        return upload_id
-
     async def file_command(self, request: web.Request) -> web.Response:
         """`POST /api/files/local/NAME` `{"command": "select", "print": true}`: select an uploaded file, and print."""
         body = await _json(request)
         if body.get("command") != "select":
             raise web.HTTPBadRequest(text="only the select command is supported")
         name = request.match_info["name"]
-        try:
+        with upload_errors(self.uploads, request):
             check_name(name)
-        except UploadError as exc:
-            raise web.HTTPBadRequest(text=str(exc)) from None
         path = self.uploads.folder / name
         if not self.uploads.is_finished(path):
             raise web.HTTPNotFound(text=f"no uploaded file {name[:100]!r}")
@@ -505,76 +418,3 @@ def _file_ref(path: Path) -> dict[str, Any]:
 
 def _error(status: int, message: str) -> web.Response:
     return web.json_response({"error": message}, status=status)
-
-
-async def _field(part: BodyPartReader) -> str:
-    """A small form field's text, read in one bounded piece: a huge field is refused, never held whole."""
-    data = bytearray()
-    while len(data) <= MAX_FORM_FIELD_BYTES and (chunk := await part.read_chunk(MAX_FORM_FIELD_BYTES + 1)):
-        data += chunk
-    if len(data) > MAX_FORM_FIELD_BYTES:
-        raise web.HTTPBadRequest(text=f"the form field {str(part.name)[:40]!r} is over {MAX_FORM_FIELD_BYTES} bytes")
-    return data.decode("utf-8", errors="replace")
-
-
-_UNPRINTABLE = re.compile(r"[^\x20-\x7e]+")
-
-
-def _one_line(exc: BaseException, secret: str) -> str:
-    """`exc` as one short printable line without `secret`: its kind and the first line of its message (aiohttp's
-    parser errors go on to quote the offending request bytes, which may hold the API key)."""
-    message = exc.message if isinstance(exc, HttpProcessingError) else str(exc)
-    first = _printable(str(message).strip().split("\n", 1)[0].strip().rstrip(":"), secret)
-    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
-
-
-def _printable(text: str, secret: str) -> str:
-    """`text` without `secret`, control characters or anything past 100 characters."""
-    if secret:
-        text = text.replace(secret, "<key>")
-    return _UNPRINTABLE.sub("?", text)[:100]
-
-
-class _OneLineLog(logging.LoggerAdapter):  # type: ignore[type-arg]  # generic only in typeshed, not at run time
-    """aiohttp's server log as the service wants it: each bad request one short line with no secret (aiohttp's
-    own is a traceback, and the header it could not parse, which may be the key), at most `_LOG_BURST` lines a
-    `_LOG_WINDOW_S`, then one line for what was left out: a client sending garbage in a loop costs a line a window.
-    """
-
-    def __init__(self, logger: logging.Logger, secret: str) -> None:
-        super().__init__(logger, {})
-        self._secret = secret
-        self._window_start_s = -math.inf
-        self._in_window = 0
-        self._left_out = 0
-
-    def log(self, level: int, msg: object, *args: object, **kwargs: Any) -> None:
-        """Log one line for what aiohttp reports (its traceback dropped), within the window's share.
-
-        Raises:
-            Nothing: a message that cannot be formatted is logged as its template.
-        """
-        if not self.isEnabledFor(level):
-            return
-        text = str(msg)
-        with contextlib.suppress(TypeError, ValueError):
-            text = text % args
-        text = _printable(text, self._secret)
-        exc = kwargs.get("exc_info")
-        if isinstance(exc, BaseException):
-            text = f"{text}: {_one_line(exc, self._secret)}"
-        now = time.monotonic()
-        if now - self._window_start_s >= _LOG_WINDOW_S:
-            if self._left_out:
-                self.logger.warning("OctoPrint API: %d more bad requests were not logged", self._left_out)
-            self._window_start_s, self._in_window, self._left_out = now, 0, 0
-        self._in_window += 1
-        if self._in_window <= _LOG_BURST:
-            # A client's bad request is a warning, not the service's error.
-            self.logger.log(min(level, logging.WARNING), "OctoPrint API: %s", text[:200])
-        else:
-            self._left_out += 1
-
-    def process(self, msg: Any, kwargs: Any) -> tuple[Any, Any]:
-        """As given: `log` does the work."""
-        return msg, kwargs
