@@ -273,3 +273,34 @@ def test_the_firmwares_requests_and_the_print_pause_round_trip_as_json() -> None
     assert rpc.progress_from_json(rpc.progress_to_json(progress)) == progress
     older = {key: value for key, value in rpc.progress_to_json(progress).items() if not key.endswith("_by")}
     assert rpc.progress_from_json(older).paused_by is None  # a service without them: none
+
+
+async def test_a_print_the_printer_cancels_runs_the_jobs_cancel_script_as_any_door_does(tmp_path: Path) -> None:
+    """//action:cancel from the printer's screen ends the service's job as a door's cancel does: cancelled, by the
+    printer, its cancel script run (the heaters off)."""
+    path = tmp_path / "s.sock"
+    long_print = tmp_path / "long.gcode"
+    long_print.write_text("".join(f"G1 X{i % 10} Y{i % 5} F6000\n" for i in range(5_000)))
+    async with service_at(path) as service, marlin_aio.connect(f"serve:sim@{path}") as printer:
+        sim = sim_of(service)
+        await printer.set_temperatures(hotend=200, bed=60)
+        handle = await printer.start_print(long_print)
+        await until(lambda: handle.progress.lines_acked > 10, "the print under way")
+        sim.printer.host_action(sim.now(), "cancel")
+        sim.poke()
+        await handle.wait()
+        farm_printer = service.farm.printers["sim"]
+        await until(lambda: farm_printer.job is not None and farm_printer.job.ended_s is not None, "the job ended")
+        job = farm_printer.job
+        assert job is not None and job.state.value == "cancelled" and "printer asked" in str(job.cancelled_by), job
+        assert {"M104 S0", "M140 S0", "M107"} <= set(sim.printer.executed)  # the script reached the printer
+        await until(
+            lambda: (
+                printer.latest is not None
+                and printer.latest.hotend is not None
+                and printer.latest.hotend.target == 0
+                and printer.latest.bed is not None
+                and printer.latest.bed.target == 0
+            ),
+            "the printer's targets read back 0",
+        )
