@@ -241,3 +241,19 @@ async def test_the_farm_ends_a_print_on_sigterm_as_serve_does(tmp_path: Path, br
     assert len(stopped) == 1 and "cancel script run (M104 S0; M140 S0; M107)" in stopped[0], served.lines
     record = json.loads((served.socket.parent / "jobs" / "sim1.json").read_text())
     assert record["state"] == "stopped" and record["surely_run"] > 20, record
+
+
+async def test_a_served_cancel_with_an_empty_script_keeps_the_heaters(tmp_path: Path) -> None:
+    """`print --keep-heaters` through the service: `cancel(())` replaces the job's script with none."""
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text(moves(4_000))
+    async with serving(tmp_path) as served, marlin_aio.connect(served.url()) as printer:
+        await printer.set_temperatures(hotend=200, bed=60)
+        handle = await printer.start_print(gcode)
+        await until(lambda: handle.progress.lines_acked > 20, "the print under way")
+        final = await handle.cancel(())
+        assert final.state is marlin_aio.PrintState.CANCELLED
+        reading = await printer.read_temperatures()
+        assert reading.hotend is not None and reading.hotend.target == 200
+        assert reading.bed is not None and reading.bed.target == 60
+    assert any("cancel_script: part.gcode: ran nothing" in line for line in served.lines), served.lines
