@@ -159,6 +159,18 @@ def broker(tmp_path: Path) -> Iterator[Broker]:
         running.stop()
 
 
+def heaters_off(reading: marlin_aio.TemperatureReading | None) -> bool:
+    """True when `reading` says the hotend's and the bed's targets are 0 (a cancel script's work, seen at the
+    printer)."""
+    return (
+        reading is not None
+        and reading.hotend is not None
+        and reading.hotend.target == 0
+        and reading.bed is not None
+        and reading.bed.target == 0
+    )
+
+
 async def until(condition: Callable[[], bool], what: str, limit_s: float = 60.0, every_s: float = 0.02) -> None:
     """Poll `condition` until it holds, bounded by `limit_s` (then fail naming `what`).
 

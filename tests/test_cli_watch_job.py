@@ -23,6 +23,7 @@ from test_cli_watch_keys import flat, model_with, press, sized
 from test_serve import Served, raw_client, serving
 from tmux_screen import Tmux, needs_tmux
 
+from marlin_aio.farm.job import JobState
 from marlin_temp.common.keys import PASTE
 from marlin_temp.common.model import CancelJob, JobStatus, PauseJob, ResumeJob, WatchControls
 from marlin_temp.common.render import job_line, plain_line, watch_view
@@ -37,6 +38,7 @@ def job(state: str = "printing", **fields: Any) -> JobStatus:
         "file": "part.gcode",
         "started_by": "socket client 3",
         "state": state,
+        "active": JobState(state).active,  # as the service's `Job.to_json` says it
         "percent": 42.5,
         "surely_run_line": 0,
         "may_have_run_line": 0,

@@ -341,22 +341,29 @@ async def test_cli_commands_use_a_served_printer(tmp_path: Path, monkeypatch: py
         assert "done: 100 commands" in result.output
 
 
-@pytest.fixture
-def pty_sim_path() -> Iterator[str]:
-    """A simulated printer on a pty of its own process (`marlin-sim`), for a service to hold."""
+@contextlib.contextmanager
+def sim_process(*options: str) -> Iterator[str]:
+    """A simulated printer on a pty of its own process (`marlin-sim --sim-speed 50` and `options`), so that it
+    outlives a service that holds it; yields the pty's path."""
     import subprocess
 
     process = subprocess.Popen(
-        [sys.executable, "-m", "marlin_aio.simulator", "--sim-speed", "50"], stdout=subprocess.PIPE, text=True
+        [sys.executable, "-m", "marlin_aio.simulator", "--sim-speed", "50", *options], stdout=subprocess.PIPE, text=True
     )
     assert process.stdout is not None
-    line = process.stdout.readline()
-    path = line.strip()
+    path = process.stdout.readline().strip()
     try:
         yield path
     finally:
         process.terminate()
         process.wait(10)
+
+
+@pytest.fixture
+def pty_sim_path() -> Iterator[str]:
+    """A simulated printer on a pty of its own process (`marlin-sim`), for a service to hold."""
+    with sim_process() as path:
+        yield path
 
 
 async def test_a_command_asked_for_a_port_the_service_holds_goes_through_the_service(

@@ -14,7 +14,7 @@ from typing import Any
 
 import aiomqtt
 import pytest
-from conftest import until
+from conftest import heaters_off, until
 from test_farm import Broker, free_port
 from test_serve import Served, raw_client, serving
 
@@ -113,13 +113,7 @@ async def test_a_cancel_through_each_door_ends_in_the_same_state(
             assert final.state is marlin_aio.PrintState.CANCELLED
             # The heaters off at the printer: its own report, polled by the service, says targets 0.
             await until(
-                lambda: (
-                    printer.latest is not None
-                    and printer.latest.hotend is not None
-                    and printer.latest.hotend.target == 0
-                    and printer.latest.bed is not None
-                    and printer.latest.bed.target == 0
-                ),
+                lambda: heaters_off(printer.latest),
                 "the printer's targets read back 0",
             )
         job = (await raw.call("job", printer=printer_name))["result"]

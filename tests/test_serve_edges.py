@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from test_serve import raw_client, serving
+from test_serve import raw_client, serving, sim_process
 
 import marlin_aio
 
@@ -49,18 +49,8 @@ async def test_a_target_for_a_heater_the_printer_lacks_is_refused_before_anythin
 @pytest.fixture
 def locked_sim_path() -> Iterator[str]:
     """A simulated printer locked with PASSWORD_FEATURE (password 1234), on a pty of its own process."""
-    process = subprocess.Popen(
-        [sys.executable, "-m", "marlin_aio.simulator", "--sim-speed", "50", "--password", "1234"],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    assert process.stdout is not None
-    path = process.stdout.readline().strip()
-    try:
+    with sim_process("--password", "1234") as path:
         yield path
-    finally:
-        process.terminate()
-        process.wait(10)
 
 
 async def test_serve_port_unlocks_a_locked_printer_with_marlin_password(

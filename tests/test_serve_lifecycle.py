@@ -12,7 +12,6 @@ import asyncio
 import json
 import re
 import signal
-import subprocess
 import sys
 from collections.abc import AsyncIterator, Iterator
 from contextlib import asynccontextmanager
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import pytest
 from conftest import until
-from test_serve import _read_lines, raw_client
+from test_serve import _read_lines, raw_client, sim_process
 
 import marlin_aio
 from marlin_aio.service import SOCKET_ENV
@@ -33,18 +32,8 @@ PRINT_LINES = 20_000
 @pytest.fixture
 def sim_port() -> Iterator[str]:
     """A simulated printer on a pty of its own process, moves instant (so a move acknowledged has run)."""
-    process = subprocess.Popen(
-        [sys.executable, "-m", "marlin_aio.simulator", "--sim-speed", "50", "--motion-time-scale", "0"],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    assert process.stdout is not None
-    path = process.stdout.readline().strip()
-    try:
+    with sim_process("--motion-time-scale", "0") as path:
         yield path
-    finally:
-        process.terminate()
-        process.wait(10)
 
 
 def _part(path: Path) -> Path:

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import until
+from conftest import heaters_off, until
 
 import marlin_aio
 from marlin_aio.farm.supervisor import PrinterSpec
@@ -295,12 +295,6 @@ async def test_a_print_the_printer_cancels_runs_the_jobs_cancel_script_as_any_do
         assert job is not None and job.state.value == "cancelled" and "printer asked" in str(job.cancelled_by), job
         assert {"M104 S0", "M140 S0", "M107"} <= set(sim.printer.executed)  # the script reached the printer
         await until(
-            lambda: (
-                printer.latest is not None
-                and printer.latest.hotend is not None
-                and printer.latest.hotend.target == 0
-                and printer.latest.bed is not None
-                and printer.latest.bed.target == 0
-            ),
+            lambda: heaters_off(printer.latest),
             "the printer's targets read back 0",
         )

@@ -81,10 +81,6 @@ class HeaterStatus:
     eta_s: float | None
 
 
-#: The job states in which the job holds its printer (the service's `JobState.active`, as its `job` verb says them).
-_ACTIVE_JOB_STATES = frozenset({"starting", "printing", "paused", "cancelling"})
-
-
 @dataclass(frozen=True, slots=True)
 class JobStatus:
     """A served printer's print job as the view shows it: the service's `job` answer, read into fields."""
@@ -99,6 +95,8 @@ class JobStatus:
     surely_run_line: int = 0
     may_have_run_line: int = 0
     resume_line: int | None = None
+    active: bool = False
+    """It holds its printer (the service says so: its keys are offered)."""
 
     @classmethod
     def from_json(cls, value: Mapping[str, Any]) -> JobStatus:
@@ -120,12 +118,8 @@ class JobStatus:
             surely_run_line=int(value.get("surely_run_line") or 0),
             may_have_run_line=int(value.get("may_have_run_line") or 0),
             resume_line=None if resume is None else int(resume),
+            active=bool(value.get("active")),
         )
-
-    @property
-    def active(self) -> bool:
-        """True while the job holds its printer (its keys are offered)."""
-        return self.state in _ACTIVE_JOB_STATES
 
     @property
     def resumable(self) -> bool:

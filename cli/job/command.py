@@ -12,12 +12,10 @@ import marlin_aio
 
 from ..common.connect import ConnectOptions, Exit, UsageProblem, open_printer
 
-__all__ = ["ACTIVE_STATES", "describe_job", "run_job"]
+__all__ = ["describe_job", "run_job"]
 
 #: How often `attach` reads the job while it runs.
 ATTACH_EVERY_S = 0.5
-#: The states of a job that holds its printer.
-ACTIVE_STATES = frozenset({"starting", "printing", "paused", "cancelling"})
 _ENDED = {"done": Exit.OK, "cancelled": Exit.INTERRUPTED, "failed": Exit.ERROR, "interrupted": Exit.LOST}
 
 
@@ -62,7 +60,7 @@ async def run_job(options: ConnectOptions, action: str, json_output: bool, conso
                 return Exit.NO_PORT
             console.print(json.dumps(job) if json_output else describe_job(job))
             return Exit.OK
-        if job is None or job["state"] not in ACTIVE_STATES:
+        if job is None or not job.get("active"):
             last = "" if job is None else f" (the last: {describe_job(job)})"
             raise UsageProblem(f"no print is running on {label}{last}")
         if action == "attach":

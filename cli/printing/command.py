@@ -172,10 +172,10 @@ async def _refuse_if_served_job(printer: marlin_aio.Printer, label: str, options
     call = getattr(printer, "call", None)
     if call is None:
         return  # a printer on a port: this command owns it
-    from ..job.command import ACTIVE_STATES, describe_job
+    from ..job.command import describe_job
 
     job = await call("job")
-    if job is not None and job.get("state") in ACTIVE_STATES:
+    if job is not None and job.get("active"):
         raise UsageProblem(
             f"a print is already running on {label}: {describe_job(job)} ({_job_hint(options)})", Exit.PORT_BUSY
         )

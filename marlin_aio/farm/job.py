@@ -25,6 +25,7 @@ from typing import Any
 
 import marlin_aio
 from marlin_aio.protocol.printjob import PrintProgress, PrintState
+from marlin_aio.protocol.rpc import progress_to_json
 
 __all__ = ["DEFAULT_CANCEL_SCRIPT", "DEFAULT_END_SCRIPT", "Job", "JobState", "cancel_script_for"]
 
@@ -180,8 +181,6 @@ class Job:
 
     def to_json(self) -> dict[str, Any]:
         """The job as every door tells it (the socket, MQTT's state, the OctoPrint API's `/api/job`)."""
-        from marlin_aio.protocol.rpc import progress_to_json  # the wire shape of progress lives with the protocol
-
         progress = self.progress
         total = None if progress is None else progress.source_bytes_total
         return {
@@ -190,6 +189,7 @@ class Job:
             "file": self.file,
             "started_by": self.started_by,
             "state": self.state.value,
+            "active": self.active,  # it holds its printer: clients read this, not a list of states of their own
             "started_s": self.started_s,
             "ended_s": self.ended_s,
             "percent": None if progress is None or not total else round(100 * progress.source_bytes_acked / total, 1),

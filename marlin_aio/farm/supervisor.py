@@ -269,7 +269,6 @@ class Farm:
         self.wire_log: WireLog | None = None
         """Where every printer's wire goes, each line with the printer's name (set before `run`), or None."""
         self._group: asyncio.TaskGroup | None = None
-        self._cancels: dict[str, asyncio.Future[None]] = {}  # a cancel under way per printer
         # --- issue 33 life cycle hook: the service bounds each print's feed by its record (service.lifecycle)
         self.feed_guard: Callable[[FarmPrinter, Path], FeedGuard] | None = None
         """Makes the guard of each print started (None: prints are not bounded)."""
@@ -363,16 +362,25 @@ class Farm:
             raise RuntimeError(f"no print is running on {farm_printer.name}{last}")
         return job
 
+    def _started_job(self, farm_printer: FarmPrinter, what: str) -> tuple[Job, marlin_aio.PrintHandle]:
+        """The running job and its print, for `what` (pause, resume, cancel) to act on.
+
+        Raises:
+            RuntimeError: no print is running, or it is still starting (its M110 on the way).
+        """
+        job = self.running_job(farm_printer)
+        if job.handle is None:
+            raise RuntimeError(f"{job.file} is still starting: {what} it in a moment")
+        return job, job.handle
+
     def pause_print(self, farm_printer: FarmPrinter) -> Job:
         """Stop feeding the running job's lines (what is in flight completes; heaters stay as they are).
 
         Raises:
             RuntimeError: no print is running, or it is still starting.
         """
-        job = self.running_job(farm_printer)
-        if job.handle is None:
-            raise RuntimeError(f"{job.file} is still starting: pause it in a moment")
-        job.handle.pause()
+        job, handle = self._started_job(farm_printer, "pause")
+        handle.pause()
         return job
 
     def resume_print(self, farm_printer: FarmPrinter) -> Job:
@@ -381,10 +389,8 @@ class Farm:
         Raises:
             RuntimeError: no print is running, or it is still starting.
         """
-        job = self.running_job(farm_printer)
-        if job.handle is None:
-            raise RuntimeError(f"{job.file} is still starting: resume it in a moment")
-        job.handle.resume()
+        job, handle = self._started_job(farm_printer, "resume")
+        handle.resume()
         return job
 
     async def cancel_print(self, farm_printer: FarmPrinter, by: str) -> Job:
@@ -397,20 +403,15 @@ class Farm:
             MarlinError: the printer failed meanwhile (the job says so too).
         """
         job = farm_printer.job
-        cancelling = self._cancels.get(farm_printer.name)
-        if cancelling is None or cancelling.done() or job is None or cancelling is not job.cancel_task:
-            job = self.running_job(farm_printer)
-            if job.handle is None:
-                raise RuntimeError(f"{job.file} is still starting: cancel it in a moment")
+        if job is None or job.cancel_task is None or job.cancel_task.done():
+            job, _ = self._started_job(farm_printer, "cancel")
             job.cancelling(by)
-            cancelling = asyncio.ensure_future(self._cancel(farm_printer, job))
-            job.cancel_task = cancelling
-            self._cancels[farm_printer.name] = cancelling
-        await asyncio.shield(cancelling)
+            job.cancel_task = asyncio.ensure_future(self._cancel(farm_printer, job))
+        await asyncio.shield(job.cancel_task)
         return job
 
     async def _cancel(self, farm_printer: FarmPrinter, job: Job) -> None:
-        assert job.handle is not None  # `running_job` refuses a job still starting
+        assert job.handle is not None  # `_started_job` refuses a job still starting
         try:
             await job.handle.cancel(job.cancel_script)
         finally:

@@ -53,7 +53,6 @@ _log = logging.getLogger("marlin_aio.service.octoprint")
 OCTOPRINT_VERSION = "1.10.0"
 _API_VERSION = "0.1"
 
-_ACTIVE = frozenset(state.value for state in JobState if state.active)
 #: OctoPrint's words for the states of a job that holds the printer.
 _STATES = {
     JobState.STARTING: "Starting",
@@ -67,8 +66,8 @@ class OctoPrintApi:
     """The OctoPrint-shaped HTTP API of one printer of a service.
 
     Args:
+        owner: the service, whose table of verbs every action calls (so a print is everyone's).
         farm_printer: the printer it speaks for.
-        start_print: starts a print of a path on that printer (the service's own, so the print is everyone's).
         uploads: where uploaded files are kept.
         api_key: the key every request must carry.
 
@@ -76,13 +75,10 @@ class OctoPrintApi:
         ValueError: the key is shorter than 16 characters.
     """
 
-    def __init__(
-        self, farm_printer: FarmPrinter, start_print: Any, uploads: Uploads, api_key: str, *, owner: Owner | None = None
-    ) -> None:
+    def __init__(self, owner: Owner, farm_printer: FarmPrinter, uploads: Uploads, api_key: str) -> None:
         if len(api_key) < 16:
             raise ValueError("the API key must be at least 16 characters")
         self.farm_printer = farm_printer
-        self._start_print = start_print
         # The service whose table of verbs every action here calls (as the socket's and MQTT's doors do).
         self.owner = owner
         self.uploads = uploads
@@ -223,7 +219,7 @@ class OctoPrintApi:
             if name is not None and name not in temperature:
                 temperature[name] = {"actual": actual, "target": target, "offset": 0}
         job = info["job"]
-        state = None if job is None or job["state"] not in _ACTIVE else JobState(job["state"])
+        state = JobState(job["state"]) if job is not None and job["active"] else None
         flags = {
             "operational": True,
             "printing": state in (JobState.STARTING, JobState.PRINTING),
@@ -314,25 +310,14 @@ class OctoPrintApi:
         return web.Response(status=204)
 
     async def _start(self, path: Path) -> None:
-        if self.owner is None:  # an API made without its service (older callers): the farm's own start
-            try:
-                await self._start_print(self.farm_printer, path)
-            except (ValueError, OSError) as exc:
-                raise web.HTTPBadRequest(text=str(exc)) from None
-            except RuntimeError as exc:
-                raise web.HTTPConflict(text=str(exc)) from None
-            return
         await self._verb("start_print", path=str(path))
 
     async def _verb(self, name: str, **params: Any) -> Any:
         """Call the service's verb `name` on this printer, as the HTTP door: its refusals as OctoPrint's statuses
         (a bad argument 400, a state that does not allow it 409)."""
-        owner = self.owner
-        if owner is None:
-            raise web.HTTPServiceUnavailable(text="this API was made without its service")
         caller = Caller("http", "octoprint")
         try:
-            return await verbs.call(owner, name, {"printer": self.farm_printer.name, **params}, caller)
+            return await verbs.call(self.owner, name, {"printer": self.farm_printer.name, **params}, caller)
         except (RpcError, ValueError) as exc:
             raise web.HTTPBadRequest(text=str(exc)) from None
         except (RuntimeError, FileNotFoundError, PermissionError, marlin_aio.MarlinError) as exc:

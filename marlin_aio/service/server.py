@@ -251,7 +251,7 @@ class Service:
         from marlin_aio.service.octoprint import OctoPrintApi  # aiohttp only when asked for
 
         name = settings.printer or next(iter(self.farm.printers))
-        api = OctoPrintApi(self.farm.printers[name], self.farm.start_print, self.uploads, settings.api_key, owner=self)
+        api = OctoPrintApi(self, self.farm.printers[name], self.uploads, settings.api_key)
         runner = await api.serve(settings.host, settings.port)
         _log.info("OctoPrint API for %s on http://%s:%d", name, settings.host, settings.port)
         return runner

@@ -69,8 +69,7 @@ async def start_job(
     farm_printer = context.farm_printer
     owner = context.owner
     check_printable(owner, path, context.caller.files)
-    _refuse_if_busy(farm_printer)
-    connected(farm_printer)
+    connected(farm_printer)  # the farm refuses a busy printer (naming its job) before its first await
     given = owner.sent_files.get(path)
     start = owner.farm.start_print(
         farm_printer,
