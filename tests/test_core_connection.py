@@ -700,7 +700,8 @@ def test_resend_of_a_line_never_sent_is_a_remote_protocol_error() -> None:
 
 
 def test_next_deadline_follows_the_head() -> None:
-    conn = Connection(max_in_flight=2)
+    # Unnumbered, so no probe asks earlier (`test_a_lost_ok_outside_a_print_costs_a_probe_not_the_queue`).
+    conn = Connection(max_in_flight=2, numbered=False)
     assert conn.next_deadline() is None
     submit_all(conn, "G28", "M105", now=0.0)
     assert conn.next_deadline() is None  # nothing written yet
@@ -712,7 +713,7 @@ def test_next_deadline_follows_the_head() -> None:
 
 
 def test_keepalives_and_wait_lines_push_the_deadline_auto_reports_do_not() -> None:
-    conn = Connection()
+    conn = Connection(numbered=False)  # no probe: the time-out's deadline alone
     submit_all(conn, "M109 S200", timeout_s=5.0)
     conn.data_to_send(0.0)
     assert conn.next_deadline() == 5.0
@@ -735,7 +736,7 @@ def test_keepalives_and_wait_lines_push_the_deadline_auto_reports_do_not() -> No
 
 
 def test_auto_reports_do_not_push_the_deadline_of_a_command_that_is_not_a_heater_wait() -> None:
-    conn = Connection()
+    conn = Connection(numbered=False)  # no probe: the time-out's deadline alone
     submit_all(conn, "G28", timeout_s=5.0)
     conn.data_to_send(0.0)
     receive(conn, AUTO_REPORT, now=3.0)
@@ -857,12 +858,59 @@ def test_timeout_message_when_the_printer_is_silent() -> None:
     assert "2.5 s" in str(error)
 
 
+@pytest.mark.parametrize("max_in_flight", [1, 8])
+def test_a_lost_ok_outside_a_print_costs_a_probe_not_the_queue(max_in_flight: int) -> None:
+    # A board drops the ok of G4 P200 while five M118 wait behind it: a moment later a bare line end and a
+    # numbered probe go behind it; the probe's `ok T:` proves G4 ran (its caller gets `ok_lost`), the queue goes on.
+    conn = Connection(max_in_flight=max_in_flight)
+    submit_all(conn, "M115", now=0.0)
+    conn.data_to_send(0.0)
+    receive(conn, "FIRMWARE_NAME:Marlin", "ok", now=0.004)  # the link's pace: a round trip of 4 ms
+    replies(conn)
+    submit_all(conn, "G4 P200", *(f"M118 U{k}" for k in range(5)), now=0.01)
+    assert sent(conn.data_to_send(0.01)) == [wire("G4 P200", 2)]
+    deadline = conn.next_deadline()
+    assert deadline is not None and deadline < 0.2  # a few round trips (at least 50 ms), not the 5 s time-out
+    conn.check_timeouts(deadline)
+    assert conn.data_to_send(deadline) == f"\n{wire('M105', 3)}\n".encode()
+    receive(conn, M105_OK, now=0.21)  # G4's own ok never comes
+    [(text, reply)] = replies(conn)
+    assert text == "G4 P200" and reply.ok_lost
+    for k in range(5):
+        assert sent(conn.data_to_send(0.22 + k / 100)) == [wire(f"M118 U{k}", 4 + k)]
+        receive(conn, f"U{k}", "ok", now=0.225 + k / 100)
+        [(text, reply)] = replies(conn)
+        assert text == f"M118 U{k}" and reply.lines == (f"U{k}",) and not reply.ok_lost
+    assert conn.stats().lost_oks == 1
+
+
+def test_a_damaged_line_end_outside_a_print_is_completed_in_a_moment() -> None:
+    # The printer holds `N1 M105*..` without its line end: nothing comes until the bare line end completes it.
+    conn = Connection()
+    submit_all(conn, "M105", "G4 P0", "M114", now=0.0)
+    assert sent(conn.data_to_send(0.0)) == [wire("M105", 1)]
+    deadline = conn.next_deadline()
+    assert deadline is not None and deadline <= 1.0
+    conn.check_timeouts(deadline)
+    assert conn.data_to_send(deadline) == b"\n"  # no second M105 beside the first
+    receive(conn, M105_OK, now=deadline + 0.002)
+    assert [text for text, _ in replies(conn)] == ["M105"]
+    assert sent(conn.data_to_send(deadline + 0.003)) == [wire("G4 P0", 2)]
+
+
 def test_m105_t9_never_answered_times_out_and_the_queue_goes_on() -> None:
     conn = Connection()
     submit_all(conn, "M105 T9", timeout_s=2.0)
     assert sent(conn.data_to_send(0.0)) == [wire("M105 T9", 1)]
     receive(conn, "echo:M105 Invalid extruder 9", now=0.01)  # and no ok, ever
-    assert sent(conn.data_to_send(1.0)) == []
+    assert sent(conn.data_to_send(0.5)) == []
+    # After a moment a bare line end goes, once (its own might have been damaged); no second M105 (whose `ok T:`
+    # could not be told from this one's).
+    assert conn.next_deadline() == 1.0
+    conn.check_timeouts(1.0)
+    assert conn.data_to_send(1.0) == b"\n"
+    conn.check_timeouts(1.5)
+    assert conn.data_to_send(1.5) == b""
     assert conn.next_deadline() == 2.0
     conn.check_timeouts(2.0)
     [(text, error)] = outcomes(conn)
@@ -875,7 +923,7 @@ def test_m105_t9_never_answered_times_out_and_the_queue_goes_on() -> None:
     assert sent(conn.data_to_send(2.0)) == []
     conn.check_timeouts(4.0)
     assert sent(conn.data_to_send(4.0)) == [wire("M105", 2)]
-    assert conn.next_deadline() == 6.0
+    assert conn.next_deadline() == 5.0  # a bare line end, a moment from now; its time-out at 6.0
     receive(conn, M105_OK, now=4.01)
     [(text, reply)] = replies(conn)
     assert text == "M105"

@@ -52,7 +52,7 @@ from marlin_aio.protocol.resends import CALM_LINES, wanted
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.states import LineEvent, LineState, LinkEvent
 from marlin_aio.protocol.stats import LinkStats
-from marlin_aio.protocol.trace import Trace
+from marlin_aio.protocol.trace import BARE_LINE_END, Trace
 
 __all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "Reply"]
 
@@ -387,7 +387,7 @@ class Connection:
             # would not see this command at the start of a line.
             core.send_eol = False
             wire = b"\n" + line
-            core.trace.sent(now, "(a bare line end)")
+            core.trace.sent(now, BARE_LINE_END)
         bare = line.decode("ascii").rstrip("\n")
         if code != "M112" and core.state is not LinkState.HALTED and not core.requires_numbers:
             entry = Command(core.new_id(), bare, code, False, timeout_s, now)
@@ -489,7 +489,7 @@ class Connection:
         if core.send_eol:
             core.send_eol = False
             chunks.append(b"\n")
-            core.trace.sent(now, "(a bare line end)")
+            core.trace.sent(now, BARE_LINE_END)
         feed = core.feed
         flight = core.in_flight
         # While a job streams, keep room in the printer's buffer for a probe or a user command to get in.

@@ -17,6 +17,7 @@ from marlin_aio.protocol.corestate import CoreState
 from marlin_aio.protocol.replies import Command
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.states import FINAL_LINE_STATES, LineEvent, LineState
+from marlin_aio.protocol.trace import BARE_LINE_END
 
 __all__ = ["Deadlines"]
 
@@ -84,12 +85,25 @@ class Deadlines:
             # An emergency command in doubt is let go the same way: its queued copy ran nothing, and nobody waits.
             timeout_at = start + head.timeout_s if head.code == "M105" or head.emergency else math.inf
             return timeout_at, math.inf, probe_at
-        # While a job streams: outside prints a lost ok is found by the timeout, then probed (above).
         # A probe whose own line end was damaged waits in the printer for a line end: another probe behind it
         # brings it out (as a line error), so an unanswered probe is followed by another, two at most.
-        may_probe = feed.active and core.numbered and not resends.draining and self._probes_out() < 2
+        may_probe = (
+            core.numbered
+            and not resends.draining
+            and self._probes_out() < 2
+            and (feed.active or self._may_probe_outside_print(head))
+        )
         probe_at = max(start, feed.probed_s) + feed.probe_delay_s() if may_probe else math.inf
         return start + head.timeout_s, resend_at, probe_at
+
+    def _may_probe_outside_print(self, head: Command) -> bool:
+        """May a probe go behind `head`, with no print streaming? A lost ok costs a moment there too, and the
+        queue behind it goes on: the probe's `ok T:` proves `head` ran (`Receiving._on_ok`, `ok_lost=True`).
+
+        Not behind an M110 (it goes alone) or an emergency command (its own path, `_settle_doubt`). While an M105
+        is in flight only a bare line end goes (`_probe`).
+        """
+        return not (head.code == "M110" or head.emergency or self._core.in_flight.barriers)
 
     def _probes_out(self) -> int:
         """Probes written and unanswered (a queued one may wait behind lines held back, and tells nothing)."""
@@ -248,6 +262,13 @@ class Deadlines:
     def _probe(self, now: float) -> None:
         core = self._core
         core.feed.probed_s = now
+        if not core.feed.active and any(c.code == "M105" for c in core.in_flight):
+            # Outside a print only one `ok T:` is awaited at a time, and an M105 in flight (a poll's, behind the
+            # oldest command) tells what a probe would. A bare line end still goes, once: it completes a line
+            # whose own end was damaged, which the printer then answers at once.
+            last_out = core.trace.last_sent
+            core.send_eol = last_out is None or last_out.text != BARE_LINE_END
+            return
         core.send_eol = True
         if core.queue and core.queue[0].wire:
             # Lines wait to be written again, one at a time, behind this one, whose ok may be lost. With plain oks

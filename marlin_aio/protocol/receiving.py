@@ -138,6 +138,8 @@ class Receiving:
         # `_settle` for an M105 answered by its own ok, on a READY link with no resend under way.
         head.move(LineEvent.OK)
         core.resends.settled(head, answered_line=False)
+        if head.sends == 1:
+            core.feed.answered(head, now)
         sent = now if head.sent_s is None else head.sent_s
         core.finish(head, Reply(head.text, tuple(head.lines), ok, sent, now, head.lines_dropped))
         return ok
@@ -357,12 +359,13 @@ class Receiving:
             core.move(LinkEvent.RESUMED)
         elif state is LinkState.LOCKED and command.refusal is None and not command.orphan and command.code != "M511":
             core.move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
+        if ok is not None and not refused and (command.job is not None or command.sends == 1) and not command.emergency:
+            # The link's pace, for how soon a probe asks whether an ok was lost, in a print or not.
+            core.feed.answered(command, now)
         if refused:
             self._refused(command, now)
         elif command.job is not None:
             # A print line needs no reply: a later answer proves it ran, whether its own ok came or not.
-            if ok is not None:
-                core.feed.answered(command, now)
             command.job.acked(len(command.wire), command.source_bytes, command.source_line, now)
         elif command.probe or command.orphan:
             return  # nobody waits for its answer

@@ -38,7 +38,7 @@ class JobFeed:
         self.job: PrintJob | None = None
         self.next: Command | None = None  # the job's next line: read from the source, not yet written
         self.timeout_s = 10.0  # how long a line may go unanswered before the print stalls
-        self.rtts: deque[float] = deque(maxlen=32)  # round trips of recent lines answered at the first try
+        self.rtts: deque[float] = deque(maxlen=32)  # round trips of recent commands answered by their own ok
         self.probes = 0
         self.probed_s = 0.0  # when the last probe (an M105, or a resend let out early) was written
         self._median_rtt: float | None = None  # of `rtts`, kept until the next one arrives (deadlines ask often)
@@ -99,8 +99,10 @@ class JobFeed:
         return Command(command_id, "M105", "M105", True, self.timeout_s, now, probe=True)
 
     def answered(self, command: Command, now: float) -> None:
-        """A line was answered by an ok: remember the round trip since it was last written (a resent line's too,
-        so a link that starts noisy learns its pace before its first clean line)."""
+        """A command was answered by its own ok: remember the round trip since it was last written (a resent print
+        line's too, so a link that starts noisy learns its pace before its first clean line). Outside a print the
+        user's commands give the pace; a print starts afresh (`attach`), as lines that share the printer's buffer
+        wait longer than one command alone."""
         if command.written_s is not None:
             self.rtts.append(now - command.written_s)
             self._median_rtt = None

@@ -14,7 +14,10 @@ from typing import Literal
 
 from marlin_aio.protocol.secrets import redact
 
-__all__ = ["Tap", "Trace", "TraceEntry"]
+__all__ = ["BARE_LINE_END", "Tap", "Trace", "TraceEntry"]
+
+#: How a bare line end (written to complete a line whose own end was damaged) reads in the trace.
+BARE_LINE_END = "(a bare line end)"
 
 #: Every line on the wire, at DEBUG (`logging.getLogger("marlin_aio.wire").setLevel(logging.DEBUG)` to see them).
 _wire_log = logging.getLogger("marlin_aio.wire")
