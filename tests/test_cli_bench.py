@@ -171,6 +171,20 @@ async def test_lost_oks_are_told_apart_from_reordering_and_are_not_a_failure(adv
     assert "error" not in result.stderr
 
 
+async def test_the_readmes_fault_mix_keeps_the_order_check_clean() -> None:
+    # Corrupted lines, lost oks and noise together, as the README runs `marlin-sim`: a lost ok outside the order
+    # check's witnesses (the latency's M105s, the stream's G4 P0) costs a probe, never a silent 10 s and the rest.
+    config = SimulatorConfig(seed=1)
+    faults = Faults(corrupt_rx_ratio=0.02, drop_ok_ratio=0.005, noise_ratio=0.01)
+    result = await invoke_against(faults, "--count", "100", "--lines", "400", "--json", config=config)
+    assert result.exit_code == Exit.OK, result.output
+    report = json.loads(result.stdout)
+    correctness = report["correctness"]
+    assert correctness["timeouts"] == 0 and correctness["out_of_order"] == 0, correctness
+    assert correctness["lines_sent"] == correctness["oks_in_order"] + correctness["withheld"] == 400
+    assert report["throughput"]["lines"] == 400 and report["clean"] is True
+
+
 async def test_lost_oks_in_json() -> None:
     result = await invoke_against(Faults(drop_ok_ratio=0.02), "--count", "30", "--lines", "300", "--json")
     assert result.exit_code == Exit.OK, result.output
