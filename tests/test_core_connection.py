@@ -618,9 +618,9 @@ def test_the_tail_of_a_line_cut_by_a_flush_is_recognised_and_its_ok_answers_noth
     assert conn.stats().stray_oks == 0 and conn.stats().lost_oks == 0
 
 
-def test_an_unknown_command_that_is_a_whole_print_line_still_stops_the_print() -> None:
+def test_an_unknown_command_that_is_a_whole_print_line_still_stops_a_print_that_stops_on_unknown() -> None:
     conn = Connection(max_in_flight=4, rx_buffer_bytes=1024)
-    job = PrintJob(["G1 X1", "M9999", "G1 X3"])
+    job = PrintJob(["G1 X1", "M9999", "G1 X3"], stop_on_unknown=True)
     conn.attach(job, timeout_s=10.0)
     conn.data_to_send(0.0)
     receive(conn, "Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok")
@@ -779,21 +779,32 @@ def test_a_print_line_the_printer_did_not_run_stops_the_print_with_its_message()
     assert sent(conn.data_to_send(0.2)) == []  # nothing more of the file is written
 
 
-def test_an_unknown_command_in_a_print_stops_it_but_a_users_own_gets_its_reply() -> None:
+@pytest.mark.parametrize("stop_on_unknown", [False, True], ids=["goes-on", "stops"])
+def test_an_unknown_command_in_a_print_is_skipped_or_stops_it_and_a_users_own_gets_its_reply(
+    stop_on_unknown: bool,
+) -> None:
     conn = Connection()
     submit_all(conn, "G999")
     conn.data_to_send(0.0)
     receive(conn, 'echo:Unknown command: "G999"', "ok")
     [(_, reply)] = replies(conn)
     assert reply.lines == ('echo:Unknown command: "G999"',)
-    job = PrintJob(["G1 X1", "G999", "G1 X2"])
+    job = PrintJob(["G1 X1", "G999", "G1 X2"], stop_on_unknown=stop_on_unknown)
     conn.attach(job, timeout_s=5.0)
     conn.data_to_send(0.1)
     receive(conn, "ok", now=0.2)
     conn.data_to_send(0.2)
     receive(conn, 'echo:Unknown command: "G999"', "ok", now=0.3)
-    assert job.error is not None and "G999" in str(job.error)
-    assert job.lines_acked == 1
+    if stop_on_unknown:
+        assert job.error is not None and "G999" in str(job.error)
+        assert job.lines_acked == 1
+        return
+    # Marlin skipped it (the echo is the line as sent: the firmware lacks it); the print goes on.
+    assert job.error is None and job.progress(0.3).unknown_codes == ("G999",)
+    [line] = sent(conn.data_to_send(0.3))
+    assert " G1 X2*" in line
+    receive(conn, "ok", now=0.4)
+    assert job.state is PrintState.DONE and job.lines_acked == 3
 
 
 def test_a_firmware_that_requires_checksums_fails_the_unnumbered_command_and_numbers_the_rest() -> None:

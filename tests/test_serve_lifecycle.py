@@ -226,7 +226,12 @@ def test_a_bounded_job_feeds_no_line_past_its_bound_and_reports_the_bound_as_wha
     assert (job.next_command() or ())[:2] == ("G1 X3", 5)  # the held line, once the bound is past it
     assert (job.next_command() or ())[:2] == ("G1 X4", 6)
     assert job.next_command() is None and job.exhausted
-    assert job.progress(0.0).may_have_run_through == 6  # nothing more will be fed: the last line fed
+    # Nothing more will be fed: the last line written (as the connection writes them).
+    for line in (1, 3, 5):
+        job.sent(line)
+    assert job.progress(0.0).may_have_run_through == 5  # line 6 was fed and never written: it did not run
+    job.sent(6)
+    assert job.progress(0.0).may_have_run_through == 6
     # On the wire, and from a service that does not send it.
     told = progress_to_json(job.progress(0.0))
     assert progress_from_json(told).may_have_run_through == 6
@@ -234,12 +239,15 @@ def test_a_bounded_job_feeds_no_line_past_its_bound_and_reports_the_bound_as_wha
     assert progress_from_json(told).may_have_run_through is None
 
 
-def test_an_unbounded_job_reports_the_last_line_fed() -> None:
+def test_an_unbounded_job_reports_the_last_line_written() -> None:
     from marlin_aio.protocol import PrintJob
 
     job = PrintJob(["G1 X1", "G1 X2", "G1 X3"])
-    job.next_command()
-    job.next_command()
+    for _ in range(2):
+        item = job.next_command()
+        assert item is not None
+        job.sent(item[1])
+    job.next_command()  # read, not written (a print that stops now drops it)
     assert job.progress(0.0).may_have_run_through == 2
 
 

@@ -65,6 +65,7 @@ class PrintSettings:
     window_bytes: int | None = None
     keep_heaters: bool = False
     plain_every_s: float = 2.0  # between progress lines, when the output is not a terminal
+    stop_on_unknown: bool = False  # stop at a command the firmware lacks instead of going on (Marlin skips it)
 
 
 class _Outcome(enum.Enum):
@@ -203,6 +204,7 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                     send_ahead=settings.send_ahead,
                     window_bytes=settings.window_bytes,
                     name=plan.path.name,
+                    stop_on_unknown=settings.stop_on_unknown,
                 )
             except RuntimeError as exc:  # the service's job, started by someone else since the check above
                 raise UsageProblem(f"{exc} ({_job_hint(options)})", Exit.PORT_BUSY) from None
@@ -263,10 +265,24 @@ async def print_gcode(options: ConnectOptions, settings: PrintSettings, console:
                 f"({final.lines_per_s:.0f} lines/s on average, "
                 f"{final.bytes_acked / max(final.elapsed_s, 1e-9):.0f} bytes/s, {final.resends} resends)"
             )
+            _skipped_unknown(errors, final)
             heaters = heaters_on_text(await _reading_now(printer))
             if heaters:
                 _heaters_on(errors, "the file ended with heaters on", heaters)
             return Exit.OK
+
+
+def _skipped_unknown(errors: Console, final: marlin_aio.PrintProgress) -> None:
+    """Say which commands of the file the firmware did not know: Marlin skipped them (the print went on)."""
+    if final.unknown_codes:
+        codes = ", ".join(final.unknown_codes)
+        _say(
+            errors,
+            "warning:",
+            "yellow",
+            f"the printer does not know {codes}: Marlin skipped those lines and the print went on "
+            "(--stop-on-unknown stops at such a line instead)",
+        )
 
 
 def _heaters_on(errors: Console, what: str, heaters: str) -> None:

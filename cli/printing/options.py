@@ -72,6 +72,15 @@ def print_file(
     keep_heaters: Annotated[
         bool, typer.Option("--keep-heaters", help="On cancel, leave heaters and fan as they are.")
     ] = False,
+    stop_on_unknown: Annotated[
+        bool,
+        typer.Option(
+            "--stop-on-unknown",
+            help="Stop the print at a command the firmware does not know (Marlin answers 'Unknown command' with it "
+            "as sent). Default: Marlin skips such a line and the print goes on, with one warning per command (a "
+            "build without M73, which slicers write near the top, would otherwise stop every print there).",
+        ),
+    ] = False,
     from_line: Annotated[
         int | None,
         typer.Option(
@@ -135,7 +144,12 @@ def print_file(
         fail(f"cannot read {path}: {exc.strerror or exc}", Exit.USAGE)
     ahead = window is not None if send_ahead is None else send_ahead
     settings = PrintSettings(
-        plan=plan, send_ahead=ahead, window_bytes=window, keep_heaters=keep_heaters, plain_every_s=refresh
+        plan=plan,
+        send_ahead=ahead,
+        window_bytes=window,
+        keep_heaters=keep_heaters,
+        plain_every_s=refresh,
+        stop_on_unknown=stop_on_unknown,
     )
     if on_done is not None and not on_done.strip():
         fail("--on-done is empty: give a shell command", Exit.USAGE)

@@ -84,6 +84,7 @@ class PrinterBackend(Protocol):
         check: bool,
         timeout_s: float | None,
         name: str | None = None,
+        stop_on_unknown: bool = False,
     ) -> PrintHandle:
         """See `Printer.start_print`."""
 

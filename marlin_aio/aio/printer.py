@@ -389,6 +389,7 @@ class Printer(GcodeCommands):
         check: bool = True,
         timeout_s: float | None = None,
         name: str | None = None,
+        stop_on_unknown: bool = False,
     ) -> PrintHandle:
         """Start streaming G-code: a file path, or any iterable of lines (read lazily, so any size streams).
 
@@ -404,6 +405,11 @@ class Printer(GcodeCommands):
         A served printer's print runs inside the service (a file it can read, or lines sent to it first) and goes
         on if this client leaves. `name` is what the print is called (default: the file's name): a print of lines
         made from `part.gcode` is `part.gcode` in every message and, served, to every client.
+        A command the firmware does not know (`Unknown command` echoing it exactly as sent: a build without `M73`,
+        which slicers write near the top) is skipped by Marlin; the print goes on, with one warning per command
+        and the codes in `PrintProgress.unknown_codes`, as OctoPrint and Pronterface do. `stop_on_unknown` stops
+        the print at such a line instead. (A line that arrived damaged is told apart: its echo differs from what
+        was sent, and it goes again or stops the print, never skipped.)
 
         Raises:
             ValueError: with `check`, a line of the file is not a valid command (nothing is sent).
@@ -414,7 +420,13 @@ class Printer(GcodeCommands):
         if window_bytes is not None and not 16 < window_bytes <= 65536:
             raise ValueError(f"window_bytes must be between 17 and 65536, got {window_bytes}")
         return await self._backend.start_print(
-            source, send_ahead=send_ahead, window_bytes=window_bytes, check=check, timeout_s=timeout_s, name=name
+            source,
+            send_ahead=send_ahead,
+            window_bytes=window_bytes,
+            check=check,
+            timeout_s=timeout_s,
+            name=name,
+            stop_on_unknown=stop_on_unknown,
         )
 
     async def print_file(

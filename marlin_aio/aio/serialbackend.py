@@ -278,6 +278,7 @@ class SerialBackend:
         check: bool,
         timeout_s: float | None,
         name: str | None = None,
+        stop_on_unknown: bool = False,
     ) -> PrintHandle:
         """Start streaming `source` on the link (see `Printer.start_print`).
 
@@ -295,6 +296,7 @@ class SerialBackend:
             job = self._print_job(source, check)
         if name is not None:
             job.name = name  # what its messages call it (the file's name as its starter gave it)
+        job.stop_on_unknown = stop_on_unknown
         await send_until_processed(link, "M110 N0", timeout_s=self.timeout_s)  # the print's numbering starts fresh
         job.start_s = link.now()
         saved = link.window

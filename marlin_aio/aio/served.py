@@ -424,6 +424,7 @@ class ServedBackend:
         check: bool,
         timeout_s: float | None,
         name: str | None = None,
+        stop_on_unknown: bool = False,
     ) -> PrintHandle:
         """Have the service print `source` (a file it can read, or a list of lines); the print runs there and
         goes on if this client leaves.
@@ -435,6 +436,8 @@ class ServedBackend:
             MarlinError: as `send`.
         """
         params: dict[str, Any] = {"send_ahead": send_ahead, "check": check}
+        if stop_on_unknown:
+            params["stop_on_unknown"] = True  # only when asked: a service from before it still takes the rest
         if window_bytes is not None:
             params["window_bytes"] = window_bytes
         if timeout_s is not None:

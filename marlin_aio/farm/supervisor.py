@@ -295,6 +295,7 @@ class Farm:
         timeout_s: float | None = None,
         window_bytes: int | None = None,
         name: str | None = None,
+        stop_on_unknown: bool = False,
         started_by: str = "the farm",
         cancel_script: tuple[str, ...] | None = None,
         end_script: tuple[str, ...] = DEFAULT_END_SCRIPT,
@@ -305,9 +306,9 @@ class Farm:
         However the print ends (done, cancelled, halted, a reset, the link lost, a stall) becomes one `print_*`
         event and the job's state: an ending that is an error is that printer's news only, never an exception in
         whoever started it, so the farm and the other printers go on. `name` is the file's name as its starter
-        knows it (default: the path's); `cancel_script` runs once when it is cancelled (default: every heater and
-        the fan off, `cancel_script_for`); `end_script` after it ended by itself; with `remove_file` the file is
-        the service's own copy and is removed when the job ends.
+        knows it (default: the path's); `stop_on_unknown` as `Printer.start_print`; `cancel_script` runs once
+        when it is cancelled (default: every heater and the fan off, `cancel_script_for`); `end_script` after it
+        ended by itself; with `remove_file` the file is the service's own copy and is removed when the job ends.
 
         Raises:
             RuntimeError: the farm is not running, the printer is not connected, or a job is already running (the
@@ -339,7 +340,11 @@ class Farm:
         guard = FEED_GUARD.set(None if self.feed_guard is None else self.feed_guard(farm_printer, path))
         try:
             job.handle = await printer.start_print(
-                path, send_ahead=send_ahead, timeout_s=timeout_s, window_bytes=window_bytes
+                path,
+                send_ahead=send_ahead,
+                timeout_s=timeout_s,
+                window_bytes=window_bytes,
+                stop_on_unknown=stop_on_unknown,
             )
         except BaseException as exc:
             job.ended(one_line(redact(str(exc))) or type(exc).__name__)

@@ -499,7 +499,8 @@ class Connection:
             # Commands never written go before the print's next line, but not two in a row while it streams: a
             # flood of commands must not starve the print (nor a print the commands).
             first = core.queue[0] if core.queue else None
-            fresh = first is not None and not (first.wire or first.probe or first.orphan)
+            # (A print line in the queue goes again in its place, as a new line: never behind the print's next one.)
+            fresh = first is not None and not (first.wire or first.probe or first.orphan or first.job is not None)
             if first is not None and not (fresh and core.after_command and feed.job is not None):
                 command = first
             else:
@@ -548,7 +549,7 @@ class Connection:
                 # Keep enough history for everything that can be in flight, with a wide margin.
                 resends.assign_wire(command, max(256, 4 * core.max_in_flight))
             if command.job is not None and command.sends == 0:
-                command.job.sent()
+                command.job.sent(command.source_line)
             command.move(LineEvent.WRITTEN)
             command.sends += 1
             if command.sent_s is None:

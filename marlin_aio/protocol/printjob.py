@@ -70,7 +70,10 @@ class PrintProgress:
     stopped (begins with `STOPPED_BY_SERVICE`); None when the caller did, or it was not cancelled."""
     may_have_run_through: int | None = None
     """The last file line that may have run: no line after it was sent. While a bounded job runs, its bound (lines
-    up to it may be sent before the next report); else the last line fed. None: not known (an older service)."""
+    up to it may be sent before the next report); else the last line written. None: not known (an older service)."""
+    unknown_codes: tuple[str, ...] = ()
+    """Commands the firmware does not know (`Unknown command` with the text as sent), in the order first met:
+    Marlin skipped those lines and the print went on (unless the job stops on them, `stop_on_unknown`)."""
 
     @property
     def fraction(self) -> float | None:
@@ -147,6 +150,10 @@ class PrintJob:
         start_s: the connection clock's time when the job starts.
         limits: the heater limits each line is checked against as it is fed (a line over them stops the print
             before it). None: those of the connection it is attached to.
+        stop_on_unknown: stop the print at a command the firmware does not know (its `Unknown command` echoes the
+            line as sent), instead of warning once per command and going on as Marlin does (it skips the line;
+            OctoPrint and Pronterface go on too). A build without `M73`, which slicers write near the top, would
+            otherwise stop every print there.
     """
 
     def __init__(
@@ -158,8 +165,11 @@ class PrintJob:
         source_bytes_total: int | None = None,
         start_s: float = 0.0,
         limits: HeaterLimits | None = None,
+        stop_on_unknown: bool = False,
     ) -> None:
         self.name = name
+        self.stop_on_unknown = stop_on_unknown
+        self.unknown_codes: dict[str, int] = {}  # code -> the file line it was first met at (see `lacked`)
         self.limits = limits
         self._commands = gcode_commands(lines)
         self.lines_total = lines_total
@@ -182,6 +192,7 @@ class PrintJob:
         self.feed_limit: int | None = None
         """No line of the file past this one is fed (None: no bound). Raised by whoever bounds the job."""
         self.fed_through = 0  # the file line of the last command handed to the connection
+        self.written_through = 0  # the file line of the last command written to the printer
         self._held: tuple[str, int, int] | None = None  # read, but past `feed_limit`: fed once the bound is raised
 
     @property
@@ -248,10 +259,25 @@ class PrintJob:
             self.error = MarlinError(f"{self.name}: its lines raised {exc!r}; the print was stopped before the next")
             return None
 
-    def sent(self) -> None:
-        """A command of this job went out for the first time."""
+    def sent(self, source_line: int = 0) -> None:
+        """A command of this job (at `source_line` of the file) went out for the first time."""
         self.lines_sent += 1
         self.in_flight += 1
+        self.written_through = max(self.written_through, source_line)
+
+    def not_run(self) -> None:
+        """A command of this job went out but did not run (the printer counted its number, but what arrived was
+        damaged), and goes again as a new line: it counts as sent once, and as resent."""
+        self.lines_sent -= 1
+        self.in_flight -= 1
+        self.resends += 1
+
+    def lacked(self, code: str, source_line: int) -> bool:
+        """The firmware does not know `code` (at `source_line`); True the first time this job meets it."""
+        if code in self.unknown_codes:
+            return False
+        self.unknown_codes[code] = source_line
+        return True
 
     def acked(self, wire_bytes: int, source_bytes: int, source_line: int, now: float) -> None:
         """The printer acknowledged a command of this job."""
@@ -323,10 +349,12 @@ class PrintJob:
             paused_by=self.paused_by,
             cancelled_by=self.cancelled_by,
             # While bounded and feeding, lines up to the bound may go out before the next report; once nothing
-            # more will be fed, the last line fed is the tighter truth.
+            # more will be fed, the last line written is the tighter truth (a line read and never written, as a
+            # print stops, did not run).
             may_have_run_through=(
                 self.feed_limit
                 if self.feed_limit is not None and self.active and not self.exhausted
-                else self.fed_through
+                else self.written_through
             ),
+            unknown_codes=tuple(self.unknown_codes),
         )

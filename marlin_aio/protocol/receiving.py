@@ -202,7 +202,7 @@ class Receiving:
                             _log.warning("the printer is locked: %s", redact(text))
                         core.move(LinkEvent.LOCKED, remote=True)
                     elif head.job is not None:
-                        head.refusal = text  # a print line the firmware did not understand was not printed
+                        self._lacked(head, text)
             case _ if head is not None and isinstance(event, _REPLY_LINES):
                 head.add_line(text)
 
@@ -317,10 +317,16 @@ class Receiving:
         damaged_body = self._damaged_copy(echoed, body=True)
         if damaged_body is not None:
             # The line was counted with a damaged body (two flips of one bit, which the 8-bit checksum cannot
-            # see): the printer did not run what was sent, and nothing can put it back in its place.
-            damaged_body.refusal = (
-                f"echo:Unknown command: {redact(echoed)!r} (it arrived damaged in a way its checksum could not show)"
-            )
+            # see): the printer did not run what was sent.
+            said = f"echo:Unknown command: {redact(echoed)!r} (it arrived damaged in a way its checksum could not show)"
+            ran_behind = any(c.line_number is not None and not c.probe for c in core.in_flight.after(damaged_body))
+            if damaged_body.job is not None and not ran_behind:
+                # One line at a time, nothing of the print is behind it: written again under the next number, it
+                # runs exactly in its place.
+                self._write_anew(damaged_body, said, now)
+            else:
+                # Lines behind it ran (or will) before it could go again: the print stops there, naming them.
+                damaged_body.refusal = said
             return
         core.resends.fragment_refused()
         command = self._damaged_copy(echoed)
@@ -332,6 +338,40 @@ class Receiving:
         _log.info("the printer received a damaged copy of %r and did not count it; it goes again", redact(command.text))
         if not behind:
             core.queue.appendleft(command if wanted(command) else core.resends.placeholder_for([command]))
+
+    def _lacked(self, line: Command, said: str) -> None:
+        """The firmware does not know print line `line`'s command (it echoed it as sent): Marlin skipped it. The
+        print goes on, warned once per command, unless its job stops on such a line."""
+        job = line.job
+        assert job is not None
+        if job.stop_on_unknown:
+            line.refusal = said  # the ok that follows answers a line that was not printed: the print stops there
+        elif job.lacked(line.code, line.source_line):
+            _log.warning(
+                "the printer does not know %s (line %d of %s): it skipped the line and the print goes on; "
+                "told once per command",
+                line.code,
+                line.source_line,
+                job.name,
+            )
+
+    def _write_anew(self, line: Command, said: str, now: float) -> None:
+        """`line`, a print line the printer counted but did not run, goes again as a new line (the next number);
+        its entry stays in flight, with nobody waiting, for the ok the printer still owes its number."""
+        core = self._core
+        job = line.job
+        assert job is not None
+        job.not_run()
+        line.job = None
+        line.orphan = True
+        line.refusal = said
+        if job.cancelling or not job.active:
+            job.finish_if_idle(now)  # nothing of a cancelled print goes out again
+            return
+        _log.info("line %d of %s arrived damaged and did not run; it goes again", line.source_line, job.name)
+        again = Command(core.new_id(), line.text, line.code, line.numbered, line.timeout_s, now)
+        again.job, again.source_line, again.source_bytes = job, line.source_line, line.source_bytes
+        core.queue.appendleft(again)
 
     def _settle(
         self, command: Command, ok: Ok | None, lines: tuple[str, ...] | None, now: float, proof: Ok | None = None
@@ -405,7 +445,13 @@ class Receiving:
             job.in_flight -= 1
             where = f"line {command.source_line} of {job.name}"
             # Nothing after the refused line may run in its place: the print stops here, with the printer's words.
-            self._core.stop_job(type(error)(f"print stopped at {where}: {error}"), now)
+            # Lines written behind it (send-ahead) are in the printer already and run: a resume starts after them.
+            behind = [c.source_line for c in self._core.in_flight if c.job is job]
+            ran = ""
+            if behind:
+                lines = f"line {behind[0]}" if len(behind) == 1 else f"lines {behind[0]}-{behind[-1]}"
+                ran = f"; {lines} had been sent behind it and may have run: resume from line {behind[-1] + 1}"
+            self._core.stop_job(type(error)(f"print stopped at {where}: {error}{ran}"), now)
             return
         self._core.finish(command, error)
 

@@ -303,6 +303,7 @@ def progress_to_json(progress: PrintProgress) -> dict[str, Any]:
     value["paused_by"] = progress.paused_by
     value["cancelled_by"] = progress.cancelled_by
     value["may_have_run_through"] = progress.may_have_run_through
+    value["unknown_codes"] = list(progress.unknown_codes)
     return value
 
 
@@ -319,12 +320,14 @@ def progress_from_json(value: object) -> PrintProgress:
         paused_by, cancelled_by = value.get("paused_by"), value.get("cancelled_by")
         # Optional too: a service from before the feed was bounded does not say how far lines may have run.
         may_have_run_through = value.get("may_have_run_through")
+        unknown_codes = value.get("unknown_codes") or ()  # optional: from a service before it was told
         return PrintProgress(
             state=PrintState(value["state"]),
             **fields,
             paused_by=None if paused_by is None else str(paused_by),
             cancelled_by=None if cancelled_by is None else str(cancelled_by),
             may_have_run_through=None if may_have_run_through is None else int(may_have_run_through),
+            unknown_codes=tuple(str(code) for code in unknown_codes),
         )
     except (AssertionError, KeyError, TypeError, ValueError):
         raise RpcError(INVALID_PARAMS, f"not a print's progress: {str(value)[:200]}") from None

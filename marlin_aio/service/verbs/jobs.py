@@ -129,6 +129,7 @@ async def upload(context: Context, args: dict[str, Any]) -> object:
     Arg("send_ahead", bool, False, "several lines in flight"),
     Arg("window_bytes", int, None, "unanswered bytes at most with send_ahead"),
     Arg("timeout_s", float, None, "how long a line may wait for its ok"),
+    Arg("stop_on_unknown", bool, False, "stop at a command the firmware does not know (default: warn and go on)"),
     Arg("check", bool, True, "ignored: the service always checks the whole file before the first line"),
     Arg("keep_file", bool, False, "keep an uploaded copy once the job ends"),
     Arg("cancel_script", list, None, "commands a cancel runs (default: every heater and the fan off)"),
@@ -141,7 +142,11 @@ async def start_print(context: Context, args: dict[str, Any]) -> object:
     timeout_s = args["timeout_s"]
     if timeout_s is not None and not 0 < timeout_s <= MAX_TIMEOUT_S:
         raise RpcError(INVALID_PARAMS, f"timeout_s must be above 0 and at most {MAX_TIMEOUT_S:g} s")
-    options: dict[str, Any] = {"send_ahead": args["send_ahead"], "timeout_s": timeout_s}
+    options: dict[str, Any] = {
+        "send_ahead": args["send_ahead"],
+        "timeout_s": timeout_s,
+        "stop_on_unknown": args["stop_on_unknown"],
+    }
     if args["window_bytes"] is not None:
         options["window_bytes"] = args["window_bytes"]
     for script in ("cancel_script", "end_script"):
