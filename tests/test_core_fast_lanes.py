@@ -62,10 +62,11 @@ def _core_state(conn: Connection) -> tuple[object, ...]:
     return (
         core.after_command,
         core.exact_oks,
-        core.requires_numbers,
+        core.link.requires_numbers,
         core.send_eol,
         core.now,
-        repr(core.halt),
+        repr(core.link.halt),
+        core.link.thermal_message,
         resends.next_line,
         resends.accepted_through,
         resends.nudge_pending,

@@ -94,7 +94,7 @@ def test_a_print_moves_the_link_through_printing_and_stopping() -> None:
 
 def test_a_print_that_stops_with_lines_on_the_wire_is_stopping_until_they_are_answered() -> None:
     conn = Connection(max_in_flight=4, advanced_ok=True)
-    job = PrintJob(["G1 X1", "G1 X2", "G1 X3"], name="t")
+    job = PrintJob(["G1 X1", "G1 X2", "G1 X3"], name="t", stop_on_unknown=True)
     conn.attach(job, timeout_s=5.0)
     conn.tick(0.0)
     conn.receive(b'echo:Unknown command: "G1 X1"\nok N1 P15 B3\n', 0.1)  # refused as such: the print stops

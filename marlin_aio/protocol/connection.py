@@ -10,6 +10,8 @@ rooms, each in its own module:
   leaves (and why a print line runs exactly once, in order);
 - `streaming`: a print job fed line by line, its round trips and probes;
 - `states`: the link's state and each line's, every allowed move in one table each;
+- `linkmachine`: the link's state machine, the one owner of its state and of the facts its moves read (a halt,
+  the thermal message, numbers required);
 - `corestate`: the one state record, declared in one place;
 - `receiving`: what each line from the printer means (the dispatch of every received event);
 - `deadlines`: what happens when nothing comes (timeouts, probes, stalls, who waits for whom);
@@ -180,17 +182,17 @@ class Connection:
     def state(self) -> LinkState:
         """READY, PRINTING, STOPPING (a stopped print's last lines are answered), LOCKED (refusing commands until
         unlocked), STOPPED (M999 resumes) or HALTED (needs a reset): one value, moved by `states`."""
-        return self._core.state
+        return self._core.link.state
 
     @property
     def halted(self) -> PrinterHaltedError | None:
         """Why the printer halted or stopped (the error new commands fail with), or None while it runs."""
-        return self._core.halt
+        return self._core.link.halt
 
     @property
     def locked(self) -> bool:
         """True while the printer refuses commands as locked (PASSWORD_FEATURE)."""
-        return self._core.state is LinkState.LOCKED
+        return self._core.link.state is LinkState.LOCKED
 
     @property
     def job(self) -> PrintJob | None:
@@ -205,7 +207,7 @@ class Connection:
     @property
     def requires_numbers(self) -> bool:
         """The printer refused an unnumbered command (`Missing checksum`): every command is numbered now."""
-        return self._core.requires_numbers
+        return self._core.link.requires_numbers
 
     @property
     def max_in_flight(self) -> int:
@@ -293,7 +295,7 @@ class Connection:
             PrinterHaltedError: the printer halted and answers nothing until it is reset.
         """
         core = self._core
-        use_numbers = (core.numbered if numbered is None else numbered) or core.requires_numbers
+        use_numbers = (core.numbered if numbered is None else numbered) or core.link.requires_numbers
         if checked:
             # Validate now, so a bad command never reaches the queue: as given (the clearest message), then its
             # length with a line number comfortably larger than any it can get while queued.
@@ -309,8 +311,7 @@ class Connection:
             if timeout_s <= 0:
                 raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         code = command_code(text)
-        if core.halt is not None and code != "M999":
-            raise core.halt
+        core.link.refuse(code)
         core.submitted += 1
         command = Command(core.new_id(), text, code, use_numbers, timeout_s, now)
         core.queue.append(command)
@@ -335,7 +336,7 @@ class Connection:
         if (
             core.queue
             or core.in_flight
-            or core.state is not LinkState.READY
+            or core.link.state is not LinkState.READY
             or core.feed.job is not None
             or core.send_eol
             or core.results
@@ -389,7 +390,7 @@ class Connection:
             wire = b"\n" + line
             core.trace.sent(now, BARE_LINE_END)
         bare = line.decode("ascii").rstrip("\n")
-        if code != "M112" and core.state is not LinkState.HALTED and not core.requires_numbers:
+        if code != "M112" and core.link.state is not LinkState.HALTED and not core.link.requires_numbers:
             entry = Command(core.new_id(), bare, code, False, timeout_s, now)
             entry.emergency = entry.orphan = True  # no caller: its answer completes nothing
             entry.wire = line
@@ -416,9 +417,7 @@ class Connection:
         needs a reset), and every command still waiting fails with `PrinterHaltedError`."""
         core = self._core
         wire = self.emergency("M112", now=now)
-        core.halt = PrinterHaltedError("emergency stop (M112) sent; reset the printer to go on")
-        core.move(LinkEvent.HALTED)
-        core.fail_everything(core.halt)
+        core.fail_everything(core.link.emergency_stopped())
         return wire
 
     def attach(self, job: PrintJob, *, timeout_s: float) -> None:
@@ -430,14 +429,13 @@ class Connection:
             PrinterLockedError: the printer is locked.
         """
         core = self._core
-        if core.halt is not None:
-            raise core.halt
-        if core.state is LinkState.LOCKED:
+        core.link.refuse("")
+        if core.link.state is LinkState.LOCKED:
             raise PrinterLockedError("the printer is locked: unlock it (M511 P<password>) before printing")
         if job.limits is None:
             job.limits = self.limits  # a job made without limits gets the connection's: no line passes unchecked
         core.feed.attach(job, timeout_s)
-        core.move(LinkEvent.PRINT_STARTED)
+        core.link.move(LinkEvent.PRINT_STARTED)
 
     def cancel(self, command: Command) -> bool:
         """Withdraw a command whose caller gave up; return True if it was never written (so it never will be).
@@ -585,7 +583,7 @@ class Connection:
     def _output(self, events: tuple[Event, ...], now: float) -> Output:
         # Twice per poll: the parts are called directly, and the print's state is looked at only while one runs.
         data = self.data_to_send(now) if self.has_data_to_send else b""
-        state = self._core.state
+        state = self._core.link.state
         if state is LinkState.PRINTING or state is LinkState.STOPPING:
             self._core.sync_print_state()
         return Output(events, data, tuple(self.take_results()), self._deadlines.next_deadline())

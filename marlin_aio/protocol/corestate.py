@@ -3,35 +3,27 @@
 `Connection` (`connection`) holds one `CoreState` and composes two parts over it: `Receiving`
 (`receiving`, what each line from the printer means) and `Deadlines` (`deadlines`, what
 happens when nothing comes). The state is declared here, in one place, as a record with public fields: the parts
-read and write it through their one `CoreState`, and the link's state moves only through `move` (the table in
-`states`). `Connection.stats()` reads its counters from here.
+read and write it through their one `CoreState`. The link's state and the facts its moves read (a halt, the
+thermal message, numbers required) are owned by `link`, a `linkmachine.LinkMachine`: the parts call its verbs and
+never write its fields. `Connection.stats()` reads its counters from here.
 """
 
 from __future__ import annotations
 
-import logging
 import math
 from collections import deque
 
-from marlin_aio.errors import MarlinError, PrinterHaltedError
+from marlin_aio.errors import MarlinError
+from marlin_aio.protocol.linkmachine import LinkMachine
 from marlin_aio.protocol.matching import InFlight
 from marlin_aio.protocol.parsing import EventParser
 from marlin_aio.protocol.replies import Command, Reply
 from marlin_aio.protocol.resends import Resends
-from marlin_aio.protocol.states import (
-    FINAL_LINE_STATES,
-    LINK_TRANSITIONS,
-    LineEvent,
-    LinkEvent,
-    LinkState,
-    next_link_state,
-)
+from marlin_aio.protocol.states import FINAL_LINE_STATES, LineEvent
 from marlin_aio.protocol.streaming import JobFeed
 from marlin_aio.protocol.trace import Trace
 
 __all__ = ["CoreState", "check_window"]
-
-_log = logging.getLogger("marlin_aio")
 
 
 def check_window(max_in_flight: int, rx_buffer_bytes: int) -> None:
@@ -81,11 +73,8 @@ class CoreState:
         self.now = 0.0  # the latest time any call was given, for results that happen as a side effect
         self.next_id = 0
         self.exact_oks = advanced_ok  # the printer names lines in its oks (ADVANCED_OK): plain oks identify themselves
-        self.thermal_message: str | None = None
-        # The link's state: one value, moved only through `states.LINK_TRANSITIONS` (`_move`).
-        self.state = LinkState.READY
-        self.halt: PrinterHaltedError | None = None  # why it is HALTED or STOPPED; raised to new commands
-        self.requires_numbers = False  # the printer refused an unnumbered command ("Missing checksum")
+        # The link's state and the facts its moves read (halt, thermal message, numbers required): one owner.
+        self.link = LinkMachine()
         self.emergency_probed_s = -math.inf  # when a probe last went behind emergency commands (`Connection.emergency`)
         # Counters (read them through `stats()`). Every submitted command ends up counted once: answered + failed
         # + cancelled + still queued or in flight.
@@ -93,28 +82,10 @@ class CoreState:
         self.timeouts = self.resets = self.stray_oks = self.lost_oks = self.garbage_lines = 0
         self.bytes_received = 0
 
-    def move(self, event: LinkEvent, *, remote: bool = False) -> None:
-        """Move the link's state by the table.
-
-        A move the table lacks is a bug when the core itself asks for it (it raises `ImpossibleTransitionError`);
-        when the printer's words ask for it (`remote`: "locked" on a halted board, say) it is logged and ignored,
-        as no byte from the printer may break the link.
-        """
-        if remote and event not in LINK_TRANSITIONS[self.state]:
-            _log.warning("ignored: the printer said %s while the link was %s", event.value, self.state.value)
-            return
-        self.state = next_link_state(self.state, event)
-
     def sync_print_state(self) -> None:
         """Move PRINTING and STOPPING on as the print ends and its last lines on the wire are answered."""
-        state = self.state
-        if state is LinkState.PRINTING:
-            job = self.feed.job
-            if job is None or not job.active:
-                on_wire = any(c.job is not None for c in self.in_flight)
-                self.move(LinkEvent.PRINT_STOPPED if on_wire else LinkEvent.PRINT_ENDED)
-        elif state is LinkState.STOPPING and not any(c.job is not None for c in self.in_flight):
-            self.move(LinkEvent.WIRE_CLEAR)
+        on_wire = any(c.job is not None for c in self.in_flight)
+        self.link.print_moved(self.feed.active, on_wire)
 
     def new_id(self) -> int:
         self.next_id += 1

@@ -117,7 +117,7 @@ class Receiving:
             or head.probe
             or head.orphan
             or head.refusal is not None
-            or core.state is not LinkState.READY
+            or core.link.state is not LinkState.READY
             or core.queue
             or core.results
             or core.send_eol
@@ -198,9 +198,9 @@ class Receiving:
                     if isinstance(event, PrinterLocked):
                         # The ok that follows answers a command that was refused, not run.
                         head.refusal = text
-                        if core.state is not LinkState.LOCKED:
+                        if core.link.state is not LinkState.LOCKED:
                             _log.warning("the printer is locked: %s", redact(text))
-                        core.move(LinkEvent.LOCKED, remote=True)
+                        core.link.move(LinkEvent.LOCKED, remote=True)
                     elif head.job is not None:
                         self._lacked(head, text)
             case _ if head is not None and isinstance(event, _REPLY_LINES):
@@ -392,13 +392,12 @@ class Receiving:
                 core.resends.m110_repeated(command, now, core.feed.quiet_s())
         refused = command.refusal is not None and not command.orphan and not command.probe
         core.resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
-        state = core.state
+        state = core.link.state
         if command.code == "M999" and state is LinkState.STOPPED:
             # stop() (unlike kill()) leaves Marlin running; M999 resumes it.
-            core.halt = None
-            core.move(LinkEvent.RESUMED)
+            core.link.resumed()
         elif state is LinkState.LOCKED and command.refusal is None and not command.orphan and command.code != "M511":
-            core.move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
+            core.link.move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
         if ok is not None and not refused and (command.job is not None or command.sends == 1) and not command.emergency:
             # The link's pace, for how soon a probe asks whether an ok was lost, in a print or not.
             core.feed.answered(command, now)
@@ -502,10 +501,10 @@ class Receiving:
         head = core.in_flight.head
         match event.kind:
             case ErrorKind.THERMAL:
-                core.thermal_message = event.message
+                core.link.thermal_error(event.message)
                 self._halt_with(ThermalRunawayError(f"thermal protection tripped: {event.message}"), stopped=False)
-            case ErrorKind.HALTED | ErrorKind.STOPPED if core.thermal_message is not None:
-                message = f"thermal protection tripped: {core.thermal_message} ({event.message})"
+            case ErrorKind.HALTED | ErrorKind.STOPPED if core.link.thermal_message is not None:
+                message = f"thermal protection tripped: {core.link.thermal_message} ({event.message})"
                 self._halt_with(ThermalRunawayError(message), stopped=False)
             case ErrorKind.HALTED | ErrorKind.STOPPED:
                 halted = PrinterHaltedError(f"the printer halted: {event.message}")
@@ -522,7 +521,7 @@ class Receiving:
         core = self._core
         # The firmware ran nothing and will send no ok for the oldest unnumbered command: fail it now, and number
         # every command from here on.
-        core.requires_numbers = True
+        core.link.checksums_required()
         command = next((c for c in core.in_flight if c.line_number is None), None)
         if command is None:
             return
@@ -540,12 +539,7 @@ class Receiving:
         """The printer halted (`stopped`: a stop() that M999 clears; otherwise it needs a reset)."""
         core = self._core
         _log.warning("%s", error)
-        if core.halt is None or isinstance(error, ThermalRunawayError):
-            core.halt = error
-        # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill()
-        # (the table: HALTED stays HALTED on a stop).
-        core.move(LinkEvent.STOPPED if stopped else LinkEvent.HALTED)
-        core.fail_everything(core.halt)
+        core.fail_everything(core.link.halted(error, stopped=stopped))
 
     def _on_start(self) -> None:
         core = self._core
@@ -553,7 +547,5 @@ class Receiving:
         _log.warning("the printer reset (it printed 'start')")
         # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
         core.fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
-        core.halt = None
-        core.move(LinkEvent.RESET)
-        core.thermal_message = None
+        core.link.reset()
         core.resends.restart_numbering()
