@@ -58,7 +58,9 @@ async def test_send_prints_each_reply_under_its_command_and_exits_0(pty_sim: Sim
     assert lines[m114 + 2] == "ok"
     assert lines.count("ok") == 4
     assert result.stderr == ""
-    assert list(pty_sim.printer.executed)[start:][-4:] == ["M115", "G28 X", "G1 X12.5 F3000", "M114"]
+    # (An M105 may run behind G28 X: the probe that asks, while it homes, whether its ok was lost.)
+    ran = [text for text in list(pty_sim.printer.executed)[start:] if text != "M105"]
+    assert ran[-4:] == ["M115", "G28 X", "G1 X12.5 F3000", "M114"]
 
 
 def test_send_with_the_built_in_simulator_prints_the_reply_alone() -> None:
