@@ -61,9 +61,12 @@ def fields_by_owner() -> dict[str, set[str]]:
             fields: set[str] = set()
             if _is_dataclass(node) and not _frozen(node):
                 for item in node.body:
-                    if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
-                        if "ClassVar" not in ast.unparse(item.annotation):
-                            fields.add(item.target.id)
+                    if (
+                        isinstance(item, ast.AnnAssign)
+                        and isinstance(item.target, ast.Name)
+                        and "ClassVar" not in ast.unparse(item.annotation)
+                    ):
+                        fields.add(item.target.id)
             for item in ast.walk(node):
                 targets: list[ast.expr] = []
                 if isinstance(item, ast.Assign):
