@@ -67,12 +67,12 @@ def fields_by_owner() -> dict[str, set[str]]:
                         and "ClassVar" not in ast.unparse(item.annotation)
                     ):
                         fields.add(item.target.id)
-            for item in ast.walk(node):
+            for child in ast.walk(node):
                 targets: list[ast.expr] = []
-                if isinstance(item, ast.Assign):
-                    targets = list(item.targets)
-                elif isinstance(item, ast.AnnAssign | ast.AugAssign):
-                    targets = [item.target]
+                if isinstance(child, ast.Assign):
+                    targets = list(child.targets)
+                elif isinstance(child, ast.AnnAssign | ast.AugAssign):
+                    targets = [child.target]
                 for target in targets:
                     for leaf in ast.walk(target):
                         if (

@@ -16,7 +16,7 @@ from marlin_aio.simulator import Faults, SimulatorConfig, run_in_simulated_time,
 BAUD = 250_000
 
 
-async def _lost_g4(max_in_flight: int) -> tuple[list[object], float, list[str]]:
+async def _lost_g4(max_in_flight: int) -> tuple[list[marlin_aio.Reply | BaseException], float, list[str]]:
     faults = Faults()
     config = SimulatorConfig(motion_time_scale=0.0)
     async with serve_memory(config, faults, baud_rate=BAUD) as server:
@@ -43,7 +43,7 @@ def test_a_lost_ok_outside_a_print_costs_a_moment_and_the_queue_goes_on(max_in_f
     assert took < 1.0  # the dwell's 0.2 s and a few round trips, not the 5 s timeout
 
 
-async def _many(drop_ok: float, count: int) -> tuple[list[object], int]:
+async def _many(drop_ok: float, count: int) -> tuple[list[marlin_aio.Reply | BaseException], int]:
     faults = Faults()
     config = SimulatorConfig(motion_time_scale=0.0, seed=7)
     async with (
