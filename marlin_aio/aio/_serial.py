@@ -13,6 +13,7 @@ import contextlib
 import errno
 import functools
 import logging
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -64,10 +65,34 @@ async def open_link(
         instance = await loop.run_in_executor(None, functools.partial(serial.serial_for_url, port, **kwargs))
     except (serial.SerialException, OSError, ValueError) as exc:
         raise _explain(port, baudrate, exc) from exc
+    _write_without_spinning(instance)
     protocol = protocol_factory()
     transport = _SerialTransport(loop, protocol, instance)
     keep_dtr_on_close(transport)
     return transport, protocol
+
+
+def _write_without_spinning(port: serial.SerialBase) -> None:
+    """Make `port.write` return 0 when the port takes nothing now, as the transport expects of a non-blocking port.
+
+    pyserial's own write, with the zero write timeout the transport sets, retries an EAGAIN at once and for ever:
+    a port whose far end reads nothing (a device that only chatters, a flow-stopped line) filled its buffer and
+    then held the event loop in that loop, so no timeout, Ctrl-C or SIGTERM could run again. A port without a
+    file descriptor (an rfc2217:// URL) keeps its own write.
+    """
+    fd = getattr(port, "fd", None)
+    if not isinstance(fd, int):
+        return
+
+    def write(data: bytes) -> int:
+        try:
+            return os.write(fd, data)
+        except (BlockingIOError, InterruptedError):
+            return 0  # the transport keeps the bytes and waits until the port can take them
+        except OSError as exc:
+            raise serial.SerialException(f"write failed: {exc}") from exc
+
+    port.write = write  # this instance only: pyserial's class stays as it is
 
 
 class _SerialTransport(serial_asyncio_fast.SerialTransport):
