@@ -18,6 +18,8 @@ import marlin_aio
 from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
 from marlin_aio.protocol import DEFAULT_LIMITS
 
+from .keys import STOP_SIGNALLED
+
 __all__ = [
     "EXIT_CODES_HELP",
     "OPENED_PORT",
@@ -216,7 +218,7 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
     for index, baud in enumerate(rates):
         try:
             printer = options.printer(port, baud)
-            await printer.open()
+            await _open_unless_signalled(printer)
         except marlin_aio.HandshakeError as exc:
             if index + 1 < len(rates):
                 console.print(f"no answer at {baud} baud, trying {rates[index + 1]}", style="dim")
@@ -244,6 +246,38 @@ async def open_printer(options: ConnectOptions, console: Console) -> AsyncIterat
             await printer.close()
             _say_wire_log_error(options, console)
         return
+
+
+async def _open_unless_signalled(printer: marlin_aio.Printer) -> None:
+    """Open `printer`; a stop signal (Ctrl-C, SIGTERM) while it opens ends the opening at once, port closed.
+
+    A command that handles its stop signals (`keys.on_stop_signals`) only looks at its stop once connected, and a
+    handshake may take several timeouts (and the baud fallback a second handshake): without this, Ctrl-C waited
+    for all of it.
+
+    Raises:
+        KeyboardInterrupt: a stop signal came first (the command ends with exit code 130).
+        MarlinError: opening or the handshake failed.
+    """
+    signalled = STOP_SIGNALLED.get()
+    if signalled is None:
+        await printer.open()
+        return
+    if signalled.is_set():
+        raise KeyboardInterrupt
+    opening = asyncio.create_task(printer.open(), name=f"open {printer.port}")
+    stopping = asyncio.create_task(signalled.wait(), name="stop signal")
+    try:
+        await asyncio.wait({opening, stopping}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        stopping.cancel()
+        if not opening.done():
+            # Cancelling the handshake closes the port (`Printer.open` closes it on any failure).
+            opening.cancel()
+            await asyncio.gather(opening, return_exceptions=True)
+    if opening.cancelled():
+        raise KeyboardInterrupt
+    opening.result()  # opened (the command sees its stop as it always did), or why not
 
 
 def _say_wire_log_error(options: ConnectOptions, console: Console) -> None:

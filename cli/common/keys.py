@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import codecs
 import contextlib
+import contextvars
 import os
 import signal
 import sys
@@ -16,7 +17,12 @@ import termios
 import tty
 from collections.abc import Callable, Iterator
 
-__all__ = ["PASTE", "key_presses", "on_stop_signals", "split_keys"]
+__all__ = ["PASTE", "STOP_SIGNALLED", "key_presses", "on_stop_signals", "split_keys"]
+
+#: Set by SIGINT or SIGTERM while `on_stop_signals` handles them in this task (None outside): what must end at once
+#: on a signal rather than at the command's next look at its own stop (opening the printer: `connect.open_printer`)
+#: waits on it.
+STOP_SIGNALLED: contextvars.ContextVar[asyncio.Event | None] = contextvars.ContextVar("stop_signalled", default=None)
 
 #: With `key_presses(raw=True)`, a paste (more than two keys in one read) arrives as PASTE followed by the text.
 PASTE = "\x00paste:"
@@ -26,22 +32,30 @@ _ESCAPE = "\x1b"
 
 @contextlib.contextmanager
 def on_stop_signals(callback: Callable[[], None]) -> Iterator[None]:
-    """Call `callback` on SIGINT or SIGTERM while active; restore the defaults afterwards.
+    """Call `callback` on SIGINT or SIGTERM while active (and set `STOP_SIGNALLED`); restore the defaults afterwards.
 
     Signal handlers can only be installed from the main thread; elsewhere (a test running the command in a worker
     thread) nothing is installed, and the command runs until it ends by itself.
     """
     loop = asyncio.get_running_loop()
+    signalled = asyncio.Event()
+
+    def on_signal() -> None:
+        signalled.set()
+        callback()
+
     installed = []
     for signum in (signal.SIGINT, signal.SIGTERM):
         try:
-            loop.add_signal_handler(signum, callback)
+            loop.add_signal_handler(signum, on_signal)
         except (RuntimeError, ValueError):
             continue
         installed.append(signum)
+    token = STOP_SIGNALLED.set(signalled if installed else None)
     try:
         yield
     finally:
+        STOP_SIGNALLED.reset(token)
         for signum in installed:
             loop.remove_signal_handler(signum)
 

@@ -1,8 +1,9 @@
 """Opening the port: the only module that imports the serial packages.
 
-Every way opening can fail becomes one `ConnectError` subclass with a sentence a user can act on. A
-`memory://NAME` URL is the one kind pyserial does not open: it goes to `memory.connect`, an in-process link to a
-listener in the same event loop (a simulator served with `serve_memory()`).
+Every way opening can fail becomes one `ConnectError` subclass with a sentence a user can act on, and a port that
+goes away while open ends the link through `connection_lost` only (`_SerialTransport`): one `ConnectionLostError`,
+no asyncio traceback beside it. A `memory://NAME` URL is the one kind pyserial does not open: it goes to
+`memory.connect`, an in-process link to a listener in the same event loop (a simulator served with `serve_memory()`).
 """
 
 from __future__ import annotations
@@ -10,6 +11,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import functools
+import logging
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -25,6 +29,8 @@ from marlin_aio.aio import memory
 from marlin_aio.errors import ConnectError, PortBusyError, PortNotFoundError, PortPermissionError
 
 __all__ = ["PRINTER_BRIDGES", "PortInfo", "flush_input", "keep_dtr_on_close", "list_ports", "open_link"]
+
+_log = logging.getLogger("marlin_aio")
 
 
 def _is_url(port: str) -> bool:
@@ -51,11 +57,59 @@ async def open_link(
         # A second program on the same port would steal half the replies: lock it like a modem line.
         kwargs["exclusive"] = True
     try:
-        transport, protocol = await serial_asyncio_fast.create_serial_connection(loop, protocol_factory, port, **kwargs)
+        if port.startswith("socket://"):
+            # pyserial-asyncio-fast hands a socket:// URL to the loop's own socket transport, which already ends
+            # quietly (connection_lost) when the peer goes away.
+            return await serial_asyncio_fast.create_serial_connection(loop, protocol_factory, port, **kwargs)
+        # What `create_serial_connection` does for every other port, with the transport that ends quietly.
+        instance = await loop.run_in_executor(None, functools.partial(serial.serial_for_url, port, **kwargs))
     except (serial.SerialException, OSError, ValueError) as exc:
         raise _explain(port, baudrate, exc) from exc
+    _write_without_spinning(instance)
+    protocol = protocol_factory()
+    transport = _SerialTransport(loop, protocol, instance)
     keep_dtr_on_close(transport)
     return transport, protocol
+
+
+def _write_without_spinning(port: serial.SerialBase) -> None:
+    """Make `port.write` return 0 when the port takes nothing now, as the transport expects of a non-blocking port.
+
+    pyserial's own write, with the zero write timeout the transport sets, retries an EAGAIN at once and for ever:
+    a port whose far end reads nothing (a device that only chatters, a flow-stopped line) filled its buffer and
+    then held the event loop in that loop, so no timeout, Ctrl-C or SIGTERM could run again. A port without a
+    file descriptor (an rfc2217:// URL) keeps its own write.
+    """
+    fd = getattr(port, "fd", None)
+    if not isinstance(fd, int):
+        return
+
+    def write(data: bytes) -> int:
+        try:
+            return os.write(fd, data)
+        except (BlockingIOError, InterruptedError):
+            return 0  # the transport keeps the bytes and waits until the port can take them
+        except OSError as exc:
+            raise serial.SerialException(f"write failed: {exc}") from exc
+
+    port.write = write  # this instance only: pyserial's class stays as it is
+
+
+class _SerialTransport(serial_asyncio_fast.SerialTransport):
+    """pyserial-asyncio-fast's transport, for which a port that went away is not a bug of the program.
+
+    Its failed read already ends the link quietly (`connection_lost` with the error). Its failed write (a write that
+    comes before the read that would have noticed: the pty's far end closed, the USB bridge was pulled) also went
+    to the event loop's exception handler, which printed "Fatal write error on serial transport" and a traceback
+    beside the library's own `ConnectionLostError`. Here such a write ends the link the way a failed read does.
+    """
+
+    def _fatal_error(self, exc: BaseException, message: str = "Fatal error on serial transport") -> None:
+        if isinstance(exc, serial.SerialException | OSError):
+            _log.debug("%s: %s", message, exc)
+            self._abort(exc)
+            return
+        super()._fatal_error(exc, message)
 
 
 def keep_dtr_on_close(transport: asyncio.Transport) -> bool:

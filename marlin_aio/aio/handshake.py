@@ -1,8 +1,12 @@
 """Starting a session: let the boot banner pass, synchronise, set the line counter, ask who the printer is.
 
 Each step has the link's timeout and fails with `HandshakeError` naming the step; when the printer said something
-but never answered, the error quotes it. Locked printers (PASSWORD_FEATURE) are unlocked with the password given,
-and a firmware that runs only numbered lines is synchronised with the one numbered line it always takes (M110).
+but never answered, the error quotes it. The whole sequence has a bound of its own too (`HANDSHAKE_TIMEOUTS` link
+timeouts): a port that keeps talking (garbage, stray `ok` lines, busy keepalives that restart a command's clock)
+could otherwise keep a step's command alive for ever, and a user's `--timeout` would mean nothing.
+
+Locked printers (PASSWORD_FEATURE) are unlocked with the password given, and a firmware that runs only numbered
+lines is synchronised with the one numbered line it always takes (M110).
 """
 
 from __future__ import annotations
@@ -22,21 +26,52 @@ from marlin_aio.errors import (
 )
 from marlin_aio.protocol.secrets import redact
 
-__all__ = ["BAUD_RATES", "handshake", "send_until_processed"]
+__all__ = ["BAUD_RATES", "HANDSHAKE_TIMEOUTS", "handshake", "handshake_bound_s", "send_until_processed"]
 
 #: The rates Marlin boards use, the usual first: a host that does not know tries them in this order (and a
 #: handshake that met garbage names the others).
 BAUD_RATES = (250_000, 115_200)
+
+#: The handshake as a whole ends within this many link timeouts, whatever the port sends. A printer needs about
+#: one for its boot banner and a moment for the rest; a noisy link may need a few more for the M110 (see
+#: `M110_ATTEMPTS`), which is why it is not two.
+HANDSHAKE_TIMEOUTS = 4
+
+
+def handshake_bound_s(timeout_s: float) -> float:
+    """How long `handshake` may take at most with the link timeout `timeout_s`, in seconds."""
+    return HANDSHAKE_TIMEOUTS * timeout_s
 
 
 async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, password: str | None) -> bool:
     """Run the start-up sequence on a freshly opened `link`; return True if the board reset as the port opened
     (it printed `start`, its boot banner): whatever was set on it before (targets, fan) is gone.
 
+    It ends within `handshake_bound_s(timeout_s)` whatever the port sends.
+
     Raises:
-        HandshakeError: the printer did not answer a step (`HandshakeTimeoutError`), or it is halted.
+        HandshakeError: the printer did not answer a step (`HandshakeTimeoutError`, also when the whole sequence
+            outlasted its bound), or it is halted.
         PrinterLockedError: the printer is locked and no (or a wrong) password was given.
     """
+    steps = ["boot"]
+    bound_s = handshake_bound_s(timeout_s)
+    try:
+        async with asyncio.timeout(bound_s) as scope:
+            return await _run_steps(link, steps, timeout_s=timeout_s, boot_quiet_s=boot_quiet_s, password=password)
+    except TimeoutError as exc:
+        # A step's own HandshakeTimeoutError is a TimeoutError too: only the expiry of the bound is reworded here.
+        if not scope.expired() or isinstance(exc, HandshakeError):
+            raise
+        raise HandshakeTimeoutError(_chatter_explanation(link, bound_s, steps[-1]), step=steps[-1]) from None
+    finally:
+        link.line_seen = None
+
+
+async def _run_steps(
+    link: Link, steps: list[str], *, timeout_s: float, boot_quiet_s: float, password: str | None
+) -> bool:
+    """The steps of `handshake`, each appended to `steps` as it begins (so the bound's error can name it)."""
     now = link.now
     # Set by every read while the banner passes; dropped afterwards so reads stop paying for it.
     line_seen = link.line_seen = asyncio.Event()
@@ -52,6 +87,7 @@ async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, passwo
     link.line_seen = None
     # Whatever is left of the banner (half a line, noise from the reset) must not prefix the first reply.
     link.flush_input()
+    steps.append("sync")
     # 2. Synchronise: M105 until one is answered (commands written during a reset are lost, so retry), then set
     #    the line counter with M110 N0. A late answer to an earlier probe is recognised as stray.
     sync_deadline = now() + timeout_s
@@ -81,6 +117,7 @@ async def handshake(link: Link, *, timeout_s: float, boot_quiet_s: float, passwo
         await send_until_processed(link, "M110 N0", timeout_s=timeout_s)
     except CommandTimeoutError as exc:
         raise HandshakeTimeoutError(f"the printer did not answer M110 N0: {exc}", step="sync") from exc
+    steps.append("identify")
     # 3. Identify: M115 gives the firmware name and capabilities (collected from events as they arrive).
     try:
         await send_until_processed(link, "M115", timeout_s=timeout_s)
@@ -168,6 +205,23 @@ async def _unlock(link: Link, password: str | None, timeout_s: float) -> None:
         raise PrinterLockedError(
             f"the printer on {link.port} refused the password ({' '.join(reply.lines)}); it stays locked"
         )
+
+
+def _chatter_explanation(link: Link, bound_s: float, step: str) -> str:
+    """Why a handshake outlasted its bound: the port talked all along (a silent one fails its step sooner)."""
+    stats = link.stats()
+    port = link.port
+    head = f"no handshake with {port} within {bound_s:g} s ({HANDSHAKE_TIMEOUTS} timeouts; stuck at {step})"
+    if stats.garbage_lines:
+        others = " or ".join(str(rate) for rate in BAUD_RATES if rate != link.baudrate)
+        return (
+            f"{head}: it kept sending ({stats.bytes_received} bytes, {stats.garbage_lines} lines of garbage) but "
+            f"never answered like a printer; wrong baud rate? {link.baudrate} is set (Marlin boards use {others}), "
+            "or not a printer's port"
+        )
+    said = [entry.text for entry in link.trace.entries() if entry.direction == "received"][-3:]
+    quoted = "; it said: " + " | ".join(repr(line) for line in said) if said else ""
+    return f"{head}: it kept sending ({stats.bytes_received} bytes) but never answered like a printer{quoted}"
 
 
 def _silence_explanation(link: Link, timeout_s: float) -> str:
