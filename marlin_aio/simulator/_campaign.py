@@ -36,7 +36,7 @@ import heapq
 import random
 import re
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from marlin_aio.errors import MarlinError
 from marlin_aio.protocol.commands import number_command
@@ -115,12 +115,14 @@ class CampaignResult:
         return not self.problems
 
 
-def mixed_scenario(seed: int) -> Scenario:
+def mixed_scenario(seed: int, *, actions: bool = True) -> Scenario:
     """A run drawn from `seed`: the mode, the fault mix (bit flips, damaged lines, lost oks, noise), concurrent
-    users of whom some give up, polling, and mishaps (a pause, a cancel, a reset, a silent board). The same seed
-    always gives the same scenario, so a failing seed is a reproducible run."""
+    users of whom some give up, polling, mishaps (a pause, a cancel, a reset, a silent board) and, with `actions`,
+    emergency writes (M108, M876) and a filament runout. The same seed always gives the same scenario, so a
+    failing seed is a reproducible run; without `actions` it is the scenario the seed drew before those joined the
+    draw (their draws come last, so every other field is the same either way)."""
     rng = random.Random(f"{seed}:scenario")
-    return Scenario(
+    scenario = Scenario(
         seed=seed,
         lines=rng.choice([60, 150, 300]),
         send_ahead=rng.random() < 0.5,
@@ -139,9 +141,13 @@ def mixed_scenario(seed: int) -> Scenario:
         reset_at_line=rng.choice([None] * 9 + [45]),
         silent_at_line=rng.choice([None] * 9 + [50]),
         chunk_bytes=rng.choice([None, 16]),
-        # Not drawn yet: `emergency_interval_s` and `runout_at_line` still find failing seeds (an unnumbered
-        # emergency command's ok cannot prove that a numbered line ahead of it ran: the printer may have dropped that
-        # line without a word, as a repeat of its last number). Turn them on here once that is settled.
+    )
+    if not actions:
+        return scenario
+    return replace(
+        scenario,
+        emergency_interval_s=rng.choice([None, None, 0.1, 0.5]),
+        runout_at_line=rng.choice([None, None, None, 20]),
     )
 
 
