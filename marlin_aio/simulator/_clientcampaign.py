@@ -70,6 +70,8 @@ from marlin_aio.simulator._campaign import (
     _check_position,
     _check_record,
     _check_reply,
+    _damaged_in_place,
+    _judge_foreign_replies,
     print_lines,
 )
 from marlin_aio.simulator._config import Faults, SimulatorConfig
@@ -136,7 +138,6 @@ class _Session:
         self.over = asyncio.Event()  # the print ended (or never began): the users stop
         self.waiting: dict[str, str] = {}  # who -> what it awaits now, for a run that never finishes
         self.position: list[str] = []  # M114's reply lines once a relative print is done
-        self.foreign_replies: list[tuple[str, tuple[str, ...]]] = []  # (command, lines) not its own: see `_check`
         self.mishaps: Counter[str] = Counter()
         self.unnumbered_before = (0, 0)  # the board's (unnumbered_runs, unnumbered_m105_runs) as the faults began
         self.trace = ""
@@ -344,18 +345,8 @@ class _Session:
             if loop.time() > bound:
                 result.problems.append(f"{text!r} finished at {loop.time():.2f} s, past its bound {bound:.2f} s")
             if reply is not None:
-                self._judge_reply(text, reply)
+                _check_reply(_as_command(text), reply, "user", result)
             await asyncio.sleep(rng.expovariate(1.0 / interval_s))
-
-    def _judge_reply(self, text: str, reply: Reply) -> None:
-        """`_check_reply`'s verdict, but a reply that is not its own is held for `_check`, which knows whether the
-        wire turned this command into another past the checksum."""
-        verdict = CampaignResult(self.scenario, PrintState.RUNNING, None, False, 0)
-        _check_reply(_as_command(text), reply, "user", verdict)
-        self.result.user_replies += verdict.user_replies
-        self.result.damaged_replies += verdict.damaged_replies
-        if verdict.wrong_replies:
-            self.foreign_replies.append((text, reply.lines))
 
     async def _ask_position(self, printer: marlin_aio.Printer) -> None:
         """M114 after a relative print that reported done; asked again if its ok was lost on a faulty link."""
@@ -382,11 +373,6 @@ def _as_command(text: str) -> Command:
     return Command(id=0, text=text, code=text.split()[0], numbered=True, timeout_s=0.0, submitted_s=0.0)
 
 
-def _damaged_copy(ran: str, text: str) -> bool:
-    """`ran` is `text` with one or two characters changed (what the simulator's faults do to a line)."""
-    return ran != text and len(ran) == len(text) and sum(a != b for a, b in zip(ran, text, strict=True)) <= 2
-
-
 def _check(server: SimulatorServer, session: _Session, result: CampaignResult) -> None:
     """The invariants on the simulator's record, as `_campaign.run_print` checks them after its own loop.
 
@@ -403,25 +389,14 @@ def _check(server: SimulatorServer, session: _Session, result: CampaignResult) -
     job = session.job
     ran = list(board.executed)
     result.bits_flipped = board.bits_flipped
-    file_codes = ("G1 ", "G91")
-    printed = [upper for text in ran if (upper := text.upper()).startswith(file_codes)]
-    # Lines of the file differ from each other in a character or two too: a copy is damaged if it is none of them.
-    known = set(lines)
-    mismatched = [(a, b) for a, b in zip(printed, lines, strict=False) if a != b]
-    damaged_in_place = bool(mismatched) and all(a not in known and _damaged_copy(a, b) for a, b in mismatched)
     unnumbered = board.unnumbered_runs - session.unnumbered_before[0]
     result.blind_spot = (
         board.unseen_damage > 0
         or board.unnumbered_m105_runs > session.unnumbered_before[1]
         or (unnumbered > 0 and scenario.drop_ok > 0)
-        or (unnumbered > 0 and damaged_in_place)
+        or (unnumbered > 0 and _damaged_in_place(ran, lines))
     )
-    for text, reply_lines in session.foreign_replies:
-        if any(_damaged_copy(command, text) for command in ran):
-            result.damaged_replies += 1  # its own reply, to the copy the board ran (allowed with a blind spot only)
-        else:
-            result.wrong_replies += 1
-            result.problems.append(f"{text!r} was handed the reply lines {reply_lines!r}")
+    _judge_foreign_replies(ran, result)
     result.state = job.state
     result.error = None if job.error is None else str(job.error)
     result.lines_said_run = job.last_source_line
