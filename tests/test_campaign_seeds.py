@@ -1,0 +1,99 @@
+"""The seeds of the fault campaign that found bugs beyond CI's draw (issue 34), as regressions: each fixed bug as a
+direct test of the sans-I/O core where one shows it, and its seed; each open one as `xfail(strict=True)` with its
+cause, so the fix turns it into a failure that says to make it a plain test.
+
+`python -m marlin_aio.simulator.sweep --core 0-19999 --client 0-9999` runs any range of seeds; `--no-actions`
+draws the scenarios as they were before the emergency writes and the runout joined the draw, which is how the
+seeds below marked so were found.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from marlin_aio.protocol.connection import Connection
+from marlin_aio.protocol.printjob import PrintJob, PrintState
+from marlin_aio.simulator import mixed_scenario, run_print
+from marlin_aio.simulator._clientcampaign import run_client_print
+
+OK_T = b"ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0\n"
+
+
+def _printing(lines: list[str], *, max_in_flight: int) -> tuple[Connection, PrintJob]:
+    """A connection whose M110 N0 was answered, with a print of `lines` attached."""
+    conn = Connection(numbered=True, max_in_flight=max_in_flight)
+    conn.submit("M110 N0", timeout_s=2.0, now=0.0)
+    assert conn.tick(0.0).data == b"N0 M110 N0*125\n"
+    conn.receive(b"ok\n", 0.001)
+    job = PrintJob(lines, name="t.gcode", lines_total=len(lines))
+    conn.attach(job, timeout_s=2.0)
+    return conn, job
+
+
+def test_lines_asked_for_again_go_as_a_placeholder_once_the_print_is_cancelled() -> None:
+    # Client seed 1357: the printer refused a line and asked for it again while lines were on the wire; the print
+    # was cancelled while the flush drained; then the lines queued to go again were written as themselves and ran
+    # after the cancel (lines 42-44), while the held one got its placeholder (line 41 skipped).
+    conn, job = _printing([f"G1 X{n}" for n in range(1, 21)], max_in_flight=8)
+    assert conn.tick(0.002).data.count(b" G1 ") == 8
+    conn.receive(b"ok\nok\nError:checksum mismatch, Last Line: 2\nResend: 3\nok\n", 0.010)
+    job.cancel(0.011)
+    written = b""
+    now = 0.011
+    for _ in range(100):  # a second: the flush drains, and what is queued goes out
+        now += 0.01
+        out = conn.tick(now)
+        written += out.data
+        conn.receive(b"ok\n" * out.data.count(b"\n"), now + 0.001)
+    assert job.state is PrintState.CANCELLED
+    assert b"G1" not in written  # nothing of the cancelled print went again
+    assert written == b"N8 M110 N8*125\n"  # one placeholder took the numbers 3-8
+    assert job.last_source_line == 2
+
+
+def test_a_probe_answer_is_not_taken_for_the_lost_ok_of_a_refused_damaged_copy() -> None:
+    # Core and client seed 2114: line 1 arrived with its `N` damaged (`echo:Unknown command: "^1 G1 X1"`); that
+    # refusal's ok was lost, and so was the ok of the line written again, which ran. The probe's `ok T:` was
+    # swallowed as the refusal's ok: every later ok was then taken one command behind, the print never went on,
+    # and one lost probe stalled it.
+    conn, job = _printing(["G1 X1", "G1 X2", "G1 X3"], max_in_flight=1)
+    assert conn.tick(0.002).data == b"N1 G1 X1*96\n"
+    assert conn.receive(b'echo:Unknown command: "^1 G1 X1"\n', 0.004).data == b"N1 G1 X1*96\n"
+    now = 0.004
+    probe = b""
+    while b"M105" not in probe and now < 3.0:
+        now += 0.005
+        probe = conn.tick(now).data
+    assert probe == b"\nN2 M105*37\n"
+    # The probe's answer proves line 1 ran: the print goes on with line 2.
+    assert conn.receive(OK_T, now + 0.001).data == b"N3 G1 X2*97\n"
+    assert job.lines_acked == 1
+
+
+# ------------------------------------------------------------------------------------------------ seeds
+
+
+@pytest.mark.parametrize(
+    ("campaign", "seed", "actions"),
+    [
+        # Fixed in the core: a probe's `ok T:` no longer taken for a refused fragment's lost ok (see above).
+        pytest.param("core", 2114, False, id="core-2114-fragment-ok"),
+        pytest.param("client", 2114, False, id="client-2114-fragment-ok"),
+        # Fixed in the core: a cancelled print's lines asked for again go as a placeholder (see above).
+        pytest.param("client", 1357, False, id="client-1357-cancel-resend"),
+        # Fixed in the judge: a line run unnumbered (its `N` flipped) with its body replaced (`corrupt`) is the
+        # checksum's blind spot in the core campaign too, as in the client's (`n32 G1 X0.1 F60l0` ran as line 24).
+        pytest.param("core", 2911, False, id="core-2911-unnumbered-damaged-line"),
+        # Fixed in the judge: `M118 U30` ran unnumbered as `M115 U30`, and its caller got M115's reply: that copy's,
+        # which no host can tell from its own; judged as a damaged reply of a blind-spot run.
+        pytest.param("core", 2452, False, id="core-2452-damaged-copy-reply"),
+    ],
+)
+def test_seeds_that_found_bugs(campaign: str, seed: int, actions: bool) -> None:
+    scenario = mixed_scenario(seed, actions=actions)
+    if campaign == "core":
+        result, trace = run_print(scenario), ""
+    else:
+        run = run_client_print(scenario)
+        result, trace = run.result, run.trace
+    assert result.problems == [], f"{campaign} seed {seed}:\n" + "\n".join(result.problems) + f"\n{trace}"
