@@ -9,6 +9,8 @@ seeds below marked so were found.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from marlin_aio.protocol.connection import Connection
@@ -97,3 +99,87 @@ def test_seeds_that_found_bugs(campaign: str, seed: int, actions: bool) -> None:
         run = run_client_print(scenario)
         result, trace = run.result, run.trace
     assert result.problems == [], f"{campaign} seed {seed}:\n" + "\n".join(result.problems) + f"\n{trace}"
+
+
+# ------------------------------------------------------------------------------------------------ open
+
+HELD = (
+    "open (core: deadlines/resends, the held line): a line asked for again after `Line Number is not Last Line "
+    "Number+1` is held, as it may have run unnumbered, until the printer is quiet; a probe behind it brings the "
+    "same `Resend:` again and another probe follows, and the emergency writes answered meanwhile keep the printer "
+    "from ever being quiet: the held line is never written again"
+)
+
+
+def _run_seed(campaign: str, seed: int, *, actions: bool = True, time_limit_s: float | None = None) -> list[str]:
+    scenario = mixed_scenario(seed, actions=actions)
+    if time_limit_s is not None:
+        # The run never ends; its bug shows as well within this limit, at a tenth of the CPU.
+        scenario = replace(scenario, time_limit_s=time_limit_s)
+    result = run_print(scenario) if campaign == "core" else run_client_print(scenario).result
+    return result.problems
+
+
+@pytest.mark.xfail(strict=True, reason=HELD + "; here an M876's plain ok is taken for the held line's unnumbered run")
+def test_core_4364_an_emergency_ok_is_not_taken_for_the_held_lines_run() -> None:
+    # N12 went unanswered; each probe (N13 ... N128) brought `Error:Line Number is not Last Line Number+1, Last
+    # Line: 11` and `Resend: 12`, and the host wrote another probe instead of line 12, for 2.5 s of emergency
+    # writes. Then an `M876 S0`'s plain `ok P15 B3` was judged the held line's (`Receiving._on_ok`: "a plain ok,
+    # and an emergency command written behind the held line"): a placeholder `N12 M110 N12` took its number, line
+    # 12 never ran, and the print stopped saying 12 lines ran where 11 did.
+    assert _run_seed("core", 4364) == []
+
+
+@pytest.mark.xfail(strict=True, reason=HELD + "; here the probes ran the history out (issue 34's seed 1084)")
+def test_core_1084_a_held_line_goes_again_before_its_history_runs_out() -> None:
+    # N279 went unanswered; probes N280 ... N535 each brought `Resend: 279`, until the printer asked for a line
+    # older than the history: "the printer asked for line 279, which was never sent or is too old to resend (next
+    # line is 536)", and the print said 173 lines ran where 172 did.
+    assert _run_seed("core", 1084) == []
+
+
+@pytest.mark.xfail(strict=True, reason=HELD + "; here nothing numbered goes out at all and the print never ends")
+def test_core_752_a_print_with_a_held_line_ends_within_its_bounds() -> None:
+    # `N1 G1 X0.0 Y0 F6000` went unanswered; the probe N2 brought `Resend: 1`; from then on only bare line ends and
+    # the emergency writes (M108, M876 S0, each answered by a plain ok) go out, for the 600 s of the run.
+    assert _run_seed("core", 752, time_limit_s=60.0) == []
+
+
+@pytest.mark.xfail(strict=True, reason=HELD + "; the client: eight callers wait 27 s and more past their 2 s")
+def test_client_509_commands_behind_a_held_line_fail_at_their_bound() -> None:
+    # The whole client: from 2.6 s on, eight `send("M118 U<k>")` wait, the print runs, and the link writes a bare
+    # line end every 50 ms and the M108s, never a numbered line, until the run's limit.
+    assert _run_seed("client", 509, time_limit_s=60.0) == []
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (core: deadlines): a printer silent from 0.24 s, with emergency writes every 0.5 s: the commands "
+    "queued behind them failed at 62 s, 31 s past their bound (issue 34: '7 waits up to 280 s past their bound')",
+)
+def test_core_290_a_silent_printer_fails_the_commands_at_their_bound_despite_emergency_writes() -> None:
+    # The board fell silent at line 50 (0.24 s); M108 and M876 S0 went on being written, unanswered; the probes
+    # went at 4.25 s and 36.25 s, and the print stalled "behind 'M108'" only at 62 s.
+    assert _run_seed("core", 290) == []
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (core: receiving._on_ok): while a flush drained, a cut line's tail ran and its plain ok was "
+    "taken for the runout answer's (M876 S0, an emergency command, answered plainly too); the M876's own ok then "
+    "answered nothing, so nobody noticed the tail: line 23 ran before line 22 and again after it, and the print "
+    "reported done (issue 34's seed 976)",
+)
+def test_core_976_a_tails_ok_is_not_taken_for_an_emergency_commands() -> None:
+    assert _run_seed("core", 976) == []
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (core: deadlines, the M110 probe): start_print's `N0 M110 N0` arrived as `N2 M110 N0` (checksum "
+    "error) and again as `N0 m110 N0`, which Marlin reads as a numbered line and drops as a duplicate of its last "
+    "(1, the handshake's M115); the probe numbered as if the M110 took effect, `N1 M105`, is a duplicate of the "
+    "old counter too and is dropped without a word: 2 s of silence, and the print fails on its M110",
+)
+def test_client_2631_a_probe_behind_an_unanswered_m110_is_answered() -> None:
+    assert _run_seed("client", 2631, actions=False) == []

@@ -54,6 +54,10 @@ SLICES = 10
 # error's flush, could still run; it ran out of place and nobody said so (core: resends.Resends.placeholder_for;
 # client seed 2389). The withdrawn lines' job ended at once, and the tail's ok, during the drain, found it ended.
 # Now the print ends once the drain is over, so that ok stops it saying why.
+#
+# Open (issue 34), with emergency writes or a runout in the draw; test_campaign_seeds.py keeps one of each as an
+# xfail(strict=True) regression, with the lines of the trace that show it:
+HELD = "a line held after a sequence error is never written again while emergency writes keep the printer talking"
 KNOWN_FAILURES: dict[int, str] = {}
 
 
@@ -126,6 +130,8 @@ def _assert_covered(runs: list[ClientRun]) -> None:
     assert sum(s.users >= 4 for s in scenarios) >= 30
     mishaps = sum((run.mishaps for run in runs), Counter[str]())
     assert mishaps["reset"] >= 3 and mishaps["silent"] >= 3 and mishaps["pause"] >= 10 and mishaps["cancel"] >= 8
+    # Every action: emergency writes (about 200-600 a slice) and runouts answered (about 20-30 a slice).
+    assert mishaps["emergency"] >= 100 and mishaps["answer"] >= 8
     assert sum(r.users_gave_up for r in results) >= 30
     assert sum(r.user_replies for r in results) >= 1_000
     assert sum(r.poll_replies for r in results) >= 400

@@ -99,6 +99,8 @@ class CampaignResult:
     users_gave_up: int = 0
     poll_replies: int = 0
     wrong_replies: int = 0
+    emergency_writes: int = 0  # M108 and M876 written at once, unasked or answering the printer's wait
+    answers: int = 0  # of those, the ones answering a wait for the user or a prompt (a runout's M600)
     unfinished_commands: int = 0
     end_s: float = 0.0
     position_checked: bool = False  # M114 was read after a print that reported done
@@ -360,6 +362,8 @@ def run_print(scenario: Scenario) -> CampaignResult:
             answer_at = None
             if asked and not job.finished:
                 answered_s = now
+                result.answers += 1
+                result.emergency_writes += 1
                 if requests.prompt is not None and requests.prompt.buttons and emergency_rng.random() < 0.7:
                     transmit(conn.emergency("M876 S0", now=now), "out", to_printer)
                     requests.answered()
@@ -369,6 +373,7 @@ def run_print(scenario: Scenario) -> CampaignResult:
         if next_emergency is not None and now >= next_emergency and scenario.emergency_interval_s is not None:
             # Unasked: M108 ends no wait, M876 answers no prompt; each is still queued and answered in its turn.
             if not job.finished:
+                result.emergency_writes += 1
                 transmit(
                     conn.emergency("M108" if emergency_rng.random() < 0.5 else "M876 S0", now=now), "out", to_printer
                 )
