@@ -32,7 +32,11 @@ FLIP_SEEDS = range(25)
 HELD = "a line held after a sequence error is never written again while emergency writes keep the printer talking"
 SILENT = "a silent printer with emergency writes: the commands behind them fail far past their bound"
 FRAGMENT = "a cut line's tail ran, and its plain ok was taken for an emergency command's: a line ran twice"
-KNOWN_FAILURES: dict[int, str] = {}
+KNOWN_FAILURES: dict[int, str] = {
+    **dict.fromkeys((566, 752, 814, 828, 970, 1084, 1601, 1639, 1678, 1767), HELD),
+    **dict.fromkeys((290, 1058, 1074), SILENT),
+    976: FRAGMENT,
+}
 
 
 def _failures(results: list[CampaignResult]) -> list[str]:
