@@ -183,3 +183,15 @@ def test_core_976_a_tails_ok_is_not_taken_for_an_emergency_commands() -> None:
 )
 def test_client_2631_a_probe_behind_an_unanswered_m110_is_answered() -> None:
     assert _run_seed("client", 2631, actions=False) == []
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (core: receiving, an emergency command's plain ok): start_print's `N0 M110 N0` arrived damaged "
+    "(`N0 M\\xb110 N0`), a numbered line 0 that Marlin, its last line being 1 (the handshake's M115), dropped as a "
+    "duplicate without a word; the plain ok of an unasked M108 written behind it settled the M110; `N1 G91` was "
+    "dropped as a duplicate too, `N2 M105` was taken, and its ok proved G91 'ran': the relative moves ran absolute "
+    "and the print reported done (M114 X:0.10 for 29.90)",
+)
+def test_client_795_an_emergency_ok_does_not_settle_a_dropped_m110() -> None:
+    assert _run_seed("client", 795) == []
