@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
+from dataclasses import replace
 
 import pytest
 
@@ -24,6 +25,10 @@ MIXED_RUNS = 2_000
 # 2,000 runs was the longest single item of the suite (about 50 s on one core while the other sat idle).
 SLICES = 8
 FLIP_SEEDS = range(25)
+# A run of the mixed draw ends within seconds of simulated time, or fails; the sweep gives each 600 s, but here one
+# that never ends (a known failure) would spend a tenth of the campaign's CPU on its last 540 s. Cut at 60 s, it
+# fails all the same ("still running at the time limit").
+TIME_LIMIT_S = 60.0
 
 # The seeds of 0..MIXED_RUNS-1 that fail because of a bug of the library, each with its bug (issue 34). A slice fails
 # on any other failing seed, and on a seed listed here that no longer fails (the bug is fixed: remove the seed here).
@@ -50,7 +55,10 @@ def _mixed_slice(index: int) -> list[CampaignResult]:
     level = log.level
     log.setLevel(logging.CRITICAL)
     try:
-        return [run_print(mixed_scenario(seed)) for seed in range(index, MIXED_RUNS, SLICES)]
+        return [
+            run_print(replace(mixed_scenario(seed), time_limit_s=TIME_LIMIT_S))
+            for seed in range(index, MIXED_RUNS, SLICES)
+        ]
     finally:
         log.setLevel(level)
 
@@ -210,7 +218,7 @@ def test_a_flip_and_a_replaced_byte_that_cancel_in_the_checksum_are_a_blind_spot
     # replaced by `v` (`corrupt`): both change bit 6, the checksum passes, and `G1 X33.3 Y31`Fv000` runs as line
     # 36. No host can see that. Before: the simulator counted only flips that cancel each other, so the run was
     # judged, and "line 34 out of order" was a broken invariant.
-    result = run_print(mixed_scenario(294))
+    result = run_print(mixed_scenario(294, actions=False))
     assert result.problems == [] and result.blind_spot
 
 
@@ -218,7 +226,7 @@ def test_a_command_run_unnumbered_with_its_ok_lost_and_run_again_is_a_blind_spot
     # Seed 1244: `N250 M118 U90` arrives as `n250 M118 U90`, runs unnumbered and prints `U90`, and its ok is lost.
     # The probe behind it brings `Resend: 250`; the line goes again and runs again: its caller gets `U90` twice.
     # No host can see that the first copy ran. Before: that reply was judged another command's.
-    result = run_print(mixed_scenario(1244))
+    result = run_print(mixed_scenario(1244, actions=False))
     assert result.problems == [] and result.blind_spot and result.damaged_replies >= 1
 
 
