@@ -15,7 +15,7 @@ import pytest
 
 from marlin_aio.protocol.connection import Connection
 from marlin_aio.protocol.printjob import PrintJob, PrintState
-from marlin_aio.simulator import mixed_scenario, run_print
+from marlin_aio.simulator import mixed_scenario, run_print, sweep
 from marlin_aio.simulator._clientcampaign import run_client_print
 
 OK_T = b"ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0\n"
@@ -195,3 +195,38 @@ def test_client_2631_a_probe_behind_an_unanswered_m110_is_answered() -> None:
 )
 def test_client_795_an_emergency_ok_does_not_settle_a_dropped_m110() -> None:
     assert _run_seed("client", 795) == []
+
+
+# ------------------------------------------------------------------------------------------------ the sweep
+
+
+def test_the_sweep_runs_seeds_across_processes_and_sums_them_up(capsys: pytest.CaptureFixture[str]) -> None:
+    assert sweep.main(["--core", "0-3,7", "--jobs", "2"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 1 and out[0].startswith("core seeds 0-3,7: 5 runs (")
+    assert "0 failing seeds;" in out[0] and "s wall; load average " in out[0]
+    # The same runs in one process, in seed order: a seed is the same run wherever it runs.
+    in_pool = list(sweep.sweep("core", [0, 1, 2, 3], jobs=2))
+    assert list(sweep.sweep("core", [0, 1, 2, 3], jobs=1)) == in_pool
+    assert [outcome.seed for outcome in in_pool] == [0, 1, 2, 3]
+
+
+def test_the_sweep_prints_each_failing_seed_with_its_problems(capsys: pytest.CaptureFixture[str]) -> None:
+    outcomes = [
+        sweep.SeedOutcome("client", 4, "done", (), None, False),
+        sweep.SeedOutcome("client", 5, "failed", ("one", "two"), "boom", False, trace="  -0.1 s >> N1 G1"),
+    ]
+    failing = sweep._report("client", "4-5", iter(outcomes), with_trace=True, started=0.0)
+    assert failing == outcomes[1:]
+    out = capsys.readouterr().out.splitlines()
+    assert out[:2] == ["client seed 5 (failed): one; two", "  -0.1 s >> N1 G1"]
+    assert out[2].startswith("client seeds 4-5: 2 runs (1 done, 1 failed), 0 in the blind spot; 1 failing seeds;")
+
+
+def test_the_sweep_reads_seed_ranges_and_refuses_bad_ones() -> None:
+    assert sweep.parse_seeds("0-3,7, 9-10") == [0, 1, 2, 3, 7, 9, 10]
+    for bad in ("5-3", "x", "1-y", ""):
+        with pytest.raises(ValueError, match="seed"):
+            sweep.parse_seeds(bad)
+    with pytest.raises(SystemExit):
+        sweep.main(["--jobs", "2"])  # no seeds to run
