@@ -211,14 +211,21 @@ def test_the_sweep_runs_seeds_across_processes_and_sums_them_up(capsys: pytest.C
     assert [outcome.seed for outcome in in_pool] == [0, 1, 2, 3]
 
 
-def test_the_sweep_prints_each_failing_seed_with_its_problems(capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_sweep_prints_each_failing_seed_with_its_problems(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(sweep, "PROGRESS_RUNS", 1)
     outcomes = [
         sweep.SeedOutcome("client", 4, "done", (), None, False),
         sweep.SeedOutcome("client", 5, "failed", ("one", "two"), "boom", False, trace="  -0.1 s >> N1 G1"),
     ]
-    failing = sweep._report("client", "4-5", iter(outcomes), with_trace=True, started=0.0)
+    failing = sweep._report("client", "4-5", iter(outcomes), with_trace=True, started=0.0, total=2)
     assert failing == outcomes[1:]
-    out = capsys.readouterr().out.splitlines()
+    captured = capsys.readouterr()
+    # How far it got, on stderr, for a sweep stopped early: after each run but the last (then the summary says it).
+    assert captured.err.startswith("client: 1 of 2 runs, through seed 4; 0 failing seeds; ")
+    assert len(captured.err.splitlines()) == 1
+    out = captured.out.splitlines()
     assert out[:2] == ["client seed 5 (failed): one; two", "  -0.1 s >> N1 G1"]
     assert out[2].startswith("client seeds 4-5: 2 runs (1 done, 1 failed), 0 in the blind spot; 1 failing seeds;")
 

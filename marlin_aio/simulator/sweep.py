@@ -30,6 +30,9 @@ from marlin_aio.simulator._campaign import mixed_scenario, run_print
 
 __all__ = ["SeedOutcome", "main", "parse_seeds", "run_seed", "sweep"]
 
+#: How often a long sweep says how far it got (on stderr), so that one stopped early still tells what it ran.
+PROGRESS_RUNS = 500
+
 #: Seeds handed to a process at a time: large enough that the hand-over costs nothing beside the runs (a core run
 #: takes about 30 ms, a client run about 60), small enough that the processes finish together.
 CHUNK_SEEDS = 16
@@ -115,9 +118,10 @@ def sweep(campaign: str, seeds: Sequence[int], *, jobs: int, actions: bool = Tru
 
 
 def _report(
-    campaign: str, label: str, outcomes: Iterable[SeedOutcome], *, with_trace: bool, started: float
+    campaign: str, label: str, outcomes: Iterable[SeedOutcome], *, with_trace: bool, started: float, total: int = 0
 ) -> list[SeedOutcome]:
-    """Print each failing seed as it comes, then the summary line; return the failing outcomes."""
+    """Print each failing seed as it comes (and every `PROGRESS_RUNS` runs, on stderr, how far it got, of `total`),
+    then the summary line; return the failing outcomes."""
     states: Counter[str] = Counter()
     failing: list[SeedOutcome] = []
     runs = blind = 0
@@ -130,6 +134,13 @@ def _report(
             print(f"{campaign} seed {outcome.seed} ({outcome.state}): " + "; ".join(outcome.problems), flush=True)
             if with_trace and outcome.trace:
                 print(outcome.trace, flush=True)
+        if runs % PROGRESS_RUNS == 0 and runs < total:
+            print(
+                f"{campaign}: {runs} of {total} runs, through seed {outcome.seed}; {len(failing)} failing seeds; "
+                f"{time.monotonic() - started:.0f} s",
+                file=sys.stderr,
+                flush=True,
+            )
     elapsed = time.monotonic() - started
     load = " ".join(f"{value:.2f}" for value in os.getloadavg())
     ended = ", ".join(f"{count} {state}" for state, count in sorted(states.items()))
@@ -172,7 +183,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"--{campaign}: {error}")
         started = time.monotonic()
         outcomes = sweep(campaign, seeds, jobs=args.jobs, actions=args.actions)
-        failed |= bool(_report(campaign, label, outcomes, with_trace=args.trace, started=started))
+        failing = _report(campaign, label, outcomes, with_trace=args.trace, started=started, total=len(seeds))
+        failed |= bool(failing)
     return 1 if failed else 0
 
 
