@@ -4,13 +4,16 @@ intake is Marlin's own (`queue.cpp`), with bit flips anywhere in what the host s
 Each run (`marlin_aio.simulator._campaign.run_print`) checks the invariants on the simulator's record of what it
 executed: each file line at most once and in file order (exactly once, at the exact position, when the print
 reports done); never one more than the print says ran; each reply to its own caller; every wait bounded. The run
-counts and any failing seed are printed in the "fault campaign" section of the test output.
+counts and any failing seed are printed in the "fault campaign" section of the test output. The draw is every
+action: emergency writes (M108, M876) and runouts too. Any range of seeds runs with
+`python -m marlin_aio.simulator.sweep --core 0-19999`; the seeds that found bugs are in test_campaign_seeds.py.
 """
 
 from __future__ import annotations
 
 import logging
 from collections import Counter
+from dataclasses import replace
 
 import pytest
 
@@ -22,6 +25,23 @@ MIXED_RUNS = 2_000
 # 2,000 runs was the longest single item of the suite (about 50 s on one core while the other sat idle).
 SLICES = 8
 FLIP_SEEDS = range(25)
+# A run of the mixed draw ends within seconds of simulated time, or fails; the sweep gives each 600 s, but here one
+# that never ends (a known failure) would spend a tenth of the campaign's CPU on its last 540 s. Cut at 60 s, it
+# fails all the same ("still running at the time limit").
+TIME_LIMIT_S = 60.0
+
+# The seeds of 0..MIXED_RUNS-1 that fail because of a bug of the library, each with its bug (issue 34). A slice fails
+# on any other failing seed, and on a seed listed here that no longer fails (the bug is fixed: remove the seed here).
+# Every one of them has emergency writes or a runout in its draw; test_campaign_seeds.py keeps one of each as an
+# xfail(strict=True) regression, with the lines of the trace that show it.
+HELD = "a line held after a sequence error is never written again while emergency writes keep the printer talking"
+SILENT = "a silent printer with emergency writes: the commands behind them fail far past their bound"
+FRAGMENT = "a cut line's tail ran, and its plain ok was taken for an emergency command's: a line ran twice"
+KNOWN_FAILURES: dict[int, str] = {
+    **dict.fromkeys((566, 752, 814, 828, 970, 1084, 1601, 1639, 1678, 1767), HELD),
+    **dict.fromkeys((290, 1058, 1074), SILENT),
+    976: FRAGMENT,
+}
 
 
 def _failures(results: list[CampaignResult]) -> list[str]:
@@ -35,7 +55,10 @@ def _mixed_slice(index: int) -> list[CampaignResult]:
     level = log.level
     log.setLevel(logging.CRITICAL)
     try:
-        return [run_print(mixed_scenario(seed)) for seed in range(index, MIXED_RUNS, SLICES)]
+        return [
+            run_print(replace(mixed_scenario(seed), time_limit_s=TIME_LIMIT_S))
+            for seed in range(index, MIXED_RUNS, SLICES)
+        ]
     finally:
         log.setLevel(level)
 
@@ -44,17 +67,26 @@ def _mixed_slice(index: int) -> list[CampaignResult]:
 @pytest.mark.parametrize("index", range(SLICES))
 def test_two_thousand_mixed_runs_hold_every_invariant(index: int, campaign_report: list[str]) -> None:
     mixed = _mixed_slice(index)
-    failures = _failures(mixed)
+    failing = {r.scenario.seed for r in mixed if r.problems}
+    known = {seed for seed in range(index, MIXED_RUNS, SLICES) if seed in KNOWN_FAILURES}
+    unexpected = [r for r in mixed if r.scenario.seed in failing - known]
+    fixed = sorted(known - failing)
     states = Counter(r.state.value for r in mixed)
     campaign_report.append(
         f"mixed, seeds {index}, {index + SLICES}, ... (slice {index + 1} of {SLICES}): {len(mixed)} runs "
         f"({', '.join(f'{n} {s}' for s, n in sorted(states.items()))}); "
         f"{sum(r.user_replies for r in mixed)} user replies checked, {sum(r.users_gave_up for r in mixed)} callers "
-        f"gave up, {sum(r.bits_flipped for r in mixed)} bits flipped, {sum(r.blind_spot for r in mixed)} runs hit "
-        f"the checksum's blind spot; {len(failures)} broken invariants"
+        f"gave up, {sum(r.emergency_writes for r in mixed)} emergency writes, {sum(r.bits_flipped for r in mixed)} "
+        f"bits flipped, {sum(r.blind_spot for r in mixed)} runs hit the checksum's blind spot; {len(failing)} failing "
+        f"seeds ({len(failing & known)} known)"
     )
-    campaign_report.extend(failures[:50])
-    assert failures == []
+    for result in mixed:
+        seed = result.scenario.seed
+        if seed in failing:
+            tag = f" [known: {KNOWN_FAILURES[seed]}]" if seed in known else ""
+            campaign_report.extend(f"seed {seed}{tag}: {problem}" for problem in result.problems[:5])
+    assert not unexpected, "failing seeds of the core campaign:\n" + "\n".join(_failures(unexpected))
+    assert not fixed, f"seeds {fixed} no longer fail: remove them from KNOWN_FAILURES (and their xfail regressions)"
     # Each slice covers everything on its own, at half the share of the whole campaign's floors (a slice of 250
     # seeds wanders further from the mean than 2,000 do).
     _assert_covered(mixed, share=0.5 / SLICES)
@@ -71,6 +103,11 @@ def _assert_covered(mixed: list[CampaignResult], share: float) -> None:
     assert sum(s.cancel_at_line is not None for s in scenarios) > 300 * share
     assert sum(s.pause_at_line is not None for s in scenarios) > 400 * share
     assert sum(s.users >= 4 for s in scenarios) > 800 * share
+    # Every action: emergency writes in about five runs of eight, a runout in one of four, each answered.
+    assert sum(s.emergency_interval_s is not None for s in scenarios) > 1_000 * share
+    assert sum(s.runout_at_line is not None for s in scenarios) > 400 * share
+    assert sum(r.emergency_writes for r in mixed) > 4_000 * share
+    assert sum(r.answers for r in mixed) > 400 * share
     assert sum(r.users_gave_up for r in mixed) > 40 * share
     assert sum(r.user_replies for r in mixed) > 30_000 * share
     assert sum(r.poll_replies for r in mixed) > 5_000 * share
@@ -181,7 +218,7 @@ def test_a_flip_and_a_replaced_byte_that_cancel_in_the_checksum_are_a_blind_spot
     # replaced by `v` (`corrupt`): both change bit 6, the checksum passes, and `G1 X33.3 Y31`Fv000` runs as line
     # 36. No host can see that. Before: the simulator counted only flips that cancel each other, so the run was
     # judged, and "line 34 out of order" was a broken invariant.
-    result = run_print(mixed_scenario(294))
+    result = run_print(mixed_scenario(294, actions=False))
     assert result.problems == [] and result.blind_spot
 
 
@@ -189,7 +226,7 @@ def test_a_command_run_unnumbered_with_its_ok_lost_and_run_again_is_a_blind_spot
     # Seed 1244: `N250 M118 U90` arrives as `n250 M118 U90`, runs unnumbered and prints `U90`, and its ok is lost.
     # The probe behind it brings `Resend: 250`; the line goes again and runs again: its caller gets `U90` twice.
     # No host can see that the first copy ran. Before: that reply was judged another command's.
-    result = run_print(mixed_scenario(1244))
+    result = run_print(mixed_scenario(1244, actions=False))
     assert result.problems == [] and result.blind_spot and result.damaged_replies >= 1
 
 

@@ -509,6 +509,15 @@ class Connection:
                     command = core.queue[0]
                 else:
                     command = job_command
+            if _unwanted_resend(command):
+                # Queued to go again, and its print was cancelled (or stopped) since: nothing of a stopped print runs
+                # after the stop, so one placeholder takes the numbers of the run of such lines (client seed 1357:
+                # lines 42-44 went again after the cancel and ran, while line 41, held then, got its placeholder).
+                unwanted = []
+                while core.queue and _unwanted_resend(core.queue[0]):
+                    unwanted.append(core.queue.popleft())
+                core.queue.appendleft(resends.placeholder_for(unwanted))
+                continue
             core.after_command = command.job is None and not command.wire
             # After a probe deadline, the lines waiting to be resent and the probe behind them go out together.
             nudge = resends.nudge_pending and (bool(command.wire) or command.probe)
@@ -587,3 +596,8 @@ class Connection:
         if state is LinkState.PRINTING or state is LinkState.STOPPING:
             self._core.sync_print_state()
         return Output(events, data, tuple(self.take_results()), self._deadlines.next_deadline())
+
+
+def _unwanted_resend(command: Command) -> bool:
+    """A print line queued to be written again whose print has stopped or is being cancelled since."""
+    return command.state is LineState.TO_RESEND and command.job is not None and not wanted(command)

@@ -233,8 +233,13 @@ class Resends:
             self._swallow_ok = False
             return True
         if self._fragment_oks:
-            self._fragment_oks -= 1
-            return True
+            if plain:
+                self._fragment_oks -= 1
+                return True
+            # An M105's `ok T:`: a refused fragment's ok is plain and follows its `Unknown command` at once, so it
+            # was lost. Taking this one for it put every later ok one command behind: probes answered one by one
+            # and taken for the one before, the print never going on (core and client seed 2114).
+            self._fragment_oks = 0
         if self.spare_oks and self.drain_until is not None and plain:
             self.spare_oks -= 1
             return True
