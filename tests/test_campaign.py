@@ -38,8 +38,8 @@ HELD = "a line held after a sequence error is never written again while emergenc
 SILENT = "a silent printer with emergency writes: the commands behind them fail far past their bound"
 FRAGMENT = "a cut line's tail ran, and its plain ok was taken for an emergency command's: a line ran twice"
 KNOWN_FAILURES: dict[int, str] = {
-    **dict.fromkeys((566, 752, 814, 828, 970, 1084, 1601, 1639, 1678, 1767), HELD),
-    **dict.fromkeys((290, 1058, 1074), SILENT),
+    **dict.fromkeys((566, 752, 814, 828, 970, 1601, 1639, 1643, 1678, 1767), HELD),
+    **dict.fromkeys((1058, 1074, 1096, 1881), SILENT),
     976: FRAGMENT,
 }
 
