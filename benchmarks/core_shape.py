@@ -21,7 +21,6 @@ import ast
 import asyncio
 import os
 import sys
-from collections import defaultdict
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -50,6 +49,26 @@ def _is_dataclass(node: ast.ClassDef) -> bool:
     return False
 
 
+def _stored_attributes(tree: ast.AST) -> list[ast.Attribute]:
+    """Every `x.attr` that an assignment in `tree` stores to (`=`, an annotated `=`, `+=`)."""
+    stored: list[ast.Attribute] = []
+    for node in ast.walk(tree):
+        targets: list[ast.expr] = []
+        if isinstance(node, ast.Assign):
+            targets = list(node.targets)
+        elif isinstance(node, ast.AnnAssign | ast.AugAssign):
+            targets = [node.target]
+        for target in targets:
+            stored.extend(
+                leaf for leaf in ast.walk(target) if isinstance(leaf, ast.Attribute) and isinstance(leaf.ctx, ast.Store)
+            )
+    return stored
+
+
+def _on_self(attribute: ast.Attribute) -> bool:
+    return isinstance(attribute.value, ast.Name) and attribute.value.id == "self"
+
+
 def fields_by_owner() -> dict[str, set[str]]:
     """`module.Class` -> the mutable fields it owns."""
     owners: dict[str, set[str]] = {}
@@ -67,21 +86,11 @@ def fields_by_owner() -> dict[str, set[str]]:
                         and "ClassVar" not in ast.unparse(item.annotation)
                     ):
                         fields.add(item.target.id)
-            for child in ast.walk(node):
-                targets: list[ast.expr] = []
-                if isinstance(child, ast.Assign):
-                    targets = list(child.targets)
-                elif isinstance(child, ast.AnnAssign | ast.AugAssign):
-                    targets = [child.target]
-                for target in targets:
-                    for leaf in ast.walk(target):
-                        if (
-                            isinstance(leaf, ast.Attribute)
-                            and isinstance(leaf.value, ast.Name)
-                            and leaf.value.id == "self"
-                            and isinstance(leaf.ctx, ast.Store)
-                        ):
-                            fields.add(leaf.attr)
+            fields.update(
+                leaf.attr
+                for leaf in _stored_attributes(node)
+                if isinstance(leaf.value, ast.Name) and leaf.value.id == "self"
+            )
             if fields:
                 owners[f"{path.stem}.{node.name}"] = fields
     return owners
@@ -89,21 +98,12 @@ def fields_by_owner() -> dict[str, set[str]]:
 
 def foreign_writes() -> dict[str, int]:
     """`module` -> how many assignments it makes to an attribute of something that is not `self`."""
-    counts: dict[str, int] = defaultdict(int)
+    counts: dict[str, int] = {}
     for path in sorted(CORE.glob("*.py")):
         tree = ast.parse(path.read_text(), str(path))
-        for node in ast.walk(tree):
-            targets: list[ast.expr] = []
-            if isinstance(node, ast.Assign):
-                targets = list(node.targets)
-            elif isinstance(node, ast.AnnAssign | ast.AugAssign):
-                targets = [node.target]
-            for target in targets:
-                for leaf in ast.walk(target):
-                    if isinstance(leaf, ast.Attribute) and isinstance(leaf.ctx, ast.Store):
-                        base = leaf.value
-                        if not (isinstance(base, ast.Name) and base.id == "self"):
-                            counts[path.stem] += 1
+        foreign = sum(not _on_self(leaf) for leaf in _stored_attributes(tree))
+        if foreign:
+            counts[path.stem] = foreign
     return dict(counts)
 
 

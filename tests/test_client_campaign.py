@@ -17,6 +17,7 @@ from collections import Counter
 from dataclasses import dataclass, field, replace
 
 import pytest
+from test_campaign import HELD, SILENT  # the causes, worded once for both campaigns
 
 from marlin_aio.protocol.printjob import PrintState
 from marlin_aio.simulator import CampaignResult, mixed_scenario
@@ -59,8 +60,6 @@ TIME_LIMIT_S = 60.0
 #
 # Open (issue 34), with emergency writes or a runout in the draw; test_campaign_seeds.py keeps one of each as an
 # xfail(strict=True) regression, with the lines of the trace that show it:
-HELD = "a line held after a sequence error is never written again while emergency writes keep the printer talking"
-SILENT = "a silent printer with emergency writes: the commands behind them fail far past their bound"
 DUPLICATE = "an M108's plain ok settled the M110 ahead of it, which Marlin had dropped as a duplicate; G91 never ran"
 KNOWN_FAILURES: dict[int, str] = {
     **dict.fromkeys((273, 560, 603, 752, 814, 901), HELD),

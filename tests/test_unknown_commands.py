@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 import marlin_aio
 from marlin_aio.protocol.printjob import PrintState
 from marlin_aio.simulator import Faults, SimulatorConfig, run_in_simulated_time, serve_memory
-from marlin_aio.simulator._campaign import Scenario, run_print
+from marlin_aio.simulator._campaign import CampaignResult, Scenario, run_print
 from marlin_temp.main import app
 
 # A PrusaSlicer-like head: M73 (progress) near the top, which Marlin 2.1 lacks unless SET_PROGRESS_MANUALLY is on
@@ -83,22 +83,28 @@ def test_the_cli_says_which_commands_the_printer_skipped(tmp_path: object) -> No
 BLIND_SPOT = (("N15 ", 4, 0), ("N15 ", 5, 0))
 
 
+def _blind_spot_print(*, send_ahead: bool, advanced_ok: bool) -> CampaignResult:
+    """The campaign's 100-line relative print, with line 15 damaged in the checksum's blind spot."""
+    return run_print(
+        Scenario(
+            seed=1,
+            lines=100,
+            send_ahead=send_ahead,
+            advanced_ok=advanced_ok,
+            relative=True,
+            poll_interval_s=None,
+            user_interval_s=None,
+            flip_once=BLIND_SPOT,
+        )
+    )
+
+
 @pytest.mark.parametrize("advanced_ok", [False, True], ids=["plain-ok", "advanced-ok"])
 def test_a_damaged_line_marlin_did_not_know_goes_again_one_line_at_a_time_and_runs_in_its_place(
     advanced_ok: bool,
 ) -> None:
     # Before: the print stopped at line 15 ("arrived damaged in a way its checksum could not show").
-    scenario = Scenario(
-        seed=1,
-        lines=100,
-        send_ahead=False,
-        advanced_ok=advanced_ok,
-        relative=True,
-        poll_interval_s=None,
-        user_interval_s=None,
-        flip_once=BLIND_SPOT,
-    )
-    result = run_print(scenario)
+    result = _blind_spot_print(send_ahead=False, advanced_ok=advanced_ok)
     assert result.bits_flipped == 2 and result.problems == []
     assert result.state is PrintState.DONE and result.position_checked  # M114: every move ran once
     assert result.executed_in_order and result.lines_executed == 100
@@ -108,17 +114,7 @@ def test_a_damaged_line_marlin_did_not_know_goes_again_one_line_at_a_time_and_ru
 def test_with_send_ahead_the_stop_names_the_lines_behind_that_ran_and_the_resume_repeats_none(
     advanced_ok: bool,
 ) -> None:
-    scenario = Scenario(
-        seed=1,
-        lines=100,
-        send_ahead=True,
-        advanced_ok=advanced_ok,
-        relative=True,
-        poll_interval_s=None,
-        user_interval_s=None,
-        flip_once=BLIND_SPOT,
-    )
-    result = run_print(scenario)
+    result = _blind_spot_print(send_ahead=True, advanced_ok=advanced_ok)
     assert result.state is PrintState.FAILED and result.error is not None
     assert "print stopped at line 15 of" in result.error
     assert "lines 16-19 had been sent behind it and may have run: resume from line 20" in result.error
