@@ -10,6 +10,7 @@ with send-ahead the lines behind it already ran, so the print stops naming them 
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -63,10 +64,7 @@ def test_stop_on_unknown_stops_the_print_at_that_line(send_ahead: bool) -> None:
         assert "had been sent behind it and may have run: resume from line" in str(error)
 
 
-def test_the_cli_says_which_commands_the_printer_skipped(tmp_path: object) -> None:
-    import pathlib
-
-    assert isinstance(tmp_path, pathlib.Path)
+def test_the_cli_says_which_commands_the_printer_skipped(tmp_path: Path) -> None:
     gcode = tmp_path / "part.gcode"
     gcode.write_text("\n".join(PRUSA_LIKE) + "\n")
     result = CliRunner().invoke(app, ["print", str(gcode), "--sim", "--sim-speed", "50"])

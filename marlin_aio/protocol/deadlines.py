@@ -90,8 +90,8 @@ class Deadlines:
         may_probe = (
             core.numbered
             and not resends.draining
-            and self._probes_out() < 2
             and (feed.active or self._may_probe_outside_print(head))
+            and self._probes_out() < 2  # last: it walks the FIFO
         )
         probe_at = max(start, feed.probed_s) + feed.probe_delay_s() if may_probe else math.inf
         return start + head.timeout_s, resend_at, probe_at
