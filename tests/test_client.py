@@ -14,7 +14,7 @@ from conftest import TIME_SCALE
 
 import marlin_aio
 import marlin_aio.protocol
-from marlin_aio.protocol.trace import BARE_LINE_END
+from marlin_aio.protocol.wire import BARE_LINE_END
 from marlin_aio.simulator import Faults, SimulatorConfig, SimulatorServer, serve_memory
 
 

@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 
 from marlin_aio.errors import MarlinError
 from marlin_aio.protocol.connection import Connection, Output
-from marlin_aio.protocol.replies import Command, Reply
+from marlin_aio.protocol.matching import Command
+from marlin_aio.protocol.replies import Reply
 
 _COMMANDS = ["M105", "M105", "M105", "G1 X1", "M114", "M110 N0", "M999", "M115"]
 _REPLIES = [

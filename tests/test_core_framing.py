@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from marlin_aio.protocol.events import OverlongLine
-from marlin_aio.protocol.framing import DEFAULT_MAX_LINE_BYTES, LineSplitter
+from marlin_aio.protocol.wire import DEFAULT_MAX_LINE_BYTES, LineSplitter
 
 Piece = str | OverlongLine
 

@@ -34,8 +34,9 @@ from marlin_aio.protocol.events import (
     UnknownCommand,
     UnrecognisedLine,
 )
-from marlin_aio.protocol.parsing import EventParser, classify_line, parse_endstops, parse_position
+from marlin_aio.protocol.parsing import parse_endstops, parse_position
 from marlin_aio.protocol.temperatures import HeaterReading
+from marlin_aio.protocol.wire import EventParser, classify_line
 
 EVENT_TYPES: tuple[type, ...] = typing.get_args(Event)
 

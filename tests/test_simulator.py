@@ -25,7 +25,8 @@ from marlin_aio.protocol.events import (
     TargetTemperature,
     TemperatureReport,
 )
-from marlin_aio.protocol.parsing import classify_line, parse_position
+from marlin_aio.protocol.parsing import parse_position
+from marlin_aio.protocol.wire import classify_line
 from marlin_aio.simulator import Faults, SimulatedPrinter, SimulatorConfig, generate_moves
 from marlin_aio.simulator._wire import Wire
 

@@ -28,7 +28,7 @@ from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.replies import Reply
 from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import TemperatureReading
-from marlin_aio.protocol.trace import Trace
+from marlin_aio.protocol.wire import Trace
 
 __all__ = ["PrinterBackend"]
 

@@ -32,7 +32,7 @@ from marlin_aio.protocol.events import Event
 from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.printjob import PrintJob
 from marlin_aio.protocol.stats import LinkStats
-from marlin_aio.protocol.trace import Trace
+from marlin_aio.protocol.wire import Trace
 
 __all__ = ["Link"]
 
@@ -346,7 +346,7 @@ class Link:
             if future is None or future.done():
                 continue
             if isinstance(outcome, Reply):
-                self.round_trips.append((outcome.answered_s, outcome.latency_s))
+                self.round_trips.append((outcome.answered_s, outcome.answered_s - outcome.sent_s))
                 future.set_result(outcome)
             else:
                 future.set_exception(outcome)

@@ -48,7 +48,7 @@ from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.printjob import PrintProgress
 from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import TemperatureReading
-from marlin_aio.protocol.trace import Trace
+from marlin_aio.protocol.wire import Trace
 
 __all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "LinkEvent", "PrintHandle", "Printer", "ServedPrinter", "connect"]
 

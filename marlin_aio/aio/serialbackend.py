@@ -45,7 +45,7 @@ from marlin_aio.protocol.linkstate import LinkState
 from marlin_aio.protocol.printjob import PrintJob, gcode_commands
 from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import ReadingSource, TemperatureReading
-from marlin_aio.protocol.trace import Trace
+from marlin_aio.protocol.wire import Trace
 
 __all__ = ["SerialBackend"]
 

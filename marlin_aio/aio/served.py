@@ -76,7 +76,7 @@ from marlin_aio.protocol.rpc import (
 )
 from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import TemperatureReading
-from marlin_aio.protocol.trace import Trace
+from marlin_aio.protocol.wire import Trace
 
 __all__ = ["LINK_STATS_INTERVAL_S", "ServedBackend"]
 

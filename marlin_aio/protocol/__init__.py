@@ -46,7 +46,6 @@ from marlin_aio.protocol.events import (
     UnknownCommand,
     UnrecognisedLine,
 )
-from marlin_aio.protocol.framing import LineSplitter
 from marlin_aio.protocol.gcode import GCodeLine, parse_gcode
 from marlin_aio.protocol.heaters import DEFAULT_LIMITS, HeaterLimits, check_gcode_targets
 from marlin_aio.protocol.hostrequests import HostRequest, HostRequests, Prompt
@@ -62,7 +61,7 @@ from marlin_aio.protocol.motion import (
     home_command,
     move_commands,
 )
-from marlin_aio.protocol.parsing import EventParser, classify_line, parse_endstops, parse_position
+from marlin_aio.protocol.parsing import parse_endstops, parse_position
 from marlin_aio.protocol.printjob import STOPPED_BY_SERVICE, PrintJob, PrintProgress, PrintState, check_command
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.stats import LinkStats
@@ -75,7 +74,7 @@ from marlin_aio.protocol.temperatures import (
     heater_name,
     parse_temperatures,
 )
-from marlin_aio.protocol.trace import Trace, TraceEntry
+from marlin_aio.protocol.wire import EventParser, LineSplitter, Trace, TraceEntry, classify_line
 
 __all__ = [
     "DEFAULT_LIMITS",

@@ -46,15 +46,15 @@ from marlin_aio.protocol.deadlines import Deadlines
 from marlin_aio.protocol.events import Event
 from marlin_aio.protocol.heaters import DEFAULT_LIMITS, HeaterLimits, check_gcode_targets
 from marlin_aio.protocol.linkstate import LinkState
-from marlin_aio.protocol.matching import answer_stays_distinct
+from marlin_aio.protocol.matching import MAX_REPLY_LINES, Command, answer_stays_distinct
 from marlin_aio.protocol.printjob import PrintJob
 from marlin_aio.protocol.receiving import Receiving
-from marlin_aio.protocol.replies import MAX_REPLY_LINES, Command, Reply
+from marlin_aio.protocol.replies import Reply
 from marlin_aio.protocol.resends import CALM_LINES, wanted
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.states import LineEvent, LineState, LinkEvent
 from marlin_aio.protocol.stats import LinkStats
-from marlin_aio.protocol.trace import BARE_LINE_END, Trace
+from marlin_aio.protocol.wire import BARE_LINE_END, Trace
 
 __all__ = ["CALM_LINES", "MAX_REPLY_LINES", "Command", "Connection", "Output", "Reply"]
 
@@ -240,8 +240,8 @@ class Connection:
         core = self._core
         return LinkStats(
             submitted=core.submitted,
-            answered=core.answered,
-            failed=core.failed,
+            answered=core.in_flight.answered,
+            failed=core.in_flight.failed,
             cancelled=core.cancelled,
             in_flight=len(core.in_flight),
             queued=len(core.queue),
@@ -251,7 +251,7 @@ class Connection:
             lost_oks=core.lost_oks,
             stray_oks=core.stray_oks,
             garbage_lines=core.garbage_lines,
-            probes=core.feed.probes,
+            probes=core.probes.sent,
             fragments=core.resends.fragments,
             fragments_run=core.resends.fragments_run,
             bytes_received=core.bytes_received,
@@ -339,7 +339,7 @@ class Connection:
             or core.link.state is not LinkState.READY
             or core.feed.job is not None
             or core.send_eol
-            or core.results
+            or core.in_flight.results
             or resends.drain_until is not None
             or resends.held is not None
         ):
@@ -400,15 +400,15 @@ class Connection:
             core.in_flight.append(entry, now)
             if (
                 core.in_flight.emergencies > 1
-                and now - core.emergency_probed_s >= timeout_s
+                and now - core.probes.emergency_probed_s >= timeout_s
                 and not any(c.probe for c in (*core.in_flight, *core.queue))
             ):
                 # Another is still unanswered. Its ok may have been lost, or its line thrown away: then, with new
                 # ones written before each is answered, the head of the FIFO never waits long enough to time out,
                 # and callers wait behind entries that no ok will settle. The `ok T:` of a probe behind them all
                 # settles those (at most one probe a timeout).
-                core.emergency_probed_s = now
-                core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
+                core.probes.asked(now, emergency=True)
+                core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
         core.trace.sent(now, bare)
         return wire
 
@@ -435,6 +435,7 @@ class Connection:
         if job.limits is None:
             job.limits = self.limits  # a job made without limits gets the connection's: no line passes unchecked
         core.feed.attach(job, timeout_s)
+        core.probes.restart()
         core.link.move(LinkEvent.PRINT_STARTED)
 
     def cancel(self, command: Command) -> bool:
@@ -545,7 +546,7 @@ class Connection:
                     # skipped: the print stops at it, saying so.
                     error = MarlinError(f"{redact(command.text)!r} grew too long for Marlin once numbered")
                     if command.job is None:
-                        core.finish(command, error)
+                        core.in_flight.finish(command, error)
                     else:
                         command.move(LineEvent.WITHDRAWN)
                         core.stop_job(
@@ -571,8 +572,7 @@ class Connection:
 
     def take_results(self) -> list[tuple[Command, Reply | MarlinError]]:
         """Return and forget the commands finished since the last call, with their reply or error."""
-        results, self._core.results = self._core.results, []
-        return results
+        return self._core.in_flight.take_results()
 
     # ----------------------------------------------------------------------------------------------- one output
 

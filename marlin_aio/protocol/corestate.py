@@ -10,18 +10,15 @@ never write its fields. `Connection.stats()` reads its counters from here.
 
 from __future__ import annotations
 
-import math
 from collections import deque
 
 from marlin_aio.errors import MarlinError
 from marlin_aio.protocol.linkmachine import LinkMachine
-from marlin_aio.protocol.matching import InFlight
-from marlin_aio.protocol.parsing import EventParser
-from marlin_aio.protocol.replies import Command, Reply
-from marlin_aio.protocol.resends import Resends
+from marlin_aio.protocol.matching import Command, InFlight
+from marlin_aio.protocol.resends import Probes, Resends
 from marlin_aio.protocol.states import FINAL_LINE_STATES, LineEvent
 from marlin_aio.protocol.streaming import JobFeed
-from marlin_aio.protocol.trace import Trace
+from marlin_aio.protocol.wire import EventParser, Trace
 
 __all__ = ["CoreState", "check_window"]
 
@@ -62,6 +59,7 @@ class CoreState:
             max_resends=max_resends, ok_after_resend=ok_after_resend, resend_timeout_s=resend_timeout_s
         )
         self.feed = JobFeed()
+        self.probes = Probes()  # the link's pace, and the probes it times
         self.after_command = False  # the last command written was a user's, written for the first time
         # Write a bare line end next: it completes a line whose own end was damaged on the way (the printer then
         # answers or rejects it), and on its own it is an empty line, which Marlin ignores.
@@ -69,16 +67,14 @@ class CoreState:
         self.resends.make_placeholder = self.new_placeholder
         self.queue: deque[Command] = deque()  # accepted, not yet written
         self.in_flight = InFlight()  # written, waiting for an ok, in the order they were written
-        self.results: list[tuple[Command, Reply | MarlinError]] = []
         self.now = 0.0  # the latest time any call was given, for results that happen as a side effect
         self.next_id = 0
         self.exact_oks = advanced_ok  # the printer names lines in its oks (ADVANCED_OK): plain oks identify themselves
         # The link's state and the facts its moves read (halt, thermal message, numbers required): one owner.
         self.link = LinkMachine()
-        self.emergency_probed_s = -math.inf  # when a probe last went behind emergency commands (`Connection.emergency`)
         # Counters (read them through `stats()`). Every submitted command ends up counted once: answered + failed
         # + cancelled + still queued or in flight.
-        self.submitted = self.answered = self.failed = self.cancelled = 0
+        self.submitted = self.cancelled = 0
         self.timeouts = self.resets = self.stray_oks = self.lost_oks = self.garbage_lines = 0
         self.bytes_received = 0
 
@@ -108,7 +104,7 @@ class CoreState:
             if command.state not in FINAL_LINE_STATES:
                 command.move(LineEvent.FAILED)
             if not command.orphan and command.job is None and not command.probe:
-                self.finish(command, error)
+                self.in_flight.finish(command, error)
         self.in_flight.clear()
         self.queue.clear()
         self.resends.clear()
@@ -136,10 +132,3 @@ class CoreState:
                 command.move(LineEvent.WITHDRAWN)  # never written again: a placeholder takes its number if asked
         self.queue.clear()
         self.queue.extend(kept)
-
-    def finish(self, command: Command, outcome: Reply | MarlinError) -> None:
-        if isinstance(outcome, Reply):
-            self.answered += 1
-        else:
-            self.failed += 1
-        self.results.append((command, outcome))

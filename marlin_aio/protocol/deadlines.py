@@ -14,10 +14,10 @@ import math
 
 from marlin_aio.errors import CommandTimeoutError, PrintStalledError
 from marlin_aio.protocol.corestate import CoreState
-from marlin_aio.protocol.replies import Command
+from marlin_aio.protocol.matching import Command
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.states import FINAL_LINE_STATES, LineEvent, LineState
-from marlin_aio.protocol.trace import BARE_LINE_END
+from marlin_aio.protocol.wire import BARE_LINE_END
 
 __all__ = ["Deadlines"]
 
@@ -50,9 +50,9 @@ class Deadlines:
         core = self._core
         if not core.feed.active:
             return math.inf
-        last_in = core.trace.last_received
+        last_in = core.trace.last_received_s
         head = core.in_flight.head
-        since = last_in.time_s if last_in is not None else 0.0
+        since = last_in if last_in is not None else 0.0
         if head is not None and not head.emergency:
             # (Emergency commands let go one after another restart no clock: a silent printer stays silent.)
             since = max(since, head.head_since_s or 0.0)
@@ -72,7 +72,7 @@ class Deadlines:
         ):
             # An M110 goes alone and sets what it sets however often it runs: unanswered, it is written again
             # soon (a damaged one may be dropped without a word), not after a whole timeout.
-            resend_at = start + feed.probe_delay_s()
+            resend_at = start + core.probes.delay_s()
         elif resends.resending(head):
             resend_at = start + min(head.timeout_s, resends.resend_timeout_s)
         else:
@@ -90,10 +90,10 @@ class Deadlines:
         may_probe = (
             core.numbered
             and not resends.draining
-            and (feed.active or self._may_probe_outside_print(head))
+            and ((feed.job is not None and feed.active) or self._may_probe_outside_print(head))
             and self._probes_out() < 2  # last: it walks the FIFO
         )
-        probe_at = max(start, feed.probed_s) + feed.probe_delay_s() if may_probe else math.inf
+        probe_at = max(start, core.probes.probed_s) + core.probes.delay_s() if may_probe else math.inf
         return start + head.timeout_s, resend_at, probe_at
 
     def _may_probe_outside_print(self, head: Command) -> bool:
@@ -132,7 +132,7 @@ class Deadlines:
 
     def probe_delay_s(self) -> float:
         """How long a streamed line may wait before a probe asks whether its `ok` was lost (see `JobFeed`)."""
-        return self._core.feed.probe_delay_s()
+        return self._core.probes.delay_s()
 
     def check_timeouts(self, now: float) -> None:
         """Time out the oldest command if its deadline has passed; the commands behind it go on.
@@ -150,8 +150,8 @@ class Deadlines:
             if deadline is None or now < deadline:
                 return
             timeout_at, resend_at, probe_at = self._deadlines(head)
-            last_in = core.trace.last_received
-            talking = last_in is not None and last_in.time_s > (head.head_since_s or 0.0)
+            last_in = core.trace.last_received_s
+            talking = last_in is not None and last_in > (head.head_since_s or 0.0)
             if now >= resend_at and head.code == "M110" and head.state is LineState.ON_WIRE:
                 if head.sends >= 2 and not head.placeholder and len(core.in_flight) == 1:
                     # Written twice and still no ok: its oks may be the ones being lost. An M105 numbered as if
@@ -159,7 +159,7 @@ class Deadlines:
                     core.resends.unanswered_m110 = head.line_number
                     head.head_since_s = now
                     core.send_eol = True
-                    core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
+                    core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
                     return
                 core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
                 return
@@ -170,7 +170,7 @@ class Deadlines:
             if now >= resend_at and head.line_number is not None and talking:
                 # A resent line went unanswered while the printer talked: its rejection was probably taken for a
                 # stale one. (A silent printer is not helped by resends: it times out below.)
-                core.check(resends.resend_overdue(head, core.in_flight, core.queue, now, core.feed.quiet_s()))
+                core.check(resends.resend_overdue(head, core.in_flight, core.queue, now, core.probes.quiet_s()))
                 continue
             if now < timeout_at:
                 if now >= probe_at:
@@ -195,7 +195,9 @@ class Deadlines:
                 # Written again until the resend limit says the link is too noisy; its caller is told now.
                 if not head.orphan:
                     head.orphan = True
-                    core.finish(head, CommandTimeoutError(self.describe_stall(head, now), command=redact(head.text)))
+                    core.in_flight.finish(
+                        head, CommandTimeoutError(self.describe_stall(head, now), command=redact(head.text))
+                    )
                 core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
                 return
             summary = self.describe_stall(head, now)
@@ -209,8 +211,8 @@ class Deadlines:
             head.head_since_s = now
             head.alive_s = None
             if not was_orphan:
-                core.finish(head, CommandTimeoutError(summary, command=redact(head.text)))
-            silent = last_in is None or now - last_in.time_s >= head.timeout_s
+                core.in_flight.finish(head, CommandTimeoutError(summary, command=redact(head.text)))
+            silent = last_in is None or now - last_in >= head.timeout_s
             if silent:
                 # The printer has said nothing for the whole timeout: what waits behind it fails now, not one
                 # timeout after another.
@@ -236,9 +238,9 @@ class Deadlines:
         if now >= self._silence_bound():
             self._stall_job(head, now)
         if now >= probe_at:
-            core.feed.probed_s = now
+            core.probes.asked(now)
             core.send_eol = True
-            core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
+            core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
         if now >= self._waiting_bound():
             since = head.head_since_s or now
             for command in (*core.in_flight, *core.queue):
@@ -256,12 +258,12 @@ class Deadlines:
                     else:
                         command.orphan = True  # it keeps its place: its late ok must land on it
                     core.timeouts += 1
-                    core.finish(command, error)
+                    core.in_flight.finish(command, error)
         return False
 
     def _probe(self, now: float) -> None:
         core = self._core
-        core.feed.probed_s = now
+        core.probes.asked(now)
         if not core.feed.active and any(c.code == "M105" for c in core.in_flight):
             # Outside a print only one `ok T:` is awaited at a time, and an M105 in flight (a poll's, behind the
             # oldest command) tells what a probe would. A bare line end still goes, once: it completes a line
@@ -279,7 +281,7 @@ class Deadlines:
                 while at < len(core.queue) and core.queue[at].wire:
                     at += 1
                 core.resends.forget_stale()
-                core.queue.insert(at, core.feed.new_probe(core.new_id(), now))
+                core.queue.insert(at, core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
             core.resends.nudge_pending = True
             return
         # A probe follows several round trips of silence: no rejection of a line written before the last resend
@@ -289,7 +291,7 @@ class Deadlines:
             # One already waits to go out (behind a poll's M105, say, which no M105 may follow): another would go
             # out no sooner, and one a probe delay would pile up and then go out together. The line end goes.
             return
-        core.queue.appendleft(core.feed.new_probe(core.new_id(), now))
+        core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
 
     def _give_up_behind(self, dead: Command, summary: str) -> None:
         """The oldest command got no answer for its whole timeout: fail everything behind it at once.
@@ -300,12 +302,12 @@ class Deadlines:
         of one timeout after another.
         """
         core = self._core
-        last_in = core.trace.last_received
-        silent = last_in is None or core.now - last_in.time_s >= dead.timeout_s
+        last_in = core.trace.last_received_s
+        silent = last_in is None or core.now - last_in >= dead.timeout_s
         for command in core.in_flight if silent else ():
             if not command.orphan and command.job is None and not command.probe:
                 command.orphan = True
-                core.finish(
+                core.in_flight.finish(
                     command,
                     CommandTimeoutError(
                         f"gave up behind {redact(dead.text)!r}: {summary}", command=redact(command.text)
@@ -317,7 +319,7 @@ class Deadlines:
                 error = CommandTimeoutError(
                     f"not sent: the printer stopped answering ({summary})", command=redact(command.text)
                 )
-                core.finish(command, error)
+                core.in_flight.finish(command, error)
             else:
                 kept.append(command)
         core.queue.clear()

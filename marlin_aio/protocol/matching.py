@@ -1,4 +1,9 @@
-"""Which command an `ok` answers, and whose reply lines are whose: the FIFO of commands in flight.
+"""The FIFO of commands in flight: each command's record (`Command`), which command an `ok` answers, and whose
+reply lines are whose.
+
+A `Command` is the connection's record of one command: queued, written (with its line number and the bytes on the
+wire), answered or failed. Its reply lines collect on it while it is the oldest command waiting, bounded so a
+chatty or noisy printer cannot grow one reply without limit.
 
 Marlin answers every command it processes with exactly one `ok`, in the order it received them, so the commands
 written but not yet answered wait in a FIFO (`InFlight`) and an `ok` completes the oldest one it can answer.
@@ -20,21 +25,90 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
+from marlin_aio.errors import MarlinError
 from marlin_aio.protocol.events import Ok
-from marlin_aio.protocol.replies import Command
+from marlin_aio.protocol.replies import Reply
+from marlin_aio.protocol.states import LINE_TRANSITIONS, LineEvent, LineState, next_line_state
 
-__all__ = ["InFlight", "answer_stays_distinct", "attribute", "match_ok"]
+if TYPE_CHECKING:
+    from marlin_aio.protocol.printjob import PrintJob
+
+__all__ = ["MAX_REPLY_LINES", "Command", "InFlight", "answer_stays_distinct", "attribute", "match_ok"]
+
+#: How many reply lines one command keeps (M115 prints about 40, M503 about 25); older ones are counted only.
+MAX_REPLY_LINES = 256
+
+
+@dataclass(slots=True, eq=False)
+class Command:
+    """A command the connection has accepted: queued, in flight, or finished.
+
+    `id` is unique per connection, for matching results to waiters.
+    """
+
+    id: int
+    text: str
+    code: str
+    numbered: bool
+    timeout_s: float
+    submitted_s: float
+    line_number: int | None = None
+    wire: bytes = b""
+    sent_s: float | None = None  # when it was first written
+    written_s: float | None = None  # when it was last written (a resend writes it again)
+    head_since_s: float | None = None  # when it became the oldest command waiting for an ok
+    alive_s: float | None = None  # last busy keepalive / wait line while it was the oldest
+    lines: list[str] = field(default_factory=list)
+    lines_dropped: int = 0  # reply lines beyond MAX_REPLY_LINES, counted, not kept
+    sends: int = 0
+    orphan: bool = False  # its caller already gave up (timed out); an answer completes nothing
+    job: PrintJob | None = None  # set for the lines of a print job: their answers go to the job, not to a waiter
+    source_line: int = 0
+    source_bytes: int = 0
+    probe: bool = False  # an M105 written to find out whether a stalled stream lost an ok
+    refusal: str | None = None  # the printer's line saying it did not run this command (locked, not executed)
+    placeholder: bool = False  # an `M110 N<n>` that takes the number of a line that must not run (again)
+    emergency: bool = False  # M108/M410/M876 written at once (`Connection.emergency`): never written again
+    state: LineState = LineState.QUEUED  # moved only by `move`, through `states.LINE_TRANSITIONS`
+
+    def move(self, event: LineEvent) -> None:
+        """Move this line's state by the table.
+
+        Raises:
+            ImpossibleTransitionError: the table has no such move (a bug in the core).
+        """
+        # The table read directly (a dict look-up), as every command moves two or three times; the function only
+        # for a move the table lacks, which it reports.
+        moved = LINE_TRANSITIONS[self.state].get(event)
+        self.state = next_line_state(self.state, event) if moved is None else moved
+
+    def add_line(self, text: str) -> None:
+        """Collect one reply line, keeping only the last `MAX_REPLY_LINES` (a chatty or noisy printer must not
+        grow one command's reply without bound)."""
+        self.lines.append(text)
+        if len(self.lines) > MAX_REPLY_LINES:
+            del self.lines[0]
+            self.lines_dropped += 1
 
 
 class InFlight:
     """The commands written and waiting for their `ok`, oldest first, and the bytes they hold in the printer's
-    receive buffer. The oldest command's `head_since_s` says since when it has been the one answered next."""
+    receive buffer; and the outcomes of the commands that ended, for the driver to take (`finish`, `take_results`).
+    The oldest command's `head_since_s` says since when it has been the one answered next.
 
-    __slots__ = ("_commands", "barriers", "bytes", "emergencies")
+    Every submitted command ends here once: answered (a `Reply`) or failed (an error), counted in `answered` and
+    `failed`."""
+
+    __slots__ = ("_commands", "answered", "barriers", "bytes", "emergencies", "failed", "results")
 
     def __init__(self) -> None:
         self._commands: deque[Command] = deque()
+        self.results: list[tuple[Command, Reply | MarlinError]] = []
+        self.answered = 0
+        self.failed = 0
         self.bytes = 0
         self.barriers = 0  # M110s in flight: nothing may be written behind one (see `resends`)
         # Emergency commands in flight (`Connection.emergency`): they hold no place in the window of commands, as
@@ -108,8 +182,21 @@ class InFlight:
         if self._commands and (restart_head or self._commands[0].head_since_s is None):
             self._commands[0].head_since_s = now
 
+    def finish(self, command: Command, outcome: Reply | MarlinError) -> None:
+        """`command` ended with `outcome`, for its caller (taken with `take_results`)."""
+        if isinstance(outcome, Reply):
+            self.answered += 1
+        else:
+            self.failed += 1
+        self.results.append((command, outcome))
+
+    def take_results(self) -> list[tuple[Command, Reply | MarlinError]]:
+        """Return and forget the commands finished since the last call, with their reply or error."""
+        results, self.results = self.results, []
+        return results
+
     def clear(self) -> None:
-        """Forget every command in flight (the printer reset, halted, or the link is gone)."""
+        """Forget every command in flight (the printer reset, halted, or the link is gone); outcomes stay."""
         self._commands.clear()
         self.bytes = 0
         self.barriers = 0

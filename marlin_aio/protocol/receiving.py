@@ -42,12 +42,12 @@ from marlin_aio.protocol.events import (
     UnknownCommand,
     UnrecognisedLine,
 )
-from marlin_aio.protocol.matching import attribute, match_ok
-from marlin_aio.protocol.parsing import classify_line
-from marlin_aio.protocol.replies import Command, Reply, is_noise
+from marlin_aio.protocol.matching import Command, attribute, match_ok
+from marlin_aio.protocol.replies import Reply
 from marlin_aio.protocol.resends import answers_plainly, wanted
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.states import LineEvent, LineState, LinkEvent, LinkState
+from marlin_aio.protocol.wire import classify_line, is_noise
 
 __all__ = ["Receiving"]
 
@@ -119,7 +119,7 @@ class Receiving:
             or head.refusal is not None
             or core.link.state is not LinkState.READY
             or core.queue
-            or core.results
+            or core.in_flight.results
             or core.send_eol
             or core.feed.job is not None
             or not core.resends.idle
@@ -139,9 +139,9 @@ class Receiving:
         head.move(LineEvent.OK)
         core.resends.settled(head, answered_line=False)
         if head.sends == 1:
-            core.feed.answered(head, now)
+            core.probes.answered(head, now)
         sent = now if head.sent_s is None else head.sent_s
-        core.finish(head, Reply(head.text, tuple(head.lines), ok, sent, now, head.lines_dropped))
+        core.in_flight.finish(head, Reply(head.text, tuple(head.lines), ok, sent, now, head.lines_dropped))
         return ok
 
     def discard_partial_input(self) -> None:
@@ -156,7 +156,7 @@ class Receiving:
         if is_line_error:
             assert isinstance(event, ErrorMessage)
             core.resends.sequence_error = event.message.startswith("Line Number")
-        after_line_error = core.resends.note_line(is_line_error, now, core.feed.quiet_s)
+        after_line_error = core.resends.note_line(is_line_error, now, core.probes.quiet_s)
         head = core.in_flight.head
         match event:
             case Ok():
@@ -176,7 +176,7 @@ class Receiving:
                         core.queue,
                         now,
                         rejected=after_line_error,
-                        quiet_s=core.feed.quiet_s(),
+                        quiet_s=core.probes.quiet_s(),
                     )
                 )
             case ErrorMessage():
@@ -389,7 +389,7 @@ class Receiving:
         if command.code == "M110" and (ok is not None or proof is not None) and command.refusal is None:
             core.resends.m110_answered(command)
             if command.sends > 1:
-                core.resends.m110_repeated(command, now, core.feed.quiet_s())
+                core.resends.m110_repeated(command, now, core.probes.quiet_s())
         refused = command.refusal is not None and not command.orphan and not command.probe
         core.resends.settled(command, answered_line=ok is not None and command.job is not None and not refused)
         state = core.link.state
@@ -400,7 +400,7 @@ class Receiving:
             core.link.move(LinkEvent.UNLOCKED)  # a command ran normally: the printer was unlocked (M511 or its screen)
         if ok is not None and not refused and (command.job is not None or command.sends == 1) and not command.emergency:
             # The link's pace, for how soon a probe asks whether an ok was lost, in a print or not.
-            core.feed.answered(command, now)
+            core.probes.answered(command, now)
         if refused:
             self._refused(command, now)
         elif command.job is not None:
@@ -414,9 +414,11 @@ class Receiving:
             sent = now if command.sent_s is None else command.sent_s
             answer = proof if proof is not None else Ok()
             own = lines or ()
-            core.finish(command, Reply(command.text, own, answer, sent, now, command.lines_dropped, ok_lost=True))
+            core.in_flight.finish(
+                command, Reply(command.text, own, answer, sent, now, command.lines_dropped, ok_lost=True)
+            )
         elif lines is None:
-            core.finish(
+            core.in_flight.finish(
                 command,
                 LostReplyError(
                     f"{redact(command.text)!r} was processed but the ok of a command before it was lost, so which "
@@ -426,7 +428,7 @@ class Receiving:
             )
         else:
             sent = now if command.sent_s is None else command.sent_s
-            core.finish(command, Reply(command.text, lines, ok, sent, now, command.lines_dropped))
+            core.in_flight.finish(command, Reply(command.text, lines, ok, sent, now, command.lines_dropped))
 
     def _refused(self, command: Command, now: float) -> None:
         """The printer answered `command` with an ok but said it did not run it."""
@@ -452,7 +454,7 @@ class Receiving:
                 ran = f"; {lines} had been sent behind it and may have run: resume from line {behind[-1] + 1}"
             self._core.stop_job(type(error)(f"print stopped at {where}: {error}{ran}"), now)
             return
-        self._core.finish(command, error)
+        self._core.in_flight.finish(command, error)
 
     def _held_in_doubt(self, held: Command, now: float) -> None:
         """An ok that no command earned came while `held` waits, and it cannot be proven `held`'s own: either
@@ -468,7 +470,7 @@ class Receiving:
                 "earned if it ran without its line number, or the tail of a line cut in two by the flush earned",
             )
             core = self._core
-            core.finish(held, error)
+            core.in_flight.finish(held, error)
 
     def _fragment_ran(self, now: float, held: Command | None = None) -> None:
         """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own
@@ -533,7 +535,7 @@ class Receiving:
                 f"the printer refused {redact(command.text)!r} without a line number and checksum "
                 f"('Error:{message}'); it needs numbered commands"
             )
-            core.finish(command, error)
+            core.in_flight.finish(command, error)
 
     def _halt_with(self, error: PrinterHaltedError, *, stopped: bool) -> None:
         """The printer halted (`stopped`: a stop() that M999 clears; otherwise it needs a reset)."""

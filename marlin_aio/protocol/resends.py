@@ -24,17 +24,17 @@ over modules, a change to one part could break the argument without a reader see
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from collections.abc import Callable
 
 from marlin_aio.errors import MarlinError, RemoteProtocolError, ResendLimitError
 from marlin_aio.protocol.commands import number_command
-from marlin_aio.protocol.matching import InFlight
-from marlin_aio.protocol.replies import Command
+from marlin_aio.protocol.matching import Command, InFlight
 from marlin_aio.protocol.secrets import redact
 from marlin_aio.protocol.states import LineEvent, LineState
 
-__all__ = ["CALM_LINES", "Resends"]
+__all__ = ["CALM_LINES", "Probes", "Resends"]
 
 #: Recoveries at INFO, oddities and failures at WARNING (lines on the wire: "marlin_aio.wire" at DEBUG).
 _log = logging.getLogger("marlin_aio")
@@ -481,3 +481,68 @@ class Resends:
         self.held = None
         self.unanswered_m110 = None
         self.fragment_texts = []
+
+
+class Probes:
+    """The link's pace and the probes it times: round trips learnt from answers, and the numbered M105s that ask
+    whether an ok was lost.
+
+    A command answered by its own ok gives a round trip (`answered`); a probe goes behind a line left unanswered
+    for `delay_s` (eight median round trips), in a print or not, and its `ok T:` proves every older line ran.
+    After a flush, the printer must be quiet for `quiet_s` before what was on the wire is taken as all answered.
+    """
+
+    __slots__ = ("_median_rtt", "emergency_probed_s", "probed_s", "rtts", "sent")
+
+    def __init__(self) -> None:
+        self.rtts: deque[float] = deque(maxlen=32)  # round trips of recent commands answered by their own ok
+        self._median_rtt: float | None = None  # of `rtts`, kept until the next one arrives (deadlines ask often)
+        self.sent = 0  # probes made
+        self.probed_s = 0.0  # when the last probe (an M105, or a resend let out early) was asked for
+        self.emergency_probed_s = -math.inf  # when a probe last went behind emergency commands
+
+    def restart(self) -> None:
+        """A print starts: its lines share the printer's buffer and wait longer than one command alone, so the
+        pace is learnt afresh."""
+        self.rtts.clear()
+        self._median_rtt = None
+
+    def new_probe(self, command_id: int, now: float, timeout_s: float) -> Command:
+        """A numbered M105 asking whether the oldest line's `ok` was lost."""
+        self.sent += 1
+        return Command(command_id, "M105", "M105", True, timeout_s, now, probe=True)
+
+    def asked(self, now: float, *, emergency: bool = False) -> None:
+        """A probe (or a bare line end) was asked for at `now`: the next waits a whole delay from here."""
+        if emergency:
+            self.emergency_probed_s = now
+        else:
+            self.probed_s = now
+
+    def answered(self, command: Command, now: float) -> None:
+        """A command was answered by its own ok: remember the round trip since it was last written (a resent print
+        line's too, so a link that starts noisy learns its pace before its first clean line)."""
+        if command.written_s is not None:
+            self.rtts.append(now - command.written_s)
+            self._median_rtt = None
+
+    def delay_s(self) -> float:
+        """How long a line may wait before a probe asks whether its `ok` was lost.
+
+        Eight times the median round trip of recent lines, within 50 ms to 1 s: quick on a fast link, patient
+        with a slow one. A probe is a numbered M105, harmless if nothing was lost.
+        """
+        median = self._median()
+        return 1.0 if median is None else min(max(8 * median, 0.05), 1.0)
+
+    def quiet_s(self) -> float:
+        """How long the printer must say nothing before what was on the wire at a flush is taken as all answered:
+        four median round trips, within 20 ms to 0.5 s."""
+        median = self._median()
+        return 0.1 if median is None else min(max(4 * median, 0.02), 0.5)
+
+    def _median(self) -> float | None:
+        if self._median_rtt is None and self.rtts:
+            ordered = sorted(self.rtts)
+            self._median_rtt = ordered[len(ordered) // 2]
+        return self._median_rtt

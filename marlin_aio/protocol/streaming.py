@@ -1,14 +1,13 @@
-"""A print job fed into the connection line by line: its next line, the round trips it measures, and its probes.
+"""A print job fed into the connection line by line: its next line and its stall timeout.
 
 A print job (`printjob.PrintJob`) goes through the connection's FIFO after any submitted commands, as
-far as the window allows. While it streams, a line left unanswered for a few round trips gets a probe (a numbered
-M105, whose `ok T:` proves every older line ran) so that a lost `ok` costs a moment; a line unanswered for the
-whole timeout, with no busy keepalive, stalls the print with a diagnosis (`connection`).
+far as the window allows. A line left unanswered for a few round trips gets a probe (`resends.Probes`, the line
+numbers' part) so that a lost `ok` costs a moment; a line unanswered for the whole timeout, with no busy
+keepalive, stalls the print with a diagnosis (`deadlines`).
 """
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable, Iterable
 
 from marlin_aio.errors import (
@@ -20,8 +19,8 @@ from marlin_aio.errors import (
     ThermalRunawayError,
 )
 from marlin_aio.protocol.commands import command_code
+from marlin_aio.protocol.matching import Command
 from marlin_aio.protocol.printjob import PrintJob, PrintState
-from marlin_aio.protocol.replies import Command
 
 __all__ = ["JobFeed"]
 
@@ -32,16 +31,12 @@ _PLAIN_ERRORS = (PrinterHaltedError, ThermalRunawayError, PrinterResetError, Res
 class JobFeed:
     """The print job being streamed, if any, with what the connection needs to pace and probe it."""
 
-    __slots__ = ("_median_rtt", "job", "next", "probed_s", "probes", "rtts", "timeout_s")
+    __slots__ = ("job", "next", "timeout_s")
 
     def __init__(self) -> None:
         self.job: PrintJob | None = None
         self.next: Command | None = None  # the job's next line: read from the source, not yet written
         self.timeout_s = 10.0  # how long a line may go unanswered before the print stalls
-        self.rtts: deque[float] = deque(maxlen=32)  # round trips of recent commands answered by their own ok
-        self.probes = 0
-        self.probed_s = 0.0  # when the last probe (an M105, or a resend let out early) was written
-        self._median_rtt: float | None = None  # of `rtts`, kept until the next one arrives (deadlines ask often)
 
     @property
     def active(self) -> bool:
@@ -58,8 +53,6 @@ class JobFeed:
             raise RuntimeError(f"a print is already running ({self.job.name})")
         self.job = job
         self.timeout_s = timeout_s
-        self.rtts.clear()
-        self._median_rtt = None
 
     def detach(self) -> None:
         """The job ended (done, failed or stalled): feed nothing more."""
@@ -92,41 +85,6 @@ class JobFeed:
         command.job, command.source_line, command.source_bytes = job, source_line, source_bytes
         self.next = command
         return command
-
-    def new_probe(self, command_id: int, now: float) -> Command:
-        """A numbered M105 asking whether the oldest line's `ok` was lost."""
-        self.probes += 1
-        return Command(command_id, "M105", "M105", True, self.timeout_s, now, probe=True)
-
-    def answered(self, command: Command, now: float) -> None:
-        """A command was answered by its own ok: remember the round trip since it was last written (a resent print
-        line's too, so a link that starts noisy learns its pace before its first clean line). Outside a print the
-        user's commands give the pace; a print starts afresh (`attach`), as lines that share the printer's buffer
-        wait longer than one command alone."""
-        if command.written_s is not None:
-            self.rtts.append(now - command.written_s)
-            self._median_rtt = None
-
-    def probe_delay_s(self) -> float:
-        """How long a streamed line may wait before a probe asks whether its `ok` was lost.
-
-        Eight times the median round trip of recent lines, within 50 ms to 1 s: quick on a fast link, patient
-        with a slow one. A probe is a numbered M105, harmless if nothing was lost.
-        """
-        median = self._median()
-        return 1.0 if median is None else min(max(8 * median, 0.05), 1.0)
-
-    def quiet_s(self) -> float:
-        """How long the printer must say nothing before what was on the wire at a flush is taken as all answered:
-        four median round trips, within 20 ms to 0.5 s."""
-        median = self._median()
-        return 0.1 if median is None else min(max(4 * median, 0.02), 0.5)
-
-    def _median(self) -> float | None:
-        if self._median_rtt is None and self.rtts:
-            ordered = sorted(self.rtts)
-            self._median_rtt = ordered[len(ordered) // 2]
-        return self._median_rtt
 
     def job_error(self, error: MarlinError, on_the_way: Iterable[Command] = ()) -> MarlinError:
         """`error` with the print's position added, for the job it ends: the last line surely run, and the lines
