@@ -466,20 +466,52 @@ def test_noise_is_not_a_reply_line() -> None:
     assert reply.lines == ("x_min: open",)
 
 
-def test_a_dead_head_fails_everything_queued_behind_it_at_once_and_writes_none_of_it() -> None:
+def test_commands_behind_a_dead_head_fail_at_their_own_bound_together_and_none_is_written() -> None:
     # Defect: 20 commands queued behind a silent printer failed one timeout after another (10 s for all) and were
-    # still written, so the printer ran them all when it woke up.
+    # still written, so the printer ran them all when it woke up. Then (issue 34) they failed with the head's
+    # timeout, at once: each now ends at its own bound, its timeout from when it began waiting behind the head in
+    # doubt, all at once here, and none is ever written.
     conn = Connection()
     commands = submit_all(conn, *(f"G1 X{i}" for i in range(20)), timeout_s=0.5)
     written = sent(conn.data_to_send(0.0))
     assert len(written) == 1
     conn.check_timeouts(0.5)
+    [(head, head_error)] = outcomes(conn)
+    assert head == commands[0].text and isinstance(head_error, CommandTimeoutError)
+    assert conn.queued == 19
+    written = sent(conn.data_to_send(0.5))
+    while (deadline := conn.next_deadline()) is not None and deadline < 1.0:  # a probe goes behind the head
+        conn.check_timeouts(deadline)
+        written += sent(conn.data_to_send(deadline))
+        assert outcomes(conn) == []
+    assert [line for line in written if "G1" in line] == []
+    assert conn.next_deadline() == 1.0
+    conn.check_timeouts(1.0)
     results = outcomes(conn)
-    assert [text for text, _ in results] == [c.text for c in commands]
+    assert [text for text, _ in results] == [c.text for c in commands[1:]]
     assert all(isinstance(error, CommandTimeoutError) for _, error in results)
-    assert "not sent" in str(results[1][1])
+    assert "waited behind 'G1 X0'" in str(results[0][1])
     assert conn.queued == 0
-    assert sent(conn.data_to_send(1.0)) == []
+    assert [line for line in sent(conn.data_to_send(1.0)) if "G1" in line] == []
+
+
+def test_a_command_submitted_later_behind_a_dead_head_keeps_its_whole_timeout() -> None:
+    conn = Connection()
+    submit_all(conn, "G1 X0", timeout_s=0.5)
+    conn.data_to_send(0.0)
+    late = conn.submit("M400", timeout_s=2.0, now=0.4)
+    conn.check_timeouts(0.5)
+    [(text, _)] = outcomes(conn)
+    assert text == "G1 X0"
+    conn.data_to_send(0.5)
+    while (deadline := conn.next_deadline()) is not None and deadline < 2.5:  # probes may go; the M400 waits
+        conn.check_timeouts(deadline)
+        conn.data_to_send(deadline)
+        assert outcomes(conn) == []
+    assert conn.next_deadline() == 2.5
+    conn.check_timeouts(2.5)
+    [(text, error)] = outcomes(conn)
+    assert text == late.text and isinstance(error, CommandTimeoutError)
 
 
 def test_after_a_line_error_nothing_is_written_until_the_stale_lines_are_answered_then_one_at_a_time() -> None:

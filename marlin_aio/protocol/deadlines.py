@@ -2,9 +2,10 @@
 
 The oldest command in flight has three deadlines (`_deadlines`): its timeout, counted from when it became the oldest
 or from the last sign of life (a busy keepalive, a wait line); while lines are being resent, a shorter one after
-which a resent line is written again; and while a print streams, a probe after a few round trips of silence. A
-command that times out keeps its place for one more timeout (its late ok must land on it, not on the next
-caller's), and everything queued behind it fails at once; a print line that times out stalls the print.
+which a resent line is written again; and a probe after a few round trips of silence, in a print or not. A
+command that times out keeps its place, in doubt (its late ok must land on it, not on the next caller's); each
+command behind it ends at its own bound, its timeout from when it began waiting there, unless the printer answers
+first; a print line that times out stalls the print.
 """
 
 from __future__ import annotations
@@ -212,11 +213,9 @@ class Deadlines:
             head.alive_s = None
             if not was_orphan:
                 core.in_flight.finish(head, CommandTimeoutError(summary, command=redact(head.text)))
-            silent = last_in is None or now - last_in >= head.timeout_s
-            if silent:
-                # The printer has said nothing for the whole timeout: what waits behind it fails now, not one
-                # timeout after another.
-                self._give_up_behind(head, summary)
+            # What waits behind it is not failed with it, silent printer or not: each caller ends at its own bound,
+            # its timeout from when it began waiting behind a command in doubt (`_settle_doubt`), unless the
+            # printer answers first (a probe goes behind it).
             return
 
     def _settle_doubt(self, head: Command, now: float, timeout_at: float, probe_at: float) -> bool:
@@ -292,38 +291,6 @@ class Deadlines:
             # out no sooner, and one a probe delay would pile up and then go out together. The line end goes.
             return
         core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
-
-    def _give_up_behind(self, dead: Command, summary: str) -> None:
-        """The oldest command got no answer for its whole timeout: fail everything behind it at once.
-
-        Commands never written are dropped, so a printer that wakes up later does not run a backlog nobody waits
-        for. If the printer has been silent all that time, commands already written fail too: they stay in the
-        FIFO (their late `ok`s must land on them, not on a newer command), but their callers are told now instead
-        of one timeout after another.
-        """
-        core = self._core
-        last_in = core.trace.last_received_s
-        silent = last_in is None or core.now - last_in >= dead.timeout_s
-        for command in core.in_flight if silent else ():
-            if not command.orphan and command.job is None and not command.probe:
-                command.orphan = True
-                core.in_flight.finish(
-                    command,
-                    CommandTimeoutError(
-                        f"gave up behind {redact(dead.text)!r}: {summary}", command=redact(command.text)
-                    ),
-                )
-        kept: list[Command] = []
-        for command in core.queue:
-            if command.job is None and not command.probe:
-                error = CommandTimeoutError(
-                    f"not sent: the printer stopped answering ({summary})", command=redact(command.text)
-                )
-                core.in_flight.finish(command, error)
-            else:
-                kept.append(command)
-        core.queue.clear()
-        core.queue.extend(kept)
 
     def _stall_job(self, head: Command, now: float) -> None:
         """The stream got no answer within the timeout: end the print with a diagnosis, drop its lines."""
