@@ -61,11 +61,11 @@ def _core_state(conn: Connection) -> tuple[object, ...]:
     core = conn._core
     resends = core.resends
     return (
-        core.after_command,
+        conn._after_command,
         core.exact_oks,
         core.link.requires_numbers,
         core.send_eol,
-        core.now,
+        conn._now,
         repr(core.link.halt),
         core.link.thermal_message,
         resends.next_line,

@@ -41,7 +41,7 @@ from marlin_aio.errors import (
     PrinterLockedError,
 )
 from marlin_aio.protocol.commands import MAX_COMMAND_BYTES, command_code, encode_command, validate_command
-from marlin_aio.protocol.corestate import CoreState, check_window
+from marlin_aio.protocol.corestate import CoreState
 from marlin_aio.protocol.deadlines import Deadlines
 from marlin_aio.protocol.events import Event
 from marlin_aio.protocol.heaters import DEFAULT_LIMITS, HeaterLimits, check_gcode_targets
@@ -109,7 +109,7 @@ class Connection:
             share the line from the start; otherwise this is learnt from the first `ok N<line>`.
     """
 
-    __slots__ = ("_core", "_deadlines", "_receiving", "limits")
+    __slots__ = ("_after_command", "_core", "_deadlines", "_now", "_receiving", "limits")
 
     def __init__(
         self,
@@ -143,6 +143,8 @@ class Connection:
         )
         self._receiving = Receiving(self._core)
         self._deadlines = Deadlines(self._core)
+        self._now = 0.0  # the latest time any call was given (`fail_all` takes none)
+        self._after_command = False  # the last command written was a user's, written for the first time
         # The one gate for heater targets: every command submitted and every line of every print passes it, read
         # as the firmware reads it (`heaters.check_gcode_targets`), whatever API or CLI command made it.
         self.limits = limits
@@ -154,6 +156,7 @@ class Connection:
 
     def receive_data(self, data: bytes, now: float) -> list[Event]:
         """Feed bytes read from the printer; return the events of the lines they complete (see `receive`)."""
+        self._now = now
         return self._receiving.receive_data(data, now)
 
     def discard_partial_input(self) -> None:
@@ -162,6 +165,7 @@ class Connection:
 
     def check_timeouts(self, now: float) -> None:
         """Act on the deadlines that have passed (timeouts, probes, stalls; see `deadlines`)."""
+        self._now = now
         self._deadlines.check_timeouts(now)
 
     def next_deadline(self) -> float | None:
@@ -231,9 +235,7 @@ class Connection:
         Raises:
             ValueError: `max_in_flight` below 1 or `rx_buffer_bytes` below 16.
         """
-        check_window(max_in_flight, rx_buffer_bytes)
-        self._core.max_in_flight = max_in_flight
-        self._core.rx_buffer_bytes = rx_buffer_bytes
+        self._core.set_window(max_in_flight, rx_buffer_bytes)
 
     def stats(self) -> LinkStats:
         """A frozen snapshot of the counters."""
@@ -250,11 +252,11 @@ class Connection:
             resets=core.resets,
             lost_oks=core.lost_oks,
             stray_oks=core.stray_oks,
-            garbage_lines=core.garbage_lines,
+            garbage_lines=core.parser.garbage_lines,
             probes=core.probes.sent,
             fragments=core.resends.fragments,
             fragments_run=core.resends.fragments_run,
-            bytes_received=core.bytes_received,
+            bytes_received=core.parser.bytes_received,
         )
 
     @property
@@ -312,8 +314,7 @@ class Connection:
                 raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         code = command_code(text)
         core.link.refuse(code)
-        core.submitted += 1
-        command = Command(core.new_id(), text, code, use_numbers, timeout_s, now)
+        command = core.accept(text, code, use_numbers, timeout_s, now)
         core.queue.append(command)
         return command
 
@@ -348,13 +349,11 @@ class Connection:
         # What `data_to_send` does for the one command of an idle link (no window, barrier or calm can hold back
         # the first command; its length was checked with room for a thousand more line numbers than it gets).
         core.queue.pop()
-        core.now = now
-        core.after_command = True
-        resends.nudge_pending = False
+        self._now = now
+        self._after_command = True
+        resends.nudge(False)
         resends.assign_wire(command, max(256, 4 * core.max_in_flight))
-        command.move(LineEvent.WRITTEN)
-        command.sends = 1
-        command.sent_s = command.written_s = now
+        command.written(now)
         core.in_flight.append(command, now)
         core.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
         return command
@@ -386,17 +385,14 @@ class Connection:
         if core.send_eol:
             # A line whose end may have been damaged waits in the printer: end it first, or the emergency parser
             # would not see this command at the start of a line.
-            core.send_eol = False
+            core.want_line_end(False)
             wire = b"\n" + line
             core.trace.sent(now, BARE_LINE_END)
         bare = line.decode("ascii").rstrip("\n")
         if code != "M112" and core.link.state is not LinkState.HALTED and not core.link.requires_numbers:
-            entry = Command(core.new_id(), bare, code, False, timeout_s, now)
-            entry.emergency = entry.orphan = True  # no caller: its answer completes nothing
-            entry.wire = line
-            entry.move(LineEvent.WRITTEN)
-            entry.sends = 1
-            entry.sent_s = entry.written_s = now
+            # No caller: its answer completes nothing.
+            entry = Command(core.new_id(), bare, code, False, timeout_s, now, wire=line, orphan=True, emergency=True)
+            entry.written(now)
             core.in_flight.append(entry, now)
             if (
                 core.in_flight.emergencies > 1
@@ -417,7 +413,7 @@ class Connection:
         needs a reset), and every command still waiting fails with `PrinterHaltedError`."""
         core = self._core
         wire = self.emergency("M112", now=now)
-        core.fail_everything(core.link.emergency_stopped())
+        core.fail_everything(core.link.emergency_stopped(), now)
         return wire
 
     def attach(self, job: PrintJob, *, timeout_s: float) -> None:
@@ -432,8 +428,7 @@ class Connection:
         core.link.refuse("")
         if core.link.state is LinkState.LOCKED:
             raise PrinterLockedError("the printer is locked: unlock it (M511 P<password>) before printing")
-        if job.limits is None:
-            job.limits = self.limits  # a job made without limits gets the connection's: no line passes unchecked
+        job.limit_by(self.limits)  # a job made without limits gets the connection's: no line passes unchecked
         core.feed.attach(job, timeout_s)
         core.probes.restart()
         core.link.move(LinkEvent.PRINT_STARTED)
@@ -449,14 +444,14 @@ class Connection:
             except ValueError:
                 return False
             command.move(LineEvent.WITHDRAWN)
-            self._core.cancelled += 1
+            self._core.withdrawn()
             return True
-        command.orphan = True
+        command.give_up()
         return False
 
     def fail_all(self, error: MarlinError) -> None:
         """Fail every queued and in-flight command with `error` (the link is gone, or the client closes)."""
-        self._core.fail_everything(error)
+        self._core.fail_everything(error, self._now)
 
     # ----------------------------------------------------------------------------------------------- sending
 
@@ -470,23 +465,21 @@ class Connection:
         """Return the bytes to write now: resends first, then queued commands, then print job lines, as far as the
         window allows."""
         core = self._core
-        core.now = now
+        self._now = now
         resends = core.resends
         if resends.drain_over(now):
             return b""
         if core.feed.job is not None:
             core.feed.job.finish_if_idle(now)  # a cancelled print whose last lines were withdrawn while draining
-        held = resends.held
-        if held is not None:
+        held = resends.release_held()
+        if held is not None and held.state is LineState.ON_WIRE:
             # The printer has been quiet and the line it asked for again was not answered: it did not run.
-            resends.held = None
-            if held.state is LineState.ON_WIRE:
-                core.in_flight.remove(held, now)
-                held.move(LineEvent.RESEND)
-                core.queue.appendleft(held if wanted(held) else resends.placeholder_for([held]))
+            core.in_flight.remove(held, now)
+            held.move(LineEvent.RESEND)
+            core.queue.appendleft(held if wanted(held) else resends.placeholder_for([held], now))
         chunks: list[bytes] = []
         if core.send_eol:
-            core.send_eol = False
+            core.want_line_end(False)
             chunks.append(b"\n")
             core.trace.sent(now, BARE_LINE_END)
         feed = core.feed
@@ -500,7 +493,7 @@ class Connection:
             first = core.queue[0] if core.queue else None
             # (A print line in the queue goes again in its place, as a new line: never behind the print's next one.)
             fresh = first is not None and not (first.wire or first.probe or first.orphan or first.job is not None)
-            if first is not None and not (fresh and core.after_command and feed.job is not None):
+            if first is not None and not (fresh and self._after_command and feed.job is not None):
                 command = first
             else:
                 job_command = feed.next_command(core.new_id, core.numbered, now)
@@ -517,13 +510,13 @@ class Connection:
                 unwanted = []
                 while core.queue and _unwanted_resend(core.queue[0]):
                     unwanted.append(core.queue.popleft())
-                core.queue.appendleft(resends.placeholder_for(unwanted))
+                core.queue.appendleft(resends.placeholder_for(unwanted, now))
                 continue
-            core.after_command = command.job is None and not command.wire
+            self._after_command = command.job is None and not command.wire
             # After a probe deadline, the lines waiting to be resent and the probe behind them go out together.
             nudge = resends.nudge_pending and (bool(command.wire) or command.probe)
             if not nudge:
-                resends.nudge_pending = False
+                resends.nudge(False)
             if flight and (
                 # An M110 goes alone: Marlin sets its counter when it *runs* it, so a line taken in behind it
                 # would be counted twice (and a damaged one may be dropped without a word).
@@ -536,7 +529,7 @@ class Connection:
             ):
                 break
             if command is feed.next:
-                feed.next = None
+                feed.took_next()
             else:
                 core.queue.popleft()
             if not command.wire:
@@ -558,11 +551,7 @@ class Connection:
                 resends.assign_wire(command, max(256, 4 * core.max_in_flight))
             if command.job is not None and command.sends == 0:
                 command.job.sent(command.source_line)
-            command.move(LineEvent.WRITTEN)
-            command.sends += 1
-            if command.sent_s is None:
-                command.sent_s = now
-            command.written_s = now
+            command.written(now)
             flight.append(command, now)
             core.trace.sent(now, command.wire.decode("ascii").rstrip("\n"))
             chunks.append(command.wire)
@@ -578,6 +567,7 @@ class Connection:
 
     def receive(self, data: bytes, now: float) -> Output:
         """Feed bytes read from the printer; return what they brought and what to do now."""
+        self._now = now
         answer = self._receiving.poll_answer(data, now)
         if answer is not None:
             # An idle link's M105 answered: nothing to write, nothing left to wait for.
@@ -586,6 +576,7 @@ class Connection:
 
     def tick(self, now: float) -> Output:
         """Act on deadlines that have passed and on commands waiting to go out; return what to do now."""
+        self._now = now
         self._deadlines.check_timeouts(now)
         return self._output((), now)
 

@@ -56,18 +56,18 @@ class CoreState:
         self.trace = Trace(trace_size)
         self.parser = EventParser()
         self.resends = Resends(
-            max_resends=max_resends, ok_after_resend=ok_after_resend, resend_timeout_s=resend_timeout_s
+            max_resends=max_resends,
+            ok_after_resend=ok_after_resend,
+            resend_timeout_s=resend_timeout_s,
+            make_placeholder=self.new_placeholder,
         )
         self.feed = JobFeed()
         self.probes = Probes()  # the link's pace, and the probes it times
-        self.after_command = False  # the last command written was a user's, written for the first time
         # Write a bare line end next: it completes a line whose own end was damaged on the way (the printer then
         # answers or rejects it), and on its own it is an empty line, which Marlin ignores.
         self.send_eol = False
-        self.resends.make_placeholder = self.new_placeholder
         self.queue: deque[Command] = deque()  # accepted, not yet written
         self.in_flight = InFlight()  # written, waiting for an ok, in the order they were written
-        self.now = 0.0  # the latest time any call was given, for results that happen as a side effect
         self.next_id = 0
         self.exact_oks = advanced_ok  # the printer names lines in its oks (ADVANCED_OK): plain oks identify themselves
         # The link's state and the facts its moves read (halt, thermal message, numbers required): one owner.
@@ -75,8 +75,52 @@ class CoreState:
         # Counters (read them through `stats()`). Every submitted command ends up counted once: answered + failed
         # + cancelled + still queued or in flight.
         self.submitted = self.cancelled = 0
-        self.timeouts = self.resets = self.stray_oks = self.lost_oks = self.garbage_lines = 0
-        self.bytes_received = 0
+        self.timeouts = self.resets = self.stray_oks = self.lost_oks = 0
+
+    # Its own fields are written only by these verbs (the parts of `Connection` call them).
+
+    def set_window(self, max_in_flight: int, rx_buffer_bytes: int) -> None:
+        """How many commands and unanswered bytes may be on the wire.
+
+        Raises:
+            ValueError: `max_in_flight` below 1 or `rx_buffer_bytes` below 16.
+        """
+        check_window(max_in_flight, rx_buffer_bytes)
+        self.max_in_flight = max_in_flight
+        self.rx_buffer_bytes = rx_buffer_bytes
+
+    def want_line_end(self, wanted: bool = True) -> None:
+        """Write a bare line end next (or not: it was just written)."""
+        self.send_eol = wanted
+
+    def oks_name_lines(self) -> None:
+        """The printer named a line in an ok (ADVANCED_OK): numbered commands may share the wire."""
+        self.exact_oks = True
+
+    def accept(self, text: str, code: str, numbered: bool, timeout_s: float, now: float) -> Command:
+        """A new command, counted as submitted."""
+        self.submitted += 1
+        return Command(self.new_id(), text, code, numbered, timeout_s, now)
+
+    def withdrawn(self) -> None:
+        """A command never written was withdrawn by its caller."""
+        self.cancelled += 1
+
+    def stray_ok(self) -> None:
+        """An ok that answers no command waiting."""
+        self.stray_oks += 1
+
+    def lost_ok(self) -> None:
+        """A command's own ok was lost; a later answer proved it ran."""
+        self.lost_oks += 1
+
+    def timed_out(self) -> None:
+        """A command got no answer within its timeout."""
+        self.timeouts += 1
+
+    def was_reset(self) -> None:
+        """The printer reset (it printed `start`)."""
+        self.resets += 1
 
     def sync_print_state(self) -> None:
         """Move PRINTING and STOPPING on as the print ends and its last lines on the wire are answered."""
@@ -87,18 +131,18 @@ class CoreState:
         self.next_id += 1
         return self.next_id
 
-    def new_placeholder(self, number: int) -> Command:
+    def new_placeholder(self, number: int, now: float) -> Command:
         """`M110 N<number>`: takes a line number without running anything (nobody waits for its answer)."""
         text = f"M110 N{number}"
-        command = Command(self.new_id(), text, "M110", True, self.resends.resend_timeout_s, self.now)
-        command.placeholder = command.orphan = True
-        return command
+        return Command(
+            self.new_id(), text, "M110", True, self.resends.resend_timeout_s, now, placeholder=True, orphan=True
+        )
 
-    def fail_everything(self, error: MarlinError) -> None:
+    def fail_everything(self, error: MarlinError, now: float) -> None:
         feed = self.feed
         if feed.job is not None:
             # Nothing is replayed into a board that reset or halted: the print ends here, at the line it reached.
-            feed.job.fail(feed.job_error(error, self.in_flight), self.now)
+            feed.job.fail(feed.job_error(error, self.in_flight), now)
         feed.detach()
         for command in (*self.in_flight, *self.queue):
             if command.state not in FINAL_LINE_STATES:
@@ -109,9 +153,9 @@ class CoreState:
         self.queue.clear()
         self.resends.clear()
 
-    def check(self, error: MarlinError | None) -> None:
+    def check(self, error: MarlinError | None, now: float) -> None:
         if error is not None:
-            self.fail_everything(error)
+            self.fail_everything(error, now)
 
     def stop_job(self, error: MarlinError, now: float) -> None:
         """End the print with `error`; lines already written stay in the FIFO as orphans (their oks are still
@@ -119,11 +163,10 @@ class CoreState:
         job = self.feed.job
         if job is not None:
             job.fail(error, now)
-        self.feed.job = None
-        self.feed.next = None
+        self.feed.detach()
         for command in self.in_flight:
             if command.job is not None:
-                command.orphan = True
+                command.give_up()
         kept = []
         for command in self.queue:
             if command.job is None:

@@ -143,7 +143,6 @@ class Deadlines:
         answer within the timeout, with no busy keepalive, stalls the print: the job fails with a diagnosis.
         """
         core = self._core
-        core.now = now
         resends = core.resends
         resends.drain_over(now)
         while (head := core.in_flight.head) is not None:
@@ -157,12 +156,12 @@ class Deadlines:
                 if head.sends >= 2 and not head.placeholder and len(core.in_flight) == 1:
                     # Written twice and still no ok: its oks may be the ones being lost. An M105 numbered as if
                     # it took effect asks (it has long run by now, so the counter it set is the one checked).
-                    core.resends.unanswered_m110 = head.line_number
-                    head.head_since_s = now
-                    core.send_eol = True
+                    core.resends.probe_m110(head.line_number)
+                    head.waits_from(now)
+                    core.want_line_end()
                     core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
                     return
-                core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
+                core.check(resends.write_m110_again(head, core.in_flight, core.queue, now), now)
                 return
             if head.state is LineState.IN_DOUBT:
                 if self._settle_doubt(head, now, timeout_at, probe_at):
@@ -171,7 +170,7 @@ class Deadlines:
             if now >= resend_at and head.line_number is not None and talking:
                 # A resent line went unanswered while the printer talked: its rejection was probably taken for a
                 # stale one. (A silent printer is not helped by resends: it times out below.)
-                core.check(resends.resend_overdue(head, core.in_flight, core.queue, now, core.probes.quiet_s()))
+                core.check(resends.resend_overdue(head, core.in_flight, core.queue, now, core.probes.quiet_s()), now)
                 continue
             if now < timeout_at:
                 if now >= probe_at:
@@ -181,13 +180,11 @@ class Deadlines:
                 # Everything ahead of it was answered and its own ok has not come: the printer threw the line away
                 # with its receive buffer (after a line error), or the ok was lost. Nobody waits for it, so it is
                 # no caller's timeout: in doubt, a probe behind it settles it (`_settle_doubt`).
-                head.move(LineEvent.OVERDUE)
-                head.head_since_s = now
-                head.alive_s = None
+                head.overdue(now)
                 continue
             # No stale rejection can still be on its way after this much silence.
             resends.forget_stale()
-            core.timeouts += 1
+            core.timed_out()
             _log.warning("no answer to %r within %g s", redact(head.text), head.timeout_s)
             if (head.job is not None or head.probe) and not head.orphan:
                 self._stall_job(head, now)
@@ -195,22 +192,20 @@ class Deadlines:
             if head.code == "M110" and head.numbered and not head.placeholder:
                 # Written again until the resend limit says the link is too noisy; its caller is told now.
                 if not head.orphan:
-                    head.orphan = True
+                    head.give_up()
                     core.in_flight.finish(
                         head, CommandTimeoutError(self.describe_stall(head, now), command=redact(head.text))
                     )
-                core.check(resends.write_m110_again(head, core.in_flight, core.queue, now))
+                core.check(resends.write_m110_again(head, core.in_flight, core.queue, now), now)
                 return
             summary = self.describe_stall(head, now)
             # Its caller is told now, but the command keeps its place, in doubt, until the printer settles it:
             # Marlin may still answer it (a long G28), and that late ok must land on it, never on the next
             # caller's command, which waits (see `answer_stays_distinct`) or goes out behind it.
             was_orphan = head.orphan
-            core.send_eol = True  # in case its line end was damaged and the printer still waits for it
-            head.orphan = True
-            head.move(LineEvent.OVERDUE)
-            head.head_since_s = now
-            head.alive_s = None
+            core.want_line_end()  # in case its line end was damaged and the printer still waits for it
+            head.give_up()
+            head.overdue(now)
             if not was_orphan:
                 core.in_flight.finish(head, CommandTimeoutError(summary, command=redact(head.text)))
             # What waits behind it is not failed with it, silent printer or not: each caller ends at its own bound,
@@ -232,13 +227,13 @@ class Deadlines:
                 head.move(LineEvent.FAILED)  # never answered: its place is given up (nobody is told; nobody waits)
             after = core.in_flight.head
             if after is not None and after.state is LineState.IN_DOUBT:
-                after.head_since_s = head.head_since_s
+                after.waits_from(now if head.head_since_s is None else head.head_since_s)
             return True
         if now >= self._silence_bound():
             self._stall_job(head, now)
         if now >= probe_at:
             core.probes.asked(now)
-            core.send_eol = True
+            core.want_line_end()
             core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
         if now >= self._waiting_bound():
             since = head.head_since_s or now
@@ -255,8 +250,8 @@ class Deadlines:
                         core.queue.remove(command)
                         command.move(LineEvent.WITHDRAWN)
                     else:
-                        command.orphan = True  # it keeps its place: its late ok must land on it
-                    core.timeouts += 1
+                        command.give_up()  # it keeps its place: its late ok must land on it
+                    core.timed_out()
                     core.in_flight.finish(command, error)
         return False
 
@@ -268,9 +263,9 @@ class Deadlines:
             # oldest command) tells what a probe would. A bare line end still goes, once: it completes a line
             # whose own end was damaged, which the printer then answers at once.
             last_out = core.trace.last_sent
-            core.send_eol = last_out is None or last_out.text != BARE_LINE_END
+            core.want_line_end(last_out is None or last_out.text != BARE_LINE_END)
             return
-        core.send_eol = True
+        core.want_line_end()
         if core.queue and core.queue[0].wire:
             # Lines wait to be written again, one at a time, behind this one, whose ok may be lost. With plain oks
             # only an M105's `ok T:` can prove that, so the probe goes behind those lines (its number comes after
@@ -281,7 +276,7 @@ class Deadlines:
                     at += 1
                 core.resends.forget_stale()
                 core.queue.insert(at, core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
-            core.resends.nudge_pending = True
+            core.resends.nudge()
             return
         # A probe follows several round trips of silence: no rejection of a line written before the last resend
         # can still be on its way, so whatever the printer asks for next is a fresh request, acted on at once.
@@ -316,10 +311,10 @@ class Deadlines:
         feed.detach()
         # The stream's lines on the wire keep their places, in doubt: a printer that answers late must not hand
         # their oks to whatever the user sends next. Unwritten ones are withdrawn.
-        head.head_since_s = now
+        head.waits_from(now)
         for command in core.in_flight:
             if command.job is not None or command.probe:
-                command.orphan = True
+                command.give_up()
                 if command.state is LineState.ON_WIRE:
                     command.move(LineEvent.OVERDUE)
         kept = []

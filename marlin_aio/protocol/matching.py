@@ -85,6 +85,50 @@ class Command:
         moved = LINE_TRANSITIONS[self.state].get(event)
         self.state = next_line_state(self.state, event) if moved is None else moved
 
+    # Its fields are written only here: the FIFO's record, moved by the verbs below (the core's parts call them).
+
+    def written(self, now: float) -> None:
+        """Written to the printer at `now` (again, for a resend: `sent_s` stays the first time)."""
+        self.move(LineEvent.WRITTEN)
+        self.sends += 1
+        if self.sent_s is None:
+            self.sent_s = now
+        self.written_s = now
+
+    def numbered_as(self, line_number: int | None, wire: bytes) -> None:
+        """Its line number (None: unnumbered) and the bytes that go on the wire."""
+        self.line_number = line_number
+        self.wire = wire
+
+    def waits_from(self, now: float) -> None:
+        """It is answered next from `now` on (it became the oldest, or its wait starts over)."""
+        self.head_since_s = now
+
+    def alive(self, now: float) -> None:
+        """The printer showed it is working on it (a busy keepalive, a wait line) at `now`."""
+        self.alive_s = now
+
+    def overdue(self, now: float) -> None:
+        """Unanswered past its deadline: in doubt from `now`, until the printer settles it."""
+        self.move(LineEvent.OVERDUE)
+        self.head_since_s = now
+        self.alive_s = None
+
+    def give_up(self) -> None:
+        """Nobody waits for its answer any more (its caller was told, or gave up): the answer completes nothing."""
+        self.orphan = True
+
+    def refuse(self, said: str) -> None:
+        """The printer said (`said`) that it did not run it; its ok, when it comes, answers a refusal."""
+        self.refusal = said
+
+    def replaced(self, said: str) -> None:
+        """Counted by the printer but not run (`said`): a new copy takes its place in the print; this entry stays
+        only for the ok its number is still owed, with nobody waiting."""
+        self.job = None
+        self.orphan = True
+        self.refusal = said
+
     def add_line(self, text: str) -> None:
         """Collect one reply line, keeping only the last `MAX_REPLY_LINES` (a chatty or noisy printer must not
         grow one command's reply without bound)."""
@@ -140,7 +184,7 @@ class InFlight:
     def append(self, command: Command, now: float) -> None:
         """`command` was just written."""
         if not self._commands:
-            command.head_since_s = now
+            command.waits_from(now)
         self._commands.append(command)
         self.bytes += len(command.wire)
         if command.code == "M110":
@@ -157,7 +201,7 @@ class InFlight:
         elif command.emergency:
             self.emergencies -= 1
         if self._commands:
-            self._commands[0].head_since_s = now
+            self._commands[0].waits_from(now)
         return command
 
     def remove(self, command: Command, now: float) -> None:
@@ -170,7 +214,7 @@ class InFlight:
         elif command.emergency:
             self.emergencies -= 1
         if was_head and self._commands:
-            self._commands[0].head_since_s = now
+            self._commands[0].waits_from(now)
 
     def keep_only(self, keep: Iterable[Command], now: float, *, restart_head: bool) -> None:
         """Keep only `keep` (in order): the others will not be answered, or go out again. The new oldest command
@@ -180,7 +224,7 @@ class InFlight:
         self.barriers = sum(c.code == "M110" for c in self._commands)
         self.emergencies = sum(c.emergency for c in self._commands)
         if self._commands and (restart_head or self._commands[0].head_since_s is None):
-            self._commands[0].head_since_s = now
+            self._commands[0].waits_from(now)
 
     def finish(self, command: Command, outcome: Reply | MarlinError) -> None:
         """`command` ended with `outcome`, for its caller (taken with `take_results`)."""

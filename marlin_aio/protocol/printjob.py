@@ -265,6 +265,19 @@ class PrintJob:
         self.in_flight += 1
         self.written_through = max(self.written_through, source_line)
 
+    def limit_by(self, limits: HeaterLimits) -> None:
+        """Check every line against `limits`, unless the job was made with limits of its own."""
+        if self.limits is None:
+            self.limits = limits
+
+    def asked_again(self) -> None:
+        """The printer asked for a line of this job again."""
+        self.resends += 1
+
+    def withdrew_line(self) -> None:
+        """A line of this job that went out will never be answered (withdrawn, or refused: its print stops)."""
+        self.in_flight -= 1
+
     def not_run(self) -> None:
         """A command of this job went out but did not run (the printer counted its number, but what arrived was
         damaged), and goes again as a new line: it counts as sent once, and as resent."""

@@ -87,8 +87,6 @@ class Receiving:
         as an answer may open the window for more.
         """
         core = self._core
-        core.now = now
-        core.bytes_received += len(data)
         events: list[Event] = []
         for text, event in core.parser.receive_data(data):
             core.trace.received(now, text)
@@ -131,8 +129,7 @@ class Receiving:
         ok = classify_line(text)
         if type(ok) is not Ok or ok.temperatures is None or ok.line_number is not None:
             return None
-        core.now = now
-        core.bytes_received += len(data)
+        core.parser.count_bytes(len(data))
         core.trace.received(now, text)
         flight.popleft(now)
         # `_settle` for an M105 answered by its own ok, on a READY link with no resend under way.
@@ -155,7 +152,7 @@ class Receiving:
         is_line_error = None if type(event) is Ok else isinstance(event, ErrorMessage) and event.kind is ErrorKind.LINE
         if is_line_error:
             assert isinstance(event, ErrorMessage)
-            core.resends.sequence_error = event.message.startswith("Line Number")
+            core.resends.line_error(sequence=event.message.startswith("Line Number"))
         after_line_error = core.resends.note_line(is_line_error, now, core.probes.quiet_s)
         head = core.in_flight.head
         match event:
@@ -163,11 +160,11 @@ class Receiving:
                 self._on_ok(event, now)
             case BusyKeepalive():
                 if head is not None:
-                    head.alive_s = now  # the printer is alive and working on the oldest command
+                    head.alive(now)  # the printer is alive and working on the oldest command
             case TemperatureReport() if event.temperatures.waiting or (head is not None and head.code in _HEATER_WAITS):
                 # Marlin marks its wait lines with W:; other firmwares send plain reports while M109/M190 wait.
                 if head is not None:
-                    head.alive_s = now
+                    head.alive(now)
             case ResendRequest():
                 core.check(
                     core.resends.on_request(
@@ -177,16 +174,17 @@ class Receiving:
                         now,
                         rejected=after_line_error,
                         quiet_s=core.probes.quiet_s(),
-                    )
+                    ),
+                    now,
                 )
             case ErrorMessage():
                 self._on_error(event, now)
             case Start():
-                self._on_start()
+                self._on_start(now)
             case OverlongLine():
-                core.garbage_lines += 1  # noise from the link (a baud glitch, a reset) is nobody's reply
+                pass  # noise from the link (a baud glitch, a reset) is nobody's reply (the wire counts it)
             case UnrecognisedLine() if is_noise(text):
-                core.garbage_lines += 1
+                pass
             case UnknownCommand() if not any(c.text == event.command for c in core.in_flight):
                 # Not the text of any command of ours: something damaged on the way (a line whose `N` was hit, which
                 # the printer took as unnumbered and did not count, or the tail of a line cut in two by a flush).
@@ -197,7 +195,7 @@ class Receiving:
                     head.add_line(text)
                     if isinstance(event, PrinterLocked):
                         # The ok that follows answers a command that was refused, not run.
-                        head.refusal = text
+                        head.refuse(text)
                         if core.link.state is not LinkState.LOCKED:
                             _log.warning("the printer is locked: %s", redact(text))
                         core.link.move(LinkEvent.LOCKED, remote=True)
@@ -216,7 +214,7 @@ class Receiving:
         if index is None and core.exact_oks and ok.line_number is None and ok.temperatures is None:
             index = self._taken_unnumbered(ok)
         if index is None:
-            core.stray_oks += 1
+            core.stray_ok()
             _log.warning("an ok that answers no command waiting: %r", ok)
             if core.resends.draining and ok.temperatures is None:
                 self._fragment_ran(now)
@@ -249,12 +247,12 @@ class Receiving:
                 self._held_in_doubt(held, now)
                 return
         if ok.line_number is not None:
-            core.exact_oks = True
+            core.oks_name_lines()
         skipped = [core.in_flight.popleft(now) for _ in range(index)]
         command = core.in_flight.popleft(now)
         lines = attribute(skipped, command)
         for at, lost in enumerate(skipped):
-            core.lost_oks += 1
+            core.lost_ok()
             _log.info("the ok of %r was lost; %r was answered after it", redact(lost.text), redact(command.text))
             # Its lines are its own if every command after it printed nothing but its ok (a bare M105).
             quiet = all(c.text == "M105" or c.probe or c.emergency for c in (*skipped[at + 1 :], command))
@@ -326,7 +324,7 @@ class Receiving:
                 self._write_anew(damaged_body, said, now)
             else:
                 # Lines behind it ran (or will) before it could go again: the print stops there, naming them.
-                damaged_body.refusal = said
+                damaged_body.refuse(said)
             return
         core.resends.fragment_refused()
         command = self._damaged_copy(echoed)
@@ -337,7 +335,7 @@ class Receiving:
         command.move(LineEvent.MANGLED)
         _log.info("the printer received a damaged copy of %r and did not count it; it goes again", redact(command.text))
         if not behind:
-            core.queue.appendleft(command if wanted(command) else core.resends.placeholder_for([command]))
+            core.queue.appendleft(command if wanted(command) else core.resends.placeholder_for([command], now))
 
     def _lacked(self, line: Command, said: str) -> None:
         """The firmware does not know print line `line`'s command (it echoed it as sent): Marlin skipped it. The
@@ -345,7 +343,7 @@ class Receiving:
         job = line.job
         assert job is not None
         if job.stop_on_unknown:
-            line.refusal = said  # the ok that follows answers a line that was not printed: the print stops there
+            line.refuse(said)  # the ok that follows answers a line that was not printed: the print stops there
         elif job.lacked(line.code, line.source_line):
             _log.warning(
                 "the printer does not know %s (line %d of %s): it skipped the line and the print goes on; "
@@ -362,15 +360,22 @@ class Receiving:
         job = line.job
         assert job is not None
         job.not_run()
-        line.job = None
-        line.orphan = True
-        line.refusal = said
+        line.replaced(said)
         if job.cancelling or not job.active:
             job.finish_if_idle(now)  # nothing of a cancelled print goes out again
             return
         _log.info("line %d of %s arrived damaged and did not run; it goes again", line.source_line, job.name)
-        again = Command(core.new_id(), line.text, line.code, line.numbered, line.timeout_s, now)
-        again.job, again.source_line, again.source_bytes = job, line.source_line, line.source_bytes
+        again = Command(
+            core.new_id(),
+            line.text,
+            line.code,
+            line.numbered,
+            line.timeout_s,
+            now,
+            job=job,
+            source_line=line.source_line,
+            source_bytes=line.source_bytes,
+        )
         core.queue.appendleft(again)
 
     def _settle(
@@ -382,10 +387,10 @@ class Receiving:
         if command.state in (LineState.ON_WIRE, LineState.IN_DOUBT):
             command.move(LineEvent.REFUSED if command.refusal is not None else LineEvent.OK)
         if command is core.resends.held:
-            core.resends.held = None
+            core.resends.release_held()
             if ok is not None and command.refusal is None:
                 # The line the printer asked for again had run, unnumbered: a placeholder takes its number.
-                core.queue.appendleft(core.resends.placeholder_for([command]))
+                core.queue.appendleft(core.resends.placeholder_for([command], now))
         if command.code == "M110" and (ok is not None or proof is not None) and command.refusal is None:
             core.resends.m110_answered(command)
             if command.sends > 1:
@@ -443,7 +448,7 @@ class Receiving:
             error = CommandNotExecutedError(f"the printer did not run {redact(command.text)!r}: it said {said!r}")
         if command.job is not None:
             job = command.job
-            job.in_flight -= 1
+            job.withdrew_line()
             where = f"line {command.source_line} of {job.name}"
             # Nothing after the refused line may run in its place: the print stops here, with the printer's words.
             # Lines written behind it (send-ahead) are in the printer already and run: a resume starts after them.
@@ -464,7 +469,7 @@ class Receiving:
         _log.warning("an ok that either %r (run unnumbered) or a cut line's tail earned", redact(held.text))
         self._fragment_ran(now, held=held)
         if held.job is None and not held.probe and not held.placeholder and not held.orphan:
-            held.orphan = True
+            held.give_up()
             error = RemoteProtocolError(
                 f"{redact(held.text)!r} may or may not have run: after a line error the printer sent an ok that it "
                 "earned if it ran without its line number, or the tail of a line cut in two by the flush earned",
@@ -476,7 +481,7 @@ class Receiving:
         """An ok that no command earned arrived after a flush: the tail of a cut line ran as a command of its own
         (or, with `held`, that line ran unnumbered: which of the two cannot be told)."""
         core = self._core
-        core.resends.fragments_run += 1
+        core.resends.fragment_ran()
         _log.warning("after a line error the tail of a cut line ran as a command of its own")
         job = core.feed.job
         if job is None or not job.active:
@@ -504,16 +509,16 @@ class Receiving:
         match event.kind:
             case ErrorKind.THERMAL:
                 core.link.thermal_error(event.message)
-                self._halt_with(ThermalRunawayError(f"thermal protection tripped: {event.message}"), stopped=False)
+                self._halt_with(ThermalRunawayError(f"thermal protection tripped: {event.message}"), now, stopped=False)
             case ErrorKind.HALTED | ErrorKind.STOPPED if core.link.thermal_message is not None:
                 message = f"thermal protection tripped: {core.link.thermal_message} ({event.message})"
-                self._halt_with(ThermalRunawayError(message), stopped=False)
+                self._halt_with(ThermalRunawayError(message), now, stopped=False)
             case ErrorKind.HALTED | ErrorKind.STOPPED:
                 halted = PrinterHaltedError(f"the printer halted: {event.message}")
-                self._halt_with(halted, stopped=event.kind is ErrorKind.STOPPED)
+                self._halt_with(halted, now, stopped=event.kind is ErrorKind.STOPPED)
             case ErrorKind.NOT_EXECUTED if head is not None:
                 head.add_line(f"!! {event.message}")
-                head.refusal = f"!! {event.message}"
+                head.refuse(f"!! {event.message}")
             case ErrorKind.CHECKSUM_REQUIRED:
                 self._on_checksum_required(event.message, now)
             case ErrorKind.OTHER if head is not None:
@@ -537,17 +542,19 @@ class Receiving:
             )
             core.in_flight.finish(command, error)
 
-    def _halt_with(self, error: PrinterHaltedError, *, stopped: bool) -> None:
+    def _halt_with(self, error: PrinterHaltedError, now: float, *, stopped: bool) -> None:
         """The printer halted (`stopped`: a stop() that M999 clears; otherwise it needs a reset)."""
         core = self._core
         _log.warning("%s", error)
-        core.fail_everything(core.link.halted(error, stopped=stopped))
+        core.fail_everything(core.link.halted(error, stopped=stopped), now)
 
-    def _on_start(self) -> None:
+    def _on_start(self, now: float) -> None:
         core = self._core
-        core.resets += 1
+        core.was_reset()
         _log.warning("the printer reset (it printed 'start')")
         # The board rebooted: it forgot every command and its line counter. Nothing is replayed into it.
-        core.fail_everything(PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"))
+        core.fail_everything(
+            PrinterResetError("the printer reset (it printed 'start'); commands in flight were lost"), now
+        )
         core.link.reset()
         core.resends.restart_numbering()

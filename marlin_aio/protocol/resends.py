@@ -44,7 +44,7 @@ _log = logging.getLogger("marlin_aio")
 CALM_LINES = 100
 
 
-def _no_placeholders(number: int) -> Command:
+def _no_placeholders(number: int, now: float) -> Command:
     raise RuntimeError("Resends.make_placeholder was not set")
 
 
@@ -82,7 +82,14 @@ class Resends:
             talking) before it is written again (its rejection may have been taken for a stale one).
     """
 
-    def __init__(self, *, max_resends: int, ok_after_resend: bool, resend_timeout_s: float) -> None:
+    def __init__(
+        self,
+        *,
+        max_resends: int,
+        ok_after_resend: bool,
+        resend_timeout_s: float,
+        make_placeholder: Callable[[int, float], Command] | None = None,
+    ) -> None:
         self.max_resends = max_resends
         self.ok_after_resend = ok_after_resend
         self.resend_timeout_s = resend_timeout_s
@@ -105,12 +112,35 @@ class Resends:
         self.unanswered_m110: int | None = None  # the value of an M110 written twice and still unanswered
         self.held: Command | None = None  # a line asked for again that may have run unnumbered (see `resend`)
         self.nudge_pending = False  # let the next resend out past the window, as a probe
-        # Builds the `M110 N<n>` that takes the number n of lines that must not run (set by the connection).
-        self.make_placeholder: Callable[[int], Command] = _no_placeholders
-        self.now = 0.0  # the time of the call in progress, for jobs that end when a line is withdrawn
+        # Builds the `M110 N<n>` that takes the number n of lines that must not run (the connection's).
+        self.make_placeholder: Callable[[int, float], Command] = make_placeholder or _no_placeholders
         self.requests = 0
         self.fragments = 0  # pieces of lines the printer received on their own after a flush (and refused)
         self.fragments_run = 0  # pieces of lines the printer ran on their own: a line ran out of place
+
+    # Its fields are written only here; the other parts call these verbs.
+
+    def nudge(self, pending: bool = True) -> None:
+        """Let the next resend out past the window, as a probe (or no longer)."""
+        self.nudge_pending = pending
+
+    def release_held(self) -> Command | None:
+        """Forget the line held (asked for again, maybe run unnumbered) and return it, if any."""
+        held, self.held = self.held, None
+        return held
+
+    def line_error(self, *, sequence: bool) -> None:
+        """The printer reported a line error; `sequence`: `Line Number is not Last Line Number+1`."""
+        self.sequence_error = sequence
+
+    def fragment_ran(self) -> None:
+        """A piece of a line cut by a flush ran on its own: a line ran out of place."""
+        self.fragments_run += 1
+
+    def probe_m110(self, value: int | None) -> None:
+        """An M110 setting `value` was written twice and is still unanswered: a probe numbered as if it took effect
+        asks (None: it was answered)."""
+        self.unanswered_m110 = value
 
     # ------------------------------------------------------------------------------------------- numbering
 
@@ -141,14 +171,14 @@ class Resends:
         (`m110_answered`): a damaged `M110` is an ordinary numbered line to Marlin, which changes nothing.
         """
         if not command.numbered:
-            command.wire = command.text.encode("ascii") + b"\n"
+            command.numbered_as(None, command.text.encode("ascii") + b"\n")
             return
-        command.line_number = self.line_number_for(command)
+        number = self.line_number_for(command)
         if command.code != "M110":
-            self.next_line = command.line_number + 1
-        command.wire = number_command(command.text, command.line_number).encode("ascii") + b"\n"
-        self._history[command.line_number] = command
-        self._history_order.append(command.line_number)
+            self.next_line = number + 1
+        command.numbered_as(number, number_command(command.text, number).encode("ascii") + b"\n")
+        self._history[number] = command
+        self._history_order.append(number)
         while len(self._history_order) > history_size:
             self._history.pop(self._history_order.popleft(), None)
 
@@ -288,7 +318,7 @@ class Resends:
                 f"(next line is {self.next_line})"
             )
         if first.job is not None:
-            first.job.resends += 1
+            first.job.asked_again()
         error = self._limit_error(first, line_number)
         if error is not None:
             return error
@@ -335,13 +365,13 @@ class Resends:
                 resend.move(LineEvent.RESEND)
             if wanted(resend):
                 if unwanted:
-                    again.append(self.placeholder_for(unwanted))
+                    again.append(self.placeholder_for(unwanted, now))
                     unwanted = []
                 again.append(resend)
             else:
                 unwanted.append(resend)
         if unwanted:
-            again.append(self.placeholder_for(unwanted))
+            again.append(self.placeholder_for(unwanted, now))
         flight.keep_only(keep, now, restart_head=False)
         self.resend_from = line_number
         # Every line from N on goes out again in order, ahead of everything else, including the lines an earlier
@@ -353,7 +383,7 @@ class Resends:
         queue.extend(rest)
         return None
 
-    def placeholder_for(self, lines: list[Command]) -> Command:
+    def placeholder_for(self, lines: list[Command], now: float) -> Command:
         """A numbered `M110 N<n>` that takes the numbers of `lines` (n the last of them) without running any.
 
         Every line of a stopped print, of a caller who gave up, or one that already ran (taken unnumbered after
@@ -363,15 +393,15 @@ class Resends:
             if line.state is LineState.TO_RESEND:
                 line.move(LineEvent.WITHDRAWN)
                 if line.job is not None and not line.placeholder:
-                    line.job.in_flight -= 1  # it will never be answered
+                    line.job.withdrew_line()  # it will never be answered
                     if not self.draining:
                         # While draining, the tail of a line cut by the flush may still run; its ok must find the
                         # print still running (`Receiving._fragment_ran`), so the print ends once the drain is
                         # over (`Connection.data_to_send`).
-                        line.job.finish_if_idle(self.now)
+                        line.job.finish_if_idle(now)
         number = lines[-1].line_number
         assert number is not None
-        placeholder = self.make_placeholder(number)
+        placeholder = self.make_placeholder(number, now)
         self._history[number] = placeholder
         return placeholder
 

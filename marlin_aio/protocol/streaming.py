@@ -54,6 +54,10 @@ class JobFeed:
         self.job = job
         self.timeout_s = timeout_s
 
+    def took_next(self) -> None:
+        """The job's next line was written: the next call reads another."""
+        self.next = None
+
     def detach(self) -> None:
         """The job ended (done, failed or stalled): feed nothing more."""
         self.job = None
@@ -81,8 +85,17 @@ class JobFeed:
                 self.job = None
             return None
         text, source_line, source_bytes = item
-        command = Command(new_id(), text, command_code(text), numbered, self.timeout_s, now)
-        command.job, command.source_line, command.source_bytes = job, source_line, source_bytes
+        command = Command(
+            new_id(),
+            text,
+            command_code(text),
+            numbered,
+            self.timeout_s,
+            now,
+            job=job,
+            source_line=source_line,
+            source_bytes=source_bytes,
+        )
         self.next = command
         return command
 

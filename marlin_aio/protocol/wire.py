@@ -302,12 +302,19 @@ def classify_line(text: str) -> Event:
 
 
 class EventParser:
-    """Bytes in, events out: a `LineSplitter` followed by `classify_line`."""
+    """Bytes in, events out: a `LineSplitter` followed by `classify_line`; it counts the bytes it was fed and the
+    lines that are noise from the link (overlong, or holding bytes no firmware prints: `is_noise`)."""
 
-    __slots__ = ("_splitter",)
+    __slots__ = ("_splitter", "bytes_received", "garbage_lines")
 
     def __init__(self, max_line_bytes: int = DEFAULT_MAX_LINE_BYTES) -> None:
         self._splitter = LineSplitter(max_line_bytes)
+        self.bytes_received = 0
+        self.garbage_lines = 0
+
+    def count_bytes(self, size: int) -> None:
+        """`size` bytes arrived that were read without `receive_data` (the fast lane, `one_line`)."""
+        self.bytes_received += size
 
     def clear(self) -> None:
         """Forget any unfinished line."""
@@ -330,12 +337,17 @@ class EventParser:
 
     def receive_data(self, data: bytes) -> list[tuple[str, Event]]:
         """Feed bytes; return each completed line's text with its event, in order."""
+        self.bytes_received += len(data)
         out: list[tuple[str, Event]] = []
         for line in self._splitter.feed(data):
             if isinstance(line, OverlongLine):
+                self.garbage_lines += 1
                 out.append((line.head, line))
             else:
-                out.append((line, classify_line(line)))
+                event = classify_line(line)
+                if type(event) is UnrecognisedLine and is_noise(line):
+                    self.garbage_lines += 1
+                out.append((line, event))
         return out
 
 
