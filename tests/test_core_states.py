@@ -7,6 +7,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from marlin_aio.errors import ConnectionLostError as RuntimeErrorLost
 from marlin_aio.protocol.connection import Command, Connection
 from marlin_aio.protocol.printjob import PrintJob, PrintState
 from marlin_aio.protocol.states import (
@@ -143,3 +144,31 @@ def test_a_print_whose_lines_raise_fails_instead_of_ending_done() -> None:
     assert job.state is PrintState.FAILED
     assert job.error is not None and "the slicer's generator broke" in str(job.error)
     assert state_of(conn) is LinkState.READY
+
+
+def test_the_core_owns_connecting_and_lost_a_boot_banner_keeps_it_connecting() -> None:
+    # Issue 34: CONNECTING and LOST were decided in the client layer, beside the core's own state; now the core's
+    # state machine moves through them, and a reset during the handshake (the board's boot banner) is not a reset
+    # of a connected printer.
+    conn = Connection(connecting=True)
+    assert state_of(conn) is LinkState.CONNECTING
+    conn.submit("M115", timeout_s=1.0, now=0.0)
+    conn.data_to_send(0.0)
+    conn.receive_data(b"start\n", 0.01)
+    assert state_of(conn) is LinkState.CONNECTING
+    conn.handshake_done()
+    assert state_of(conn) is LinkState.READY
+    conn.handshake_done()  # only CONNECTING moves on it
+    assert state_of(conn) is LinkState.READY
+    waiting = conn.submit("M114", timeout_s=1.0, now=0.1)
+    conn.data_to_send(0.1)
+    conn.lose(RuntimeErrorLost("the port went away"))
+    assert state_of(conn) is LinkState.LOST
+    [(_, error)] = [r for r in conn.take_results() if r[0] is waiting]
+    assert isinstance(error, RuntimeErrorLost)
+    conn.receive_data(b"start\n", 0.2)  # nothing moves a lost link
+    assert state_of(conn) is LinkState.LOST
+
+
+def test_a_connection_made_without_a_handshake_starts_ready() -> None:
+    assert state_of(Connection()) is LinkState.READY

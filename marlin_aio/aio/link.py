@@ -387,7 +387,7 @@ class Link:
 
     def _fail(self, error: MarlinError) -> None:
         self._lost = error
-        self._conn.fail_all(error)
+        self._conn.lose(error)
         self.flush()
         self._on_failure(error)
 

@@ -89,7 +89,6 @@ class SerialBackend:
         self._link = self._new_link()
         self._poller = Poller(self._link, timeout_s, self._poll_slow_down)
         self._print: PrintHandle | None = None
-        self._connecting = False  # the handshake is under way
         self._reset_on_open = False
         self._requests = HostRequests()
 
@@ -100,6 +99,9 @@ class SerialBackend:
 
     def _new_link(self) -> Link:
         connection = Connection(
+            # Connecting from before the port opens: a boot banner read the moment it is open is the handshake's,
+            # never a reset of a connected printer.
+            connecting=self._handshake_enabled,
             numbered=self._numbered,
             max_in_flight=self._window[0],
             rx_buffer_bytes=self._window[1],
@@ -134,9 +136,6 @@ class SerialBackend:
             self._poller = Poller(self._link, self.timeout_s, self._poll_slow_down)
             self._print = None
             self._requests = HostRequests()
-        # Connecting from before the port opens: a boot banner read the moment it is open is the handshake's, never
-        # a reset of a connected printer.
-        self._connecting = self._handshake_enabled
         if self._wire_log is not None:
             self._end_wire("closed")  # a session of an earlier open that was never closed
             self._wire = self._wire_log.connection(self.port, self.baudrate)
@@ -160,7 +159,7 @@ class SerialBackend:
                 await self.close()
                 raise
         finally:
-            self._connecting = False
+            self._connection.handshake_done()
         _log.info("connected to %s: %s", self.port, self.firmware.name if self.firmware else "unknown firmware")
         firmware = self.firmware.name if self.firmware else "firmware unknown"
         self._listeners.link_event(LinkEvent("connected", f"{self.port} ({firmware})"))
@@ -358,9 +357,8 @@ class SerialBackend:
 
     @property
     def state(self) -> LinkState:
-        """Where the link stands (CONNECTING while the handshake runs)."""
-        state = self._link.state
-        return LinkState.CONNECTING if self._connecting and state is not LinkState.LOST else state
+        """Where the link stands, as the core's state machine says (CONNECTING while the handshake runs)."""
+        return self._link.state
 
     @property
     def is_connected(self) -> bool:
@@ -447,7 +445,7 @@ class SerialBackend:
                 self.capabilities[name] = enabled
             case FirmwareInfo():
                 self.firmware = event
-            case Start() if not self._connecting:
+            case Start() if self._connection.state is not LinkState.CONNECTING:
                 # The boot banner during the handshake is the handshake's; after it, the board restarted.
                 message = "the printer reset (it printed 'start'); its targets were cleared"
                 self._listeners.link_event(LinkEvent("reset", message))

@@ -107,6 +107,8 @@ class Connection:
             False for the 2.0.x builds that omit it.
         advanced_ok: the printer is known to name the line in each ok (ADVANCED_OK), so numbered commands may
             share the line from the start; otherwise this is learnt from the first `ok N<line>`.
+        connecting: start CONNECTING, for a client that runs a handshake first (`handshake_done` ends it); else
+            READY.
     """
 
     __slots__ = ("_after_command", "_core", "_deadlines", "_now", "_receiving", "limits")
@@ -123,6 +125,7 @@ class Connection:
         ok_after_resend: bool = True,
         advanced_ok: bool = False,
         limits: HeaterLimits = DEFAULT_LIMITS,
+        connecting: bool = False,
     ) -> None:
         """A connection that has sent nothing yet.
 
@@ -140,6 +143,7 @@ class Connection:
             resend_timeout_s=resend_timeout_s,
             ok_after_resend=ok_after_resend,
             advanced_ok=advanced_ok,
+            connecting=connecting,
         )
         self._receiving = Receiving(self._core)
         self._deadlines = Deadlines(self._core)
@@ -448,6 +452,15 @@ class Connection:
             return True
         command.give_up()
         return False
+
+    def handshake_done(self) -> None:
+        """The client's handshake ended: CONNECTING becomes READY (see `LinkMachine.handshake_done`)."""
+        self._core.link.handshake_done()
+
+    def lose(self, error: MarlinError) -> None:
+        """The port closed or went away: every command fails with `error`, and the link is LOST for good."""
+        self._core.fail_everything(error, self._now)
+        self._core.link.port_lost()
 
     def fail_all(self, error: MarlinError) -> None:
         """Fail every queued and in-flight command with `error` (the link is gone, or the client closes)."""

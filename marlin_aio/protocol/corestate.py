@@ -48,6 +48,7 @@ class CoreState:
         resend_timeout_s: float = 3.0,
         ok_after_resend: bool = True,
         advanced_ok: bool = False,
+        connecting: bool = False,
     ) -> None:
         check_window(max_in_flight, rx_buffer_bytes)
         self.numbered = numbered
@@ -71,7 +72,7 @@ class CoreState:
         self.next_id = 0
         self.exact_oks = advanced_ok  # the printer names lines in its oks (ADVANCED_OK): plain oks identify themselves
         # The link's state and the facts its moves read (halt, thermal message, numbers required): one owner.
-        self.link = LinkMachine()
+        self.link = LinkMachine(connecting=connecting)
         # Counters (read them through `stats()`). Every submitted command ends up counted once: answered + failed
         # + cancelled + still queued or in flight.
         self.submitted = self.cancelled = 0

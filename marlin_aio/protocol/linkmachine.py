@@ -31,8 +31,8 @@ class LinkMachine:
 
     __slots__ = ("halt", "requires_numbers", "state", "thermal_message")
 
-    def __init__(self) -> None:
-        self.state = LinkState.READY
+    def __init__(self, *, connecting: bool = False) -> None:
+        self.state = LinkState.CONNECTING if connecting else LinkState.READY
         self.halt: PrinterHaltedError | None = None
         self.thermal_message: str | None = None
         self.requires_numbers = False
@@ -65,7 +65,7 @@ class LinkMachine:
             self.halt = error
         # A second line about the same halt: a kill() after a stop() is final, and a stop() never softens a kill()
         # (the table: HALTED stays HALTED on a stop).
-        self.move(LinkEvent.STOPPED if stopped else LinkEvent.HALTED)
+        self.move(LinkEvent.STOPPED if stopped else LinkEvent.HALTED, remote=True)
         return self.halt
 
     def emergency_stopped(self) -> PrinterHaltedError:
@@ -81,13 +81,24 @@ class LinkMachine:
     def resumed(self) -> None:
         """M999 was answered on a STOPPED printer: it runs commands again."""
         self.halt = None
-        self.move(LinkEvent.RESUMED)
+        self.move(LinkEvent.RESUMED, remote=True)
 
     def reset(self) -> None:
         """The board rebooted: a halt, a lock and a thermal error are all forgotten."""
         self.halt = None
         self.thermal_message = None
-        self.move(LinkEvent.RESET)
+        self.move(LinkEvent.RESET, remote=True)
+
+    def handshake_done(self) -> None:
+        """The client's handshake ended: a link still CONNECTING is READY (a locked, stopped or halted one stays
+        so; a lost one stays lost)."""
+        if self.state is LinkState.CONNECTING:
+            self.move(LinkEvent.HANDSHAKE_DONE)
+
+    def port_lost(self) -> None:
+        """The port closed or went away: nothing moves the link again."""
+        if self.state is not LinkState.LOST:
+            self.move(LinkEvent.PORT_LOST)
 
     def checksums_required(self) -> None:
         """The firmware refused an unnumbered command: every command is numbered from now on."""

@@ -64,9 +64,11 @@ class ImpossibleTransitionError(RuntimeError):
 class LinkState(_Singletons):
     """Where the link to the printer stands; `Printer.state` and `Connection.state` report it.
 
-    The protocol core moves between READY, PRINTING, STOPPING, LOCKED, STOPPED and HALTED; the client adds
-    CONNECTING (the handshake) and LOST (the port closed or went away). A board that resets (prints `start`) goes
-    back to READY: commands in flight fail with `PrinterResetError`, and nothing is replayed.
+    The protocol core moves between all of them: CONNECTING while the client's handshake runs (a connection made
+    with `connecting=True`, until `handshake_done`), READY, PRINTING, STOPPING, LOCKED, STOPPED, HALTED, and LOST
+    once the port closed or went away (`Connection.lose`). A board that resets (prints `start`) goes back to READY
+    (during the handshake it stays CONNECTING: that is its boot banner): commands in flight fail with
+    `PrinterResetError`, and nothing is replayed.
     """
 
     CONNECTING = "connecting"
@@ -132,6 +134,8 @@ for _state in (*_LIVE, LinkState.CONNECTING, LinkState.STOPPED, LinkState.HALTED
     # A reset forgets everything, a halt and a lock included; the port being lost ends everything.
     _link_table[_state][LinkEvent.RESET] = LinkState.READY
     _link_table[_state][LinkEvent.PORT_LOST] = LinkState.LOST
+# The boot banner of a board that resets as its port opens: the handshake goes on.
+_link_table[LinkState.CONNECTING][LinkEvent.RESET] = LinkState.CONNECTING
 
 #: Every allowed move of the link: `LINK_TRANSITIONS[state][event]` is the state it leads to.
 LINK_TRANSITIONS: Mapping[LinkState, Mapping[LinkEvent, LinkState]] = MappingProxyType(
