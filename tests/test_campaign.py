@@ -34,12 +34,10 @@ TIME_LIMIT_S = 60.0
 # on any other failing seed, and on a seed listed here that no longer fails (the bug is fixed: remove the seed here).
 # Every one of them has emergency writes or a runout in its draw; test_campaign_seeds.py keeps one of each as an
 # xfail(strict=True) regression, with the lines of the trace that show it.
-HELD = "a line held after a sequence error is never written again while emergency writes keep the printer talking"
-SILENT = "a silent printer with emergency writes: the commands behind them fail far past their bound"
+# Fixed (issue 34): the held lines (seeds 566, 752, 814, 828, 970, 1601, 1639, 1643, 1678, 1767) and the silent
+# printer (1058, 1074, 1096, 1881).
 FRAGMENT = "a cut line's tail ran, and its plain ok was taken for an emergency command's: a line ran twice"
 KNOWN_FAILURES: dict[int, str] = {
-    **dict.fromkeys((566, 752, 814, 828, 970, 1601, 1639, 1643, 1678, 1767), HELD),
-    **dict.fromkeys((1058, 1074, 1096, 1881), SILENT),
     976: FRAGMENT,
 }
 

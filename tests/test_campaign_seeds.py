@@ -101,80 +101,88 @@ def test_seeds_that_found_bugs(campaign: str, seed: int, actions: bool) -> None:
     assert result.problems == [], f"{campaign} seed {seed}:\n" + "\n".join(result.problems) + f"\n{trace}"
 
 
-# ------------------------------------------------------------------------------------------------ open
-
-HELD = (
-    "open (core: deadlines/resends, the held line): a line asked for again after `Line Number is not Last Line "
-    "Number+1` is held, as it may have run unnumbered, until the printer is quiet; a probe behind it brings the "
-    "same `Resend:` again and another probe follows, and the emergency writes answered meanwhile keep the printer "
-    "from ever being quiet: the held line is never written again"
-)
+# ------------------------------------------------------------------------------------------------ issue 34's seeds
+# Each was open (`xfail(strict=True)`) until the change its comment names; the two still open are at the end.
 
 
 def _run_seed(campaign: str, seed: int, *, actions: bool = True, time_limit_s: float | None = None) -> list[str]:
     scenario = mixed_scenario(seed, actions=actions)
     if time_limit_s is not None:
-        # The run never ends; its bug shows as well within this limit, at a tenth of the CPU.
+        # The run never ended; its bug shows as well within this limit, at a tenth of the CPU.
         scenario = replace(scenario, time_limit_s=time_limit_s)
     result = run_print(scenario) if campaign == "core" else run_client_print(scenario).result
     return result.problems
 
 
-@pytest.mark.xfail(strict=True, reason=HELD + "; here an M876's plain ok is taken for the held line's unnumbered run")
 def test_core_4364_an_emergency_ok_is_not_taken_for_the_held_lines_run() -> None:
     # N12 went unanswered; each probe (N13 ... N128) brought `Error:Line Number is not Last Line Number+1, Last
     # Line: 11` and `Resend: 12`, and the host wrote another probe instead of line 12, for 2.5 s of emergency
-    # writes. Then an `M876 S0`'s plain `ok P15 B3` was judged the held line's (`Receiving._on_ok`: "a plain ok,
-    # and an emergency command written behind the held line"): a placeholder `N12 M110 N12` took its number, line
-    # 12 never ran, and the print stopped saying 12 lines ran where 11 did.
+    # writes. Then an `M876 S0`'s plain `ok P15 B3` was judged the held line's: a placeholder `N12 M110 N12` took
+    # its number, line 12 never ran, and the print stopped saying 12 lines ran where 11 did. Fixed: a plain ok with
+    # an emergency command right behind the line it would answer is taken as the emergency command's
+    # (`Receiving._on_ok`), and numbered commands may go behind emergency commands (`answer_stays_distinct`).
     assert _run_seed("core", 4364) == []
 
 
 def test_core_1084_a_held_line_goes_again_before_its_history_runs_out() -> None:
     # N279 went unanswered; probes N280 ... N535 each brought `Resend: 279`, until the printer asked for a line
     # older than the history: "the printer asked for line 279, which was never sent or is too old to resend (next
-    # line is 536)", and the print said 173 lines ran where 172 did. It passes since the link learns its pace from
-    # every answer (87f0169), which moved the probes; the cause is open, as seed 1643 shows below.
+    # line is 536)", and the print said 173 lines ran where 172 did. Passes since the link learns its pace from
+    # every answer (87f0169), which moved the probes; the cause is the one of seed 1643 below.
     assert _run_seed("core", 1084) == []
 
 
-@pytest.mark.xfail(strict=True, reason=HELD + "; here the probes ran the history out (as seed 1084 did before)")
-def test_core_1643_a_held_line_goes_again_before_its_history_runs_out() -> None:
-    # A user's `N75 M118 U23` was lost, `N76` (a print line) brought `Resend: 75`; line 75 is held, and the probes
-    # N77, N78, ... each bring `Resend: 75` again, until the printer asks for a line older than the history.
+def test_core_1643_a_lost_line_is_not_settled_by_the_emergency_ok_behind_it() -> None:
+    # A user's `N75 M118 U23` was lost on the way; the plain ok of the `M876 S0` written behind it settled it (so
+    # its caller got an ok for a command that never ran), and the M876's entry stayed in flight; `N76` brought
+    # `Resend: 75`, line 75 counted as run, its placeholder `M110 N75` waited behind the M876's entry, and the
+    # probes N77, N78, ... each brought `Resend: 75` until the printer asked for a line older than the history.
+    # Fixed as seed 4364: the ok goes to the M876, N75 goes again when the printer asks for it.
     assert _run_seed("core", 1643) == []
 
 
-@pytest.mark.xfail(strict=True, reason=HELD + "; here nothing numbered goes out at all and the print never ends")
 def test_core_752_a_print_with_a_held_line_ends_within_its_bounds() -> None:
     # `N1 G1 X0.0 Y0 F6000` went unanswered; the probe N2 brought `Resend: 1`; from then on only bare line ends and
-    # the emergency writes (M108, M876 S0, each answered by a plain ok) go out, for the 600 s of the run.
+    # the emergency writes (M108, M876 S0, each answered by a plain ok) went out, for the 600 s of the run. Fixed
+    # as seed 4364.
     assert _run_seed("core", 752, time_limit_s=60.0) == []
 
 
 def test_client_509_commands_behind_a_held_line_fail_at_their_bound() -> None:
     # The whole client: from 2.6 s on, eight `send("M118 U<k>")` waited, the print ran, and the link wrote a bare
-    # line end every 50 ms and the M108s, never a numbered line, until the run's limit. Passes since 87f0169 (as
-    # core seed 1084); client seed 901 still fails this way.
+    # line end every 50 ms and the M108s, never a numbered line, until the run's limit. Passes since 87f0169.
     assert _run_seed("client", 509, time_limit_s=60.0) == []
+
+
+def test_core_509_a_user_command_goes_again_behind_an_emergency_entry_whose_ok_never_comes() -> None:
+    # The core's seed 509: `N181 M118 U43` was rejected and an `M876 S0` written behind its second copy was thrown
+    # away with the printer's receive buffer; its entry waited for an ok that never came, each new emergency
+    # command's ok settled the older entry, and the M118 (a user's, waiting for a plain ok) never went again.
+    # Fixed: a numbered command may go behind emergency commands (`answer_stays_distinct`).
+    assert _run_seed("core", 509, time_limit_s=60.0) == []
 
 
 def test_core_290_a_silent_printer_fails_the_commands_at_their_bound_despite_emergency_writes() -> None:
     # The board fell silent at line 50 (0.24 s); M108 and M876 S0 went on being written, unanswered; the probes
-    # went at 4.25 s and 36.25 s, and the print stalled "behind 'M108'" only at 62 s. Passes since 87f0169; the
-    # cause is open, as seed 1096 shows below.
+    # went at 4.25 s and 36.25 s, and the print stalled "behind 'M108'" only at 62 s. Passes since 87f0169.
     assert _run_seed("core", 290) == []
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (core: deadlines): a printer silent from line 50, with emergency writes every 0.1 s: the "
-    "commands queued behind them fail at 238 s, 167 s past their bound (issue 34: '7 waits up to 280 s past their "
-    "bound'; as seed 290 did before)",
-)
 def test_core_1096_a_silent_printer_fails_the_commands_at_their_bound_despite_emergency_writes() -> None:
-    # The print stalls "behind 'M876 S0', which the printer has not answered" only at 238 s.
+    # A printer silent from line 50, with emergency writes every 0.1 s: the commands queued behind them failed at
+    # 238 s, 167 s past their bound, as each emergency command in doubt let go restarted the callers' clock. Fixed:
+    # a caller behind a line in doubt counts its timeout from the printer's last word if that came first
+    # (`Deadlines._caller_bound`).
     assert _run_seed("core", 1096, time_limit_s=300.0) == []
+
+
+def test_client_795_an_emergency_ok_does_not_settle_a_dropped_m110() -> None:
+    # start_print's `N0 M110 N0` arrived damaged (`N0 M\xb110 N0`), a numbered line 0 that Marlin, its last line
+    # being 1 (the handshake's M115), dropped as a duplicate without a word; the plain ok of an unasked M108 written
+    # behind it settled the M110; `N1 G91` was dropped as a duplicate too, `N2 M105` was taken, and its ok proved
+    # G91 'ran': the relative moves ran absolute and the print reported done (M114 X:0.10 for 29.90). Fixed as
+    # core seed 4364: the ok is the M108's, and the M110 goes again.
+    assert _run_seed("client", 795) == []
 
 
 @pytest.mark.xfail(
@@ -197,18 +205,6 @@ def test_core_976_a_tails_ok_is_not_taken_for_an_emergency_commands() -> None:
 )
 def test_client_2631_a_probe_behind_an_unanswered_m110_is_answered() -> None:
     assert _run_seed("client", 2631, actions=False) == []
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (core: receiving, an emergency command's plain ok): start_print's `N0 M110 N0` arrived damaged "
-    "(`N0 M\\xb110 N0`), a numbered line 0 that Marlin, its last line being 1 (the handshake's M115), dropped as a "
-    "duplicate without a word; the plain ok of an unasked M108 written behind it settled the M110; `N1 G91` was "
-    "dropped as a duplicate too, `N2 M105` was taken, and its ok proved G91 'ran': the relative moves ran absolute "
-    "and the print reported done (M114 X:0.10 for 29.90)",
-)
-def test_client_795_an_emergency_ok_does_not_settle_a_dropped_m110() -> None:
-    assert _run_seed("client", 795) == []
 
 
 # ------------------------------------------------------------------------------------------------ the sweep

@@ -17,7 +17,6 @@ from collections import Counter
 from dataclasses import dataclass, field, replace
 
 import pytest
-from test_campaign import HELD, SILENT  # the causes, worded once for both campaigns
 
 from marlin_aio.protocol.printjob import PrintState
 from marlin_aio.simulator import CampaignResult, mixed_scenario
@@ -58,14 +57,10 @@ TIME_LIMIT_S = 60.0
 # client seed 2389). The withdrawn lines' job ended at once, and the tail's ok, during the drain, found it ended.
 # Now the print ends once the drain is over, so that ok stops it saying why.
 #
-# Open (issue 34), with emergency writes or a runout in the draw; test_campaign_seeds.py keeps one of each as an
-# xfail(strict=True) regression, with the lines of the trace that show it:
-DUPLICATE = "an M108's plain ok settled the M110 ahead of it, which Marlin had dropped as a duplicate; G91 never ran"
-KNOWN_FAILURES: dict[int, str] = {
-    **dict.fromkeys((273, 560, 603, 752, 814, 901), HELD),
-    529: SILENT,
-    795: DUPLICATE,
-}
+# Fixed (issue 34): the held lines (seeds 273, 560, 603, 752, 814, 901), the silent printer (529) and the dropped M110
+# (795), all with emergency writes or a runout in the draw: an emergency command's plain ok was taken for the line
+# ahead of it, and callers waited on emergency entries whose ok never came (test_campaign_seeds.py keeps the seeds).
+KNOWN_FAILURES: dict[int, str] = {}
 
 
 # ------------------------------------------------------------------------------------------------ the campaign

@@ -125,11 +125,21 @@ class Deadlines:
         head = core.in_flight.head
         since = 0.0 if head is None or head.head_since_s is None else head.head_since_s
         bounds = [
-            max(c.submitted_s, since) + c.timeout_s
+            self._caller_bound(c, since)
             for c in (*core.in_flight, *core.queue)
             if not c.orphan and c.job is None and not c.probe
         ]
         return min(bounds, default=math.inf)
+
+    def _caller_bound(self, command: Command, since: float) -> float:
+        """When a caller waiting behind a line in doubt (in doubt from `since`) fails: its own timeout from when it
+        began waiting there, or from the printer's last word if that came before. So a printer that has gone
+        silent fails each caller once it has said nothing for the caller's own timeout, however many emergency
+        commands in doubt are let go one after another ahead of it, each restarting the clock of the oldest
+        (core seeds 1058, 1096)."""
+        last_in = self._core.trace.last_received_s
+        start = 0.0 if last_in is None else min(since, last_in)  # no word ever: from when it was submitted
+        return max(command.submitted_s, start) + command.timeout_s
 
     def probe_delay_s(self) -> float:
         """How long a streamed line may wait before a probe asks whether its `ok` was lost (see `JobFeed`)."""
@@ -240,7 +250,7 @@ class Deadlines:
             for command in (*core.in_flight, *core.queue):
                 if command.orphan or command.job is not None or command.probe:
                     continue
-                if now >= max(command.submitted_s, since) + command.timeout_s:
+                if now >= self._caller_bound(command, since):
                     error = CommandTimeoutError(
                         f"no answer within {command.timeout_s:g} s: it waited behind {redact(head.text)!r}, which the "
                         f"printer has not answered ({self.describe_stall(head, now)})",

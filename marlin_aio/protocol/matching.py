@@ -307,7 +307,11 @@ def answer_stays_distinct(command: Command, flight: InFlight, *, exact_oks: bool
         return True
     waits_for_reply = command.job is None and not command.probe
     for other in flight:
-        if other.code == "M105":
+        if other.code == "M105" or (other.emergency and command.numbered):
+            # An emergency command's ok comes before a numbered command's written behind it; if it never comes (its
+            # line thrown away with a flush), the numbered command's ok settles the emergency command's entry and
+            # a probe then proves the numbered one ran (`ok_lost`): never another caller's answer. Waiting for such
+            # an entry instead waits forever while emergency commands keep being written (core seed 509).
             continue
         if waits_for_reply or (other.job is None and not other.probe and not other.orphan):
             return False

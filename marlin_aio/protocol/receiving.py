@@ -228,6 +228,26 @@ class Receiving:
                 index = ahead.index(held)
         entry = core.in_flight[index]
         if (
+            ok.line_number is None
+            and ok.temperatures is None
+            and entry.line_number is not None
+            and not entry.emergency
+            and index + 1 < len(core.in_flight)
+        ):
+            behind = core.in_flight[index + 1]
+            if behind.emergency:
+                # A plain ok, and an emergency command written right behind the numbered line it would answer: it
+                # is that line's, or, if the line never arrived, the emergency command's (core seed 1643: `N75`
+                # was lost, the M876's ok settled it, and the printer's `Resend: 75` then found it "run"). Taken
+                # as the emergency command's, it costs nothing either way: if the line ran, the emergency
+                # command's own ok follows and answers it; if its ok was lost, a probe proves it ran; if it never
+                # arrived, the printer asks for it again and it goes again. (So for a line held after a `Resend:`
+                # too, core seed 1535: the M108's ok was judged the held line's unnumbered run, a placeholder took
+                # its number, and the line never ran.)
+                core.in_flight.remove(behind, now)
+                self._settle(behind, ok, (), now)
+                return
+        if (
             entry.emergency
             and core.exact_oks
             and any(core.in_flight[at].line_number is not None for at in range(index))
