@@ -1,22 +1,24 @@
 """The sans-I/O connection: commands in, bytes out, bytes in, answers out; deadlines, halts and resets.
 
 Marlin answers every command it processes with exactly one `ok`, in the order it received them. The connection
-keeps the commands written but not yet answered in a FIFO and completes the oldest one each `ok` can answer. Its
-rooms, each in its own module:
+keeps the commands written but not yet answered in a FIFO and completes the oldest one each `ok` can answer. It is
+split by ownership, as h11 keeps its state machine apart from its framing: each part owns its fields, and the
+others change them only through its verbs (`python -m benchmarks.core_shape` counts the writes into another
+part's fields: none), so one `ok` crosses six files of the core:
 
-- `matching`: the FIFO, which command an `ok` answers and whose reply lines are whose (and why a reply
-  handed to a caller is always its own);
-- `resends`: line numbers, the history of lines sent, `Resend:` recovery, and the cut lines a flush
-  leaves (and why a print line runs exactly once, in order);
-- `streaming`: a print job fed line by line, its round trips and probes;
-- `states`: the link's state and each line's, every allowed move in one table each;
-- `linkmachine`: the link's state machine, the one owner of its state and of the facts its moves read (a halt,
-  the thermal message, numbers required);
-- `corestate`: the one state record, declared in one place;
+- `wire`: the byte stream, framed into lines, read into events, and recorded in the trace;
+- `matching`: the FIFO of commands in flight and each command's record (`Command`): which command an `ok`
+  answers, whose reply lines are whose (and why a reply handed to a caller is always its own), and the outcomes;
+- `resends`: the line numbers: the history of lines sent, `Resend:` recovery, the cut lines a flush leaves (and
+  why a print line runs exactly once, in order), and the link's pace with the probes it times (`Probes`);
+- `linkmachine` over `states`: the link's state machine, CONNECTING to LOST, the one owner of its state and of
+  the facts its moves read (a halt, the thermal message, numbers required); every move in one table;
+- `streaming`: a print job fed line by line;
+- `corestate`: the parts held together, with the queue and the counters;
 - `receiving`: what each line from the printer means (the dispatch of every received event);
 - `deadlines`: what happens when nothing comes (timeouts, probes, stalls, who waits for whom);
-- this module: `Connection`, the public face: commands in, bytes out, state and counters. It holds the state
-  record and composes `Receiving` and `Deadlines` over it (parts, not base classes).
+- this module: `Connection`, the public face: commands in, bytes out, state and counters. It holds the parts and
+  composes `Receiving` and `Deadlines` over them (parts, not base classes), and keeps its own clock.
 
 A command that gets no `ok` at all (Marlin's `M105 T9` prints an error and nothing more) times out; it keeps its
 place, in doubt, until the printer settles it (its late ok, or the answer to a probe behind it), so a late ok lands

@@ -1,11 +1,12 @@
-"""The one state record of the protocol core, and the few acts that touch all of it.
+"""The parts of one protocol core held together, and the few acts that touch all of them.
 
-`Connection` (`connection`) holds one `CoreState` and composes two parts over it: `Receiving`
-(`receiving`, what each line from the printer means) and `Deadlines` (`deadlines`, what
-happens when nothing comes). The state is declared here, in one place, as a record with public fields: the parts
-read and write it through their one `CoreState`. The link's state and the facts its moves read (a halt, the
-thermal message, numbers required) are owned by `link`, a `linkmachine.LinkMachine`: the parts call its verbs and
-never write its fields. `Connection.stats()` reads its counters from here.
+`Connection` (`connection`) holds one `CoreState` and composes two behaviours over it: `Receiving` (`receiving`,
+what each line from the printer means) and `Deadlines` (`deadlines`, what happens when nothing comes). Each part
+owns its fields and is changed only through its verbs: the wire (`parser`, `trace`), the FIFO (`in_flight`, with
+the outcomes), the line numbers (`resends`, `probes`), the link's state machine (`link`), the print job being fed
+(`feed`). What is left here is the queue of commands not yet written (a deque that `Connection`, `Receiving` and
+`Deadlines` reorder as they decide what goes next), the window, and the counters of what happened (changed
+through the verbs below). `Connection.stats()` reads the counters of every part.
 """
 
 from __future__ import annotations
