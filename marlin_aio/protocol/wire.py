@@ -404,10 +404,7 @@ class Trace:
         entry: _Line = (time_s, "sent", text)
         self._entries.append(entry)
         self._last_sent = entry
-        if self.tap is not None:
-            self.tap(time_s, "sent", redact(text))
-        if _wire_log.isEnabledFor(logging.DEBUG):
-            _wire_log.debug(">> %s", redact(text))
+        self._tell(entry, ">>")
 
     def received(self, time_s: float, text: str) -> None:
         """Record a line read from the printer (redacted when read: firmware without PASSWORD_FEATURE echoes an
@@ -415,10 +412,14 @@ class Trace:
         entry: _Line = (time_s, "received", text)
         self._entries.append(entry)
         self._last_received = entry
+        self._tell(entry, "<<")
+
+    def _tell(self, entry: _Line, arrow: str) -> None:
+        time_s, direction, text = entry
         if self.tap is not None:
-            self.tap(time_s, "received", redact(text))
+            self.tap(time_s, direction, redact(text))
         if _wire_log.isEnabledFor(logging.DEBUG):
-            _wire_log.debug("<< %s", redact(text))
+            _wire_log.debug("%s %s", arrow, redact(text))
 
     @property
     def last_sent(self) -> TraceEntry | None:
