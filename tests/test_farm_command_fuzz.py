@@ -475,3 +475,11 @@ def test_valid_commands_parse_as_before(jobs: Path) -> None:
     assert accepted({"action": "pause", "id": "é-1"}).id == "é-1"
     assert accepted({"action": "pause", "id": 2**63 - 1}).id == 2**63 - 1
     assert accepted({"action": "pause", "id": -(2**63) + 1}).id == -(2**63) + 1
+
+
+def test_a_print_may_stop_at_a_command_the_firmware_lacks_as_at_every_other_door(jobs: Path) -> None:
+    # The start_print verb's stop_on_unknown, reached from MQTT as from the socket and the CLI (issue 34).
+    assert accepted({"action": "print", "path": "small.gcode"}, jobs).stop_on_unknown is False
+    assert accepted({"action": "print", "path": "small.gcode", "stop_on_unknown": True}, jobs).stop_on_unknown is True
+    message = refusal(json.dumps({"action": "print", "path": "small.gcode", "stop_on_unknown": "yes"}), jobs)
+    assert '"stop_on_unknown" must be true or false' in message

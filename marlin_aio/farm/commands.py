@@ -7,7 +7,9 @@ A command is a JSON object published to `PREFIX/NAME/command`; its answer goes t
     {"id": 2, "action": "set_target", "heater": "hotend", "celsius": 210}    (Home Assistant's number entities)
     {"id": 7, "action": "preset", "name": "PLA"}                             (the bridge's presets, any case)
     {"id": 3, "action": "gcode", "command": "G28"}                            (or "commands": ["G28", "M114"])
-    {"id": 4, "action": "print", "path": "benchy.gcode"}                      (inside --allowed-dir only)
+    {"id": 4, "action": "print", "path": "benchy.gcode"}                      (inside --allowed-dir only;
+                                                                              "stop_on_unknown": true stops at a
+                                                                              command the firmware lacks)
     {"id": 5, "action": "pause"} / "resume" / "cancel"
     {"id": 6, "action": "emergency_stop"}
     {"id": 8, "action": "answer_prompt", "index": 0}                        (button 0 of the printer's open prompt)
@@ -139,6 +141,8 @@ class FarmCommand:
     """For a preset command (run as set_temperatures): the preset's name, as its file spells it."""
     index: int | None = None
     """For answer_prompt: the button (0 the first), as `M876 S<index>` counts."""
+    stop_on_unknown: bool = False
+    """For print: stop at a command the firmware does not know, instead of warning and going on."""
 
 
 def _show(value: object) -> str:
@@ -417,7 +421,11 @@ def _check(
     if action == "gcode":
         return FarmCommand(printer, action, command_id, gcode=_gcode(body, farm_printer))
     if action == "print":
-        return FarmCommand(printer, action, command_id, path=_allowed_path(body.get("path"), allowed_dir))
+        stop = body.get("stop_on_unknown", False)
+        if not isinstance(stop, bool):
+            raise CommandError(f'"stop_on_unknown" must be true or false, got {_show(stop)}')
+        path = _allowed_path(body.get("path"), allowed_dir)
+        return FarmCommand(printer, action, command_id, path=path, stop_on_unknown=stop)
     if action == "answer_prompt":
         index = body.get("index")
         if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index <= MAX_PROMPT_BUTTON:
@@ -435,7 +443,7 @@ _FIELDS: dict[str, set[str]] = {
     "set_target": {"heater", "celsius"},
     "preset": {"name"},
     "gcode": {"command", "commands"},
-    "print": {"path"},
+    "print": {"path", "stop_on_unknown"},
     "pause": set(),
     "resume": set(),
     "cancel": set(),
@@ -549,7 +557,7 @@ async def run_command(command: FarmCommand, owner: Owner) -> Any:
             return {"replies": replies}
         case "print":
             assert command.path is not None
-            job = await run("start_print", path=str(command.path))
+            job = await run("start_print", path=str(command.path), stop_on_unknown=command.stop_on_unknown)
             return {"started": job["file"]}
         case "emergency_stop":
             await run("emergency_stop")
