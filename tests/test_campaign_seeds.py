@@ -198,6 +198,27 @@ def test_core_976_a_tails_ok_is_not_taken_for_an_emergency_commands() -> None:
 
 @pytest.mark.xfail(
     strict=True,
+    reason="open (core: receiving._on_ok, a runout's prompt answered while the print line that paused waits, with "
+    "probes and more M876s behind it): an M876's plain ok, or its damaged copy's, is taken in the wrong order, two "
+    "M876 entries are then counted lost where their oks were still due, and those oks answer `N23` and `N24`: the "
+    "printer asks for 23 again, the lines are judged run and withdrawn, and the print ends DONE with 148 of 150 "
+    "lines run (found by the sweep after the fixes of seeds 1643 and 509)",
+)
+def test_core_5774_a_runout_answer_does_not_cost_print_lines() -> None:
+    assert _run_seed("core", 5774) == []
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (core: as seed 5774, emergency oks taken in the wrong order): a print line is judged run that the "
+    "firmware never ran (found by the sweep after the fixes of seeds 1643 and 509)",
+)
+def test_core_14318_every_print_line_runs_once_with_emergency_writes() -> None:
+    assert _run_seed("core", 14318) == []
+
+
+@pytest.mark.xfail(
+    strict=True,
     reason="open (core: deadlines, the M110 probe): start_print's `N0 M110 N0` arrived as `N2 M110 N0` (checksum "
     "error) and again as `N0 m110 N0`, which Marlin reads as a numbered line and drops as a duplicate of its last "
     "(1, the handshake's M115); the probe numbered as if the M110 took effect, `N1 M105`, is a duplicate of the "
