@@ -29,6 +29,7 @@ from .farm import options as farm
 from .heaters import options as heaters
 from .heaters import presets as heater_presets
 from .job import options as job
+from .keys import options as keys
 from .logs import options as logs
 from .ports import options as ports
 from .printing import options as printing
@@ -143,6 +144,7 @@ app.command("presets", help=heater_presets.PRESETS_HELP, epilog=EXIT_CODES_HELP)
 app.command("log", help=logs.LOG_HELP, epilog=EXIT_CODES_HELP)(logs.log)
 app.command("print", help=printing.PRINT_HELP, epilog=EXIT_CODES_HELP)(printing.print_file)
 app.command("job", help=job.JOB_HELP, epilog=EXIT_CODES_HELP)(job.job)
+app.command("keys", help=keys.KEYS_HELP, epilog=EXIT_CODES_HELP)(keys.keys)
 app.command("send", help=console.SEND_HELP, epilog=EXIT_CODES_HELP)(console.send)
 app.command("terminal", help=console.TERMINAL_HELP, epilog=EXIT_CODES_HELP)(console.terminal)
 app.command("serve", help=serve.SERVE_HELP, epilog=EXIT_CODES_HELP)(serve.serve)

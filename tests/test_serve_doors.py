@@ -136,7 +136,10 @@ def test_every_door_offers_the_verbs_of_the_table_and_nothing_else() -> None:
 
     offered = {door: {n for n, v in verbs.VERBS.items() if door in v.doors} for door in verbs.DOORS}
     service = Service([], Path("/nonexistent/s.sock"))
-    assert set(service.methods) == offered["socket"] == offered["tcp"]
+    # The owner's Unix socket alone decides the OctoPrint API's app keys: an app must never grant its own key.
+    assert set(service.methods) == offered["socket"]
+    assert offered["socket"] - offered["tcp"] == {"keys", "approve_key", "deny_key", "revoke_key"}
+    assert not offered["mqtt"] & {"keys", "approve_key"} and not offered["http"] & {"keys", "approve_key"}
     assert set(ACTION_VERBS.values()) == offered["mqtt"]
     http_calls = set(re.findall(r'_verb\("([a-z_]+)"', Path(octoprint.__file__).read_text()))
     assert http_calls == offered["http"]

@@ -6,6 +6,7 @@ upload, select and start), plus a raw multipart upload with `print=true` as Prus
 from __future__ import annotations
 
 import asyncio
+import re
 import socket
 import sys
 from collections.abc import AsyncIterator
@@ -13,9 +14,10 @@ from pathlib import Path
 
 import aiohttp
 import pytest
+from conftest import until
 from octorest import OctoRest
 from pyoctoprintapi import OctoprintClient
-from pyoctoprintapi.exceptions import UnauthorizedException
+from pyoctoprintapi.exceptions import ApiError, UnauthorizedException
 from test_serve import Served, serving
 
 from marlin_aio.service.uploads import UploadError, Uploads, safe_name
@@ -184,3 +186,89 @@ async def test_the_octoprint_port_in_use_is_one_error_line(tmp_path: Path, monke
     assert process.returncode == 2
     lines = [line for line in err.decode().splitlines() if line.startswith("error:")]
     assert len(lines) == 1 and f"127.0.0.1:{port}" in lines[0], err.decode()
+
+
+async def _marlin_temp(*args: str) -> tuple[int, str]:
+    """`marlin-temp ARGS` as the service's owner types it; its exit code and output."""
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "marlin_temp", *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT
+    )
+    output, _ = await process.communicate()
+    assert process.returncode is not None
+    return process.returncode, output.decode()
+
+
+def _token(lines: list[str]) -> str | None:
+    for line in lines:
+        found = re.search(r"marlin-temp keys approve (\S+)`", line)
+        if found:
+            return found[1]
+    return None
+
+
+async def test_home_assistants_config_flow_gets_a_key_once_the_owner_approves_it(
+    octo: tuple[Served, str],
+) -> None:
+    # Home Assistant's config flow, with its own library (pyoctoprintapi): probe, request, poll until the owner
+    # decides, then the key, the discovery info (its device id), the printer and the job.
+    served, url = octo
+    port = int(url.rsplit(":", 1)[1])
+    service = f"serve:sim@{served.socket}"
+    async with aiohttp.ClientSession() as session:
+        client = OctoprintClient("127.0.0.1", session, port=port)
+        asking = asyncio.create_task(client.request_app_key("Home Assistant", "homeassistant", 300))
+        await until(lambda: _token(served.lines) is not None, "the service to say that a request waits")
+        token = _token(served.lines)
+        assert token is not None and not asking.done()  # nothing is handed out before the owner decides
+        code, output = await _marlin_temp("keys", "--port", service)
+        assert code == 0 and f"waiting: Home Assistant (user homeassistant): marlin-temp keys approve {token}" in output
+        code, output = await _marlin_temp("keys", "approve", token, "--port", service)
+        assert code == 0 and "approved" in output, output
+        key = await asyncio.wait_for(asking, 60)
+        assert len(key) == 32 and key != KEY
+        client.set_api_key(key)
+        discovery = await client.get_discovery_info()
+        assert discovery is not None and discovery.upnp_uuid  # the device's id
+        again = (await client.get_discovery_info()).upnp_uuid
+        assert again == discovery.upnp_uuid
+        webcam = await client.get_webcam_info()
+        assert webcam is not None and webcam.enabled is False
+        assert (await client.get_printer_info()).state.flags.operational
+        assert (await client.get_job_info()).state == "Operational"
+        # Listed, and revocable: the API refuses the key from then on.
+        code, output = await _marlin_temp("keys", "list", "--port", service)
+        assert code == 0 and f"issued: Home Assistant (user homeassistant), key {key[:6]}..." in output
+        code, output = await _marlin_temp("keys", "revoke", "home assistant", "--port", service)
+        assert code == 0 and "revoked: Home Assistant" in output
+        with pytest.raises(UnauthorizedException):
+            await client.get_printer_info()
+
+
+async def test_a_denied_or_unknown_request_gets_no_key(octo: tuple[Served, str]) -> None:
+    served, url = octo
+    port = int(url.rsplit(":", 1)[1])
+    service = f"serve:sim@{served.socket}"
+    async with aiohttp.ClientSession() as session:
+        client = OctoprintClient("127.0.0.1", session, port=port)
+        asking = asyncio.create_task(client.request_app_key("Some App", "", 300))
+        await until(lambda: _token(served.lines) is not None, "the service to say that a request waits")
+        token = _token(served.lines)
+        assert token is not None
+        code, output = await _marlin_temp("keys", "deny", token, "--port", service)
+        assert code == 0 and "denied" in output
+        with pytest.raises(ApiError):
+            await asyncio.wait_for(asking, 60)
+        # A token nobody asked for, and one decided already: one clear line, exit 2, nothing issued.
+        code, output = await _marlin_temp("keys", "approve", token, "--port", service)
+        assert code != 0 and f"no request {token!r} waits for a decision" in output
+        assert len(output.strip().splitlines()) == 1
+        code, output = await _marlin_temp("keys", "list", "--port", service)
+        assert "no app has asked for a key, and none holds one" in output
+    # The app-key calls need no key; the key is still needed everywhere else.
+    async with aiohttp.ClientSession() as session:
+        async with session.get(f"{url}/plugin/appkeys/probe") as response:
+            assert response.status == 204
+        async with session.get(f"{url}/plugin/appkeys/request/nonsense") as response:
+            assert response.status == 404
+        async with session.get(f"{url}/api/version", headers={"X-Api-Key": "0" * 32}) as response:
+            assert response.status == 403

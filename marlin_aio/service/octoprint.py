@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hmac
 import logging
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,7 @@ from marlin_aio.farm.job import JobState
 from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.protocol.rpc import RpcError, progress_from_json
 from marlin_aio.service import verbs
+from marlin_aio.service.appkeys import AppKeyError
 from marlin_aio.service.httpbounds import (
     MAX_JSON_BYTES,
     bounded_runner,
@@ -84,6 +86,8 @@ class OctoPrintApi:
         self.uploads = uploads
         self._key = api_key.encode()
         self.selected: Path | None = None
+        # A stable id per service and printer (Home Assistant's device id): from where the service listens.
+        self._uuid = str(uuid.uuid5(uuid.NAMESPACE_URL, f"marlin-temp:{owner.socket_path}:{farm_printer.name}"))
         # `//api/...` (a base URL with a trailing slash, as pyoctoprintapi builds some) is redirected, method kept.
         slashes = web.normalize_path_middleware(
             append_slash=False, merge_slashes=True, redirect_class=web.HTTPPermanentRedirect
@@ -106,6 +110,9 @@ class OctoPrintApi:
                 web.get("/api/files/local", self.files),
                 web.post("/api/files/local", self.upload),
                 web.post("/api/files/local/{name}", self.file_command),
+                web.get("/plugin/appkeys/probe", self.appkeys_probe),
+                web.post("/plugin/appkeys/request", self.appkeys_request),
+                web.get("/plugin/appkeys/request/{token}", self.appkeys_poll),
             ]
         )
 
@@ -113,9 +120,12 @@ class OctoPrintApi:
 
     @web.middleware
     async def _auth(self, request: web.Request, handler: Any) -> web.StreamResponse:
-        given = request.headers.get("X-Api-Key") or request.query.get("apikey") or ""
-        if not hmac.compare_digest(given.encode(errors="surrogatepass"), self._key):
-            return _error(403, "Invalid API key")
+        given = (request.headers.get("X-Api-Key") or request.query.get("apikey") or "").encode(errors="surrogatepass")
+        # The app-key flow is how an app without a key gets one: open, as OctoPrint's plugin is.
+        if not request.path.startswith("/plugin/appkeys/"):
+            own = hmac.compare_digest(given, self._key)
+            if not (own | self.owner.app_keys.valid(given)):  # both compared, whichever matches
+                return _error(403, "Invalid API key")
         try:
             response: web.StreamResponse = await handler(request)
         except marlin_aio.MarlinError as exc:
@@ -196,8 +206,37 @@ class OctoPrintApi:
         return web.json_response({"current": current, "options": options})
 
     async def settings(self, request: web.Request) -> web.Response:
-        """`GET /api/settings`: nothing a slicer needs beyond that it answers."""
-        return web.json_response({"api": {"enabled": True}, "feature": {"sdSupport": False}, "webcam": {}})
+        """`GET /api/settings`: what clients read of OctoPrint's settings. Home Assistant takes
+        `plugins.discovery.upnpUuid` as the device's id (stable: the same service and printer give the same one
+        after a restart); every webcam field is there, with no webcam."""
+        webcam = {
+            "webcamEnabled": False,
+            "streamUrl": "",
+            "snapshotUrl": "",
+            "flipH": False,
+            "flipV": False,
+            "rotate90": False,
+            "bitrate": "",
+            "snapshotSslValidation": True,
+        }
+        discovery = {
+            "upnpUuid": self._uuid,
+            "publicHost": None,
+            "publicPort": None,
+            "pathPrefix": None,
+            "httpUsername": None,
+            "httpPassword": None,
+            "model": {"name": "marlin_aio", "vendor": "marlin_aio", "number": marlin_aio.__version__},
+        }
+        return web.json_response(
+            {
+                "api": {"enabled": True},
+                "appearance": {"name": self.farm_printer.name},
+                "feature": {"sdSupport": False},
+                "webcam": webcam,
+                "plugins": {"discovery": discovery},
+            }
+        )
 
     async def profiles(self, request: web.Request) -> web.Response:
         """`GET /api/printerprofiles`: one profile, with a heated bed if the printer reports one."""
@@ -379,6 +418,42 @@ class OctoPrintApi:
         if body.get("print"):
             await self._start(path)
         return web.Response(status=204)
+
+    # ------------------------------------------------------------------------------------------- app keys
+
+    async def appkeys_probe(self, request: web.Request) -> web.Response:
+        """`GET /plugin/appkeys/probe`: 204, the app-key flow is on."""
+        return web.Response(status=204)
+
+    async def appkeys_request(self, request: web.Request) -> web.Response:
+        """`POST /plugin/appkeys/request` `{"app", "user"?}`: 201 and where to poll; the owner is told how to decide."""
+        body = await _json(request)
+        try:
+            asked = self.owner.app_keys.request(body.get("app"), body.get("user"))
+        except AppKeyError as exc:
+            return _error(400, str(exc))
+        _log.warning(
+            "%r%s asks for an API key for the OctoPrint API: approve with `marlin-temp keys approve %s` "
+            "(or deny with `marlin-temp keys deny %s`)",
+            asked.app,
+            f" (user {asked.user!r})" if asked.user else "",
+            asked.token,
+            asked.token,
+        )
+        where = str(request.url.with_path(f"/plugin/appkeys/request/{asked.token}").with_query(None))
+        dialog = str(request.url.with_path(f"/plugin/appkeys/auth/{asked.token}").with_query(None))
+        return web.json_response(
+            {"app_token": asked.token, "auth_dialog": dialog}, status=201, headers={"Location": where}
+        )
+
+    async def appkeys_poll(self, request: web.Request) -> web.Response:
+        """`GET /plugin/appkeys/request/<token>`: 202 while the owner decides, 200 with the key once, else 404."""
+        decision, key = self.owner.app_keys.poll(request.match_info["token"])
+        if decision == "pending":
+            return web.json_response({"message": "Awaiting decision"}, status=202)
+        if decision == "granted":
+            return web.json_response({"api_key": key})
+        return _error(404, "No such request, or it was denied")
 
 
 async def _json(request: web.Request) -> dict[str, Any]:

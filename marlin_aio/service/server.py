@@ -51,6 +51,7 @@ from marlin_aio.protocol.rpc import (
     requests_to_json,
 )
 from marlin_aio.service import verbs
+from marlin_aio.service.appkeys import AppKeys
 from marlin_aio.service.history import History
 from marlin_aio.service.session import MAX_AUTHENTICATING, MAX_TCP_CLIENTS, Handler, Session, tcp_clients
 from marlin_aio.service.uploads import Uploads
@@ -172,6 +173,8 @@ class Service:
     ) -> None:
         self.socket_path = socket_path or default_socket_path()
         self.uploads = Uploads(uploads_dir or self.socket_path.parent / "uploads")
+        # The OctoPrint API's app keys, kept beside its API key in the service's private folder.
+        self.app_keys = AppKeys(self.socket_path.parent / "app-keys.json" if octoprint is not None else None)
         self.farm = Farm(specs, self._on_farm_event)
         self._on_event = on_event
         self.histories = {

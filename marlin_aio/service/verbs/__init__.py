@@ -9,11 +9,12 @@ verb behaves the same whichever way it is called: a cancel runs the job's one ca
 target over the limit or for a heater the printer lacks is refused the same way from every door.
 
 The verbs themselves are in `printer` (commands, temperatures, presets, prompts, the emergency stop, status),
-`jobs` (uploads, the print job: start, pause, resume, cancel, status) and `feeds` (subscriptions and history, the
-socket's own). Adding a verb is one `@verb(...)` entry beside its handler, and its tests.
+`jobs` (uploads, the print job: start, pause, resume, cancel, status), `feeds` (subscriptions and history, the
+socket's own) and `keys` (the OctoPrint API's app keys, the owner's socket's own). Adding a verb is one
+`@verb(...)` entry beside its handler, and its tests.
 """
 
-from marlin_aio.service.verbs import feeds, jobs, printer  # the verbs register themselves as they are imported
+from marlin_aio.service.verbs import feeds, jobs, keys, printer  # the verbs register themselves as they are imported
 from marlin_aio.service.verbs.table import (
     DOORS,
     NOT_HTTP,
@@ -61,6 +62,7 @@ __all__ = [
     "feeds",
     "heavy_verbs",
     "jobs",
+    "keys",
     "printer",
     "printer_of",
     "urgent_verbs",

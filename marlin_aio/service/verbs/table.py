@@ -16,6 +16,7 @@ from marlin_aio.protocol.rpc import INVALID_PARAMS, METHOD_NOT_FOUND, RpcError
 if TYPE_CHECKING:
     from marlin_aio.farm.presets import Preset
     from marlin_aio.farm.supervisor import Farm, FarmPrinter
+    from marlin_aio.service.appkeys import AppKeys
     from marlin_aio.service.history import History
     from marlin_aio.service.uploads import Uploads
 
@@ -150,6 +151,8 @@ class Owner(Protocol):
     """Files the service made of prints sent as lines (removed when their job ends), with their given names."""
     interrupted_jobs: dict[str, dict[str, object]]
     """By printer: the print an earlier service was running when it was killed or stopped (its own record)."""
+    app_keys: AppKeys
+    """The OctoPrint API's application keys: requests waiting for the owner's decision, and the keys issued."""
 
     @property
     def clients(self) -> int:
@@ -172,6 +175,7 @@ class FarmOwner:
     def __init__(self, farm: Farm, presets: tuple[Preset, ...]) -> None:
         import tempfile
 
+        from marlin_aio.service.appkeys import AppKeys
         from marlin_aio.service.history import History
         from marlin_aio.service.uploads import Uploads
 
@@ -183,6 +187,7 @@ class FarmOwner:
         self.socket_path = Path("(no socket)")
         self.sent_files: dict[Path, str] = {}
         self.interrupted_jobs: dict[str, dict[str, object]] = {}
+        self.app_keys = AppKeys(None)  # no HTTP door here: nobody asks
 
     @property
     def clients(self) -> int:

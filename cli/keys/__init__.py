@@ -1,0 +1,1 @@
+"""`marlin-temp keys`: the OctoPrint API's application keys of a service, decided by its owner."""
