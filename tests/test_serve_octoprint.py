@@ -272,3 +272,52 @@ async def test_a_denied_or_unknown_request_gets_no_key(octo: tuple[Served, str])
             assert response.status == 404
         async with session.get(f"{url}/api/version", headers={"X-Api-Key": "0" * 32}) as response:
             assert response.status == 403
+
+
+def test_octorests_file_printer_and_profile_calls_answer_as_octoprint_does(
+    octo: tuple[Served, str], tmp_path: Path
+) -> None:
+    # octorest 0.4's calls that were 404 or 405 (issue 35), each answered with OctoPrint 1.11's shape or status.
+    _, url = octo
+    client = OctoRest(url=url, apikey=KEY)
+    first, second = tmp_path / "first.gcode", tmp_path / "second.gcode"
+    first.write_bytes(_gcode(20))
+    second.write_bytes(_gcode(20))
+    client.upload(str(first))
+    client.upload(str(second))
+    # After `select`, the job names the file selected (not the previous print's).
+    client.select("second.gcode")
+    assert client.job_info()["job"]["file"]["name"] == "second.gcode"
+    info = client.files_info("local", "first.gcode")
+    assert info["name"] == "first.gcode" and info["size"] == first.stat().st_size
+    assert info["refs"]["resource"] == f"{url}/api/files/local/first.gcode"  # absolute, as OctoPrint's
+    listing = client.files()
+    assert {f["name"] for f in listing["files"]} >= {"first.gcode", "second.gcode"}
+    assert isinstance(listing["free"], int) and listing["free"] > 0
+    client.delete("local/first.gcode")
+    with pytest.raises(RuntimeError):
+        client.files_info("local", "first.gcode")  # 404 now
+    client.gcode("M118 from octorest")  # POST /api/printer/command, one command
+    client.gcode("M118 one\nM118 two")  # and a list
+    with pytest.raises(RuntimeError):
+        client.gcode("M104 S900")  # over the hotend's limit: refused (400), as at every door
+    profiles = client.printer_profiles()["profiles"]
+    assert profiles["_default"]["name"] and set(profiles["_default"]["axes"]) == {"x", "y", "z", "e"}
+    assert client.printer_profile("_default")["id"] == "_default"
+    options = client.connection_info()["options"]
+    assert all("name" in profile for profile in options["printerProfiles"])
+
+
+async def test_an_upload_says_where_the_file_is_as_cura_reads_it(octo: tuple[Served, str]) -> None:
+    # Cura's `_onUploadFinished` reads the 201's Location and splits it at `api/`.
+    _, url = octo
+    async with aiohttp.ClientSession() as session:
+        form = aiohttp.FormData()
+        form.add_field("file", _gcode(20), filename="cura part.gcode", content_type="application/octet-stream")
+        async with session.post(f"{url}/api/files/local", data=form, headers={"X-Api-Key": KEY}) as response:
+            assert response.status == 201
+            location = response.headers["Location"]
+            body = await response.json()
+    assert location.startswith(f"{url}/api/files/local/")
+    assert location.split("api/", 1)[1].startswith("files/local/")
+    assert body["files"]["local"]["refs"]["resource"] == location

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hmac
 import logging
+import shutil
 import uuid
 from pathlib import Path
 from typing import Any
@@ -50,6 +51,9 @@ from marlin_aio.service.verbs import Caller, Owner
 __all__ = ["OCTOPRINT_VERSION", "OctoPrintApi"]
 
 _log = logging.getLogger("marlin_aio.service.octoprint")
+
+#: Commands one `POST /api/printer/command` may carry (each goes in turn with every other caller's).
+MAX_COMMANDS = 100
 
 #: The OctoPrint release whose API this imitates (clients check it is at least 1.x).
 OCTOPRINT_VERSION = "1.10.0"
@@ -101,6 +105,7 @@ class OctoPrintApi:
                 web.get("/api/connection", self.connection),
                 web.get("/api/settings", self.settings),
                 web.get("/api/printerprofiles", self.profiles),
+                web.get("/api/printerprofiles/{profile}", self.profile),
                 web.get("/api/printer", self.printer),
                 web.post("/api/printer/tool", self.tool),
                 web.post("/api/printer/bed", self.bed),
@@ -110,6 +115,9 @@ class OctoPrintApi:
                 web.get("/api/files/local", self.files),
                 web.post("/api/files/local", self.upload),
                 web.post("/api/files/local/{name}", self.file_command),
+                web.get("/api/files/local/{name}", self.file_info),
+                web.delete("/api/files/local/{name}", self.file_delete),
+                web.post("/api/printer/command", self.printer_command),
                 web.get("/plugin/appkeys/probe", self.appkeys_probe),
                 web.post("/plugin/appkeys/request", self.appkeys_request),
                 web.get("/plugin/appkeys/request/{token}", self.appkeys_poll),
@@ -202,7 +210,11 @@ class OctoPrintApi:
             "baudrate": spec.baud,
             "printerProfile": "_default",
         }
-        options = {"ports": [current["port"]], "baudrates": [spec.baud], "printerProfiles": [{"id": "_default"}]}
+        options = {
+            "ports": [current["port"]],
+            "baudrates": [spec.baud],
+            "printerProfiles": [{"id": "_default", "name": self.farm_printer.name}],
+        }
         return web.json_response({"current": current, "options": options})
 
     async def settings(self, request: web.Request) -> web.Response:
@@ -240,10 +252,38 @@ class OctoPrintApi:
 
     async def profiles(self, request: web.Request) -> web.Response:
         """`GET /api/printerprofiles`: one profile, with a heated bed if the printer reports one."""
+        return web.json_response({"profiles": {"_default": self._profile(request)}})
+
+    def _profile(self, request: web.Request) -> dict[str, Any]:
+        """The one printer profile: the printer's name, its heaters as it reports them, its axes."""
         latest = self.farm_printer.latest
         bed = latest is not None and latest.bed is not None
-        profile = {"id": "_default", "name": self.farm_printer.name, "current": True, "default": True, "heatedBed": bed}
-        return web.json_response({"profiles": {"_default": profile}})
+        axis = {"speed": 6000, "inverted": False}
+        return {
+            "id": "_default",
+            "name": self.farm_printer.name,
+            "model": self.farm_printer.name,
+            "color": "default",
+            "current": True,
+            "default": True,
+            "resource": str(request.url.with_path("/api/printerprofiles/_default").with_query(None)),
+            "heatedBed": bed,
+            "heatedChamber": latest is not None and latest.temperatures.chamber is not None,
+            "volume": {"formFactor": "rectangular", "origin": "lowerleft", "width": 200, "depth": 200, "height": 200},
+            "axes": {
+                "x": axis,
+                "y": axis,
+                "z": {"speed": 200, "inverted": False},
+                "e": {"speed": 300, "inverted": False},
+            },
+            "extruder": {"count": 1, "offsets": [[0.0, 0.0]], "nozzleDiameter": 0.4, "sharedNozzle": False},
+        }
+
+    async def profile(self, request: web.Request) -> web.Response:
+        """`GET /api/printerprofiles/_default` (the one there is)."""
+        if request.match_info["profile"] != "_default":
+            raise web.HTTPNotFound(text="the one printer profile is _default")
+        return web.json_response(self._profile(request))
 
     async def printer(self, request: web.Request) -> web.Response:
         """`GET /api/printer`: temperatures and state flags (409 while the printer is not connected)."""
@@ -277,7 +317,14 @@ class OctoPrintApi:
     async def job(self, request: web.Request) -> web.Response:
         """`GET /api/job`: the printer's job (running or last run; or the file selected), and its progress."""
         job = await self._verb("job")
-        name = job["file"] if job is not None else (self.selected.name if self.selected else None)
+        # The file selected names the job until a print runs (OctoPrint's job is its selected file); a print
+        # running names it, whoever started it.
+        selected = None if self.selected is None else self.selected.name
+        if job is not None and (job["active"] or selected is None or job["file"] == selected):
+            name = job["file"]
+        else:
+            name = selected
+            job = None  # a file selected since the last print: its progress is not that print's
         file: dict[str, Any] = {"name": name, "path": name, "origin": "local" if name else None}
         progress: dict[str, Any] = {"completion": None, "filepos": None, "printTime": None, "printTimeLeft": None}
         snapshot = None if job is None or job["progress"] is None else progress_from_json(job["progress"])
@@ -297,8 +344,34 @@ class OctoPrintApi:
         """`GET /api/files`: the uploaded files."""
         folder = self.uploads.folder
         entries = sorted(folder.glob("*.gcode")) if folder.is_dir() else []
-        files = [_file_ref(path) | {"type": "machinecode", "size": path.stat().st_size} for path in entries]
-        return web.json_response({"files": files, "free": None})
+        files = [_file_ref(request, path) for path in entries]
+        usage = shutil.disk_usage(folder if folder.is_dir() else folder.parent)
+        return web.json_response({"files": files, "free": usage.free, "total": usage.total})
+
+    def _uploaded(self, request: web.Request) -> Path:
+        """The uploaded file `/api/files/local/NAME` names (404 if there is none)."""
+        name = request.match_info["name"]
+        with upload_errors(self.uploads, request):
+            check_name(name)
+        path = self.uploads.folder / name
+        if not self.uploads.is_finished(path):
+            raise web.HTTPNotFound(text=f"no uploaded file {name[:100]!r}")
+        return path
+
+    async def file_info(self, request: web.Request) -> web.Response:
+        """`GET /api/files/local/NAME`: one uploaded file (404 if there is none)."""
+        return web.json_response(_file_ref(request, self._uploaded(request)))
+
+    async def file_delete(self, request: web.Request) -> web.Response:
+        """`DELETE /api/files/local/NAME`: remove an uploaded file (409 while it is being printed)."""
+        path = self._uploaded(request)
+        job = self.farm_printer.job
+        if job is not None and job.active and self.selected == path:
+            raise web.HTTPConflict(text=f"{path.name} is being printed")
+        path.unlink(missing_ok=True)
+        if self.selected == path:
+            self.selected = None
+        return web.Response(status=204)
 
     # ------------------------------------------------------------------------------------------- act
 
@@ -346,6 +419,23 @@ class OctoPrintApi:
                 raise web.HTTPBadRequest(text=f"unknown pause action {str(action)[:20]!r}")
         else:
             raise web.HTTPBadRequest(text=f"unknown job command {str(command)[:20]!r}")
+        return web.Response(status=204)
+
+    async def printer_command(self, request: web.Request) -> web.Response:
+        """`POST /api/printer/command` `{"command": "G28"}` or `{"commands": [...]}`: each sent in turn, through the
+        same checks as every door's `send` (a target over the limits is refused, 400, and nothing after it goes)."""
+        body = await _json(request)
+        one, many = body.get("command"), body.get("commands")
+        if (one is None) == (many is None):
+            raise web.HTTPBadRequest(text='give "command" (a string) or "commands" (a list of strings)')
+        commands = [one] if many is None else many
+        if not isinstance(commands, list) or not all(isinstance(c, str) for c in commands):
+            raise web.HTTPBadRequest(text='"commands" is a list of strings')
+        if len(commands) > MAX_COMMANDS:
+            raise web.HTTPBadRequest(text=f"at most {MAX_COMMANDS} commands at once")
+        self._operational()
+        for command in commands:
+            await self._verb("send", command=command)
         return web.Response(status=204)
 
     async def _start(self, path: Path) -> None:
@@ -397,21 +487,16 @@ class OctoPrintApi:
                 if self.selected == stored:
                     self.selected = None
                 raise
-        files = {"local": _file_ref(stored)}
+        files = {"local": _file_ref(request, stored)}
         answer = {"files": files, "done": True, "effectiveSelect": select, "effectivePrint": start}
-        return web.json_response(answer, status=201)
+        return web.json_response(answer, status=201, headers={"Location": _resource(request, stored)})
 
     async def file_command(self, request: web.Request) -> web.Response:
         """`POST /api/files/local/NAME` `{"command": "select", "print": true}`: select an uploaded file, and print."""
         body = await _json(request)
         if body.get("command") != "select":
             raise web.HTTPBadRequest(text="only the select command is supported")
-        name = request.match_info["name"]
-        with upload_errors(self.uploads, request):
-            check_name(name)
-        path = self.uploads.folder / name
-        if not self.uploads.is_finished(path):
-            raise web.HTTPNotFound(text=f"no uploaded file {name[:100]!r}")
+        path = self._uploaded(request)
         if body.get("print"):
             self._check_can_start()
         self.selected = path
@@ -466,13 +551,28 @@ async def _json(request: web.Request) -> dict[str, Any]:
     return body
 
 
-def _file_ref(path: Path) -> dict[str, Any]:
-    """An uploaded file as OctoPrint's API names one (its name, origin and resource URL)."""
+def _resource(request: web.Request, path: Path) -> str:
+    """The absolute URL of an uploaded file, as the client reached the service (OctoPrint's refs are absolute, and
+    Cura reads the upload's `Location` and splits it at `api/`)."""
+    return str(request.url.with_path(f"/api/files/local/{path.name}").with_query(None))
+
+
+def _file_ref(request: web.Request, path: Path) -> dict[str, Any]:
+    """An uploaded file as OctoPrint's API names one: its name, origin, type, size, date and absolute URLs."""
+    stat = path.stat()
     return {
         "name": path.name,
+        "display": path.name,
         "path": path.name,
         "origin": "local",
-        "refs": {"resource": f"/api/files/local/{path.name}"},
+        "type": "machinecode",
+        "typePath": ["machinecode", "gcode"],
+        "size": stat.st_size,
+        "date": int(stat.st_mtime),
+        "refs": {
+            "resource": _resource(request, path),
+            "download": str(request.url.with_path(f"/downloads/files/local/{path.name}").with_query(None)),
+        },
     }
 
 

@@ -13,6 +13,7 @@ from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.protocol import check_gcode_targets, check_target, validate_command
 from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError, reading_to_json, reply_to_json, requests_to_json
 from marlin_aio.service.verbs.table import (
+    DOORS,
     NOT_HTTP,
     REQUIRED,
     SOCKETS,
@@ -141,7 +142,7 @@ async def link_stats(context: Context, args: dict[str, Any]) -> object:
     Arg("command", str, REQUIRED, "one G-code command"),
     Arg("timeout_s", float, None, "how long to wait for its ok (default: the printer's)"),
     access=Access.CONTROL,
-    doors=NOT_HTTP,
+    doors=DOORS,
     result="reply",
 )
 async def send(context: Context, args: dict[str, Any]) -> object:
