@@ -321,3 +321,18 @@ async def test_an_upload_says_where_the_file_is_as_cura_reads_it(octo: tuple[Ser
     assert location.startswith(f"{url}/api/files/local/")
     assert location.split("api/", 1)[1].startswith("files/local/")
     assert body["files"]["local"]["refs"]["resource"] == location
+
+
+def test_octorests_temperature_calls_take_exclude_history_and_limit(octo: tuple[Served, str]) -> None:
+    _, url = octo
+    client = OctoRest(url=url, apikey=KEY)
+    assert set(client.printer(exclude=["state"])) == {"temperature"}
+    assert set(client.printer(exclude=["temperature", "sd"])) == {"state"}
+    full = client.printer(history=True, limit=2)
+    history = full["temperature"]["history"]
+    assert 1 <= len(history) <= 2  # the service polls every 0.05 s: it has readings already
+    assert {"time", "tool0", "bed"} <= set(history[-1]) and set(history[-1]["tool0"]) == {"actual", "target"}
+    tools = client.tool(history=True, limit=1)
+    assert set(tools) == {"tool0", "history"} and set(tools["history"][0]) == {"time", "tool0"}
+    bed = client.bed()
+    assert set(bed) == {"bed"} and set(bed["bed"]) == {"actual", "target", "offset"}

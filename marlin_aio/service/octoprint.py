@@ -23,9 +23,11 @@ service's verbs (`marlin_aio.service.verbs`), read in one place.
 from __future__ import annotations
 
 import hmac
+import json
 import logging
 import shutil
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +56,9 @@ _log = logging.getLogger("marlin_aio.service.octoprint")
 
 #: Commands one `POST /api/printer/command` may carry (each goes in turn with every other caller's).
 MAX_COMMANDS = 100
+#: Readings a temperature history answers by default, and how far back it looks (OctoPrint keeps 300).
+HISTORY_READINGS = 300
+HISTORY_SECONDS = 600.0
 
 #: The OctoPrint release whose API this imitates (clients check it is at least 1.x).
 OCTOPRINT_VERSION = "1.10.0"
@@ -109,6 +114,8 @@ class OctoPrintApi:
                 web.get("/api/printer", self.printer),
                 web.post("/api/printer/tool", self.tool),
                 web.post("/api/printer/bed", self.bed),
+                web.get("/api/printer/tool", self.tools),
+                web.get("/api/printer/bed", self.bed_state),
                 web.get("/api/job", self.job),
                 web.post("/api/job", self.job_command),
                 web.get("/api/files", self.files),
@@ -286,33 +293,75 @@ class OctoPrintApi:
         return web.json_response(self._profile(request))
 
     async def printer(self, request: web.Request) -> web.Response:
-        """`GET /api/printer`: temperatures and state flags (409 while the printer is not connected)."""
+        """`GET /api/printer[?exclude=temperature,sd,state&history=true&limit=N]`: temperatures (with their history
+        if asked) and state flags (409 while the printer is not connected)."""
+        self._operational()
+        exclude = {part.strip() for part in request.query.get("exclude", "").split(",")}
+        info = await self._verb("status")
+        answer: dict[str, Any] = {}
+        if "temperature" not in exclude:
+            answer["temperature"] = await self._temperatures(request, info, lambda name: True)
+        if "state" not in exclude:
+            job = info["job"]
+            state = JobState(job["state"]) if job is not None and job["active"] else None
+            flags = {
+                "operational": True,
+                "printing": state in (JobState.STARTING, JobState.PRINTING),
+                "paused": state is JobState.PAUSED,
+                "pausing": False,
+                "resuming": False,
+                "cancelling": state is JobState.CANCELLING,
+                "finishing": False,
+                "closedOrError": False,
+                "error": False,
+                "ready": state is None,
+                "sdReady": False,
+            }
+            answer["state"] = {"text": self._state_text(), "error": "", "flags": flags}
+        return web.json_response(answer)
+
+    async def tools(self, request: web.Request) -> web.Response:
+        """`GET /api/printer/tool[?history=true&limit=N]`: the hotends' temperatures."""
         self._operational()
         info = await self._verb("status")
-        temperature: dict[str, dict[str, float | None]] = {}
+        return web.json_response(await self._temperatures(request, info, lambda name: name.startswith("tool")))
+
+    async def bed_state(self, request: web.Request) -> web.Response:
+        """`GET /api/printer/bed[?history=true&limit=N]`: the bed's temperature (409 if the printer reports none)."""
+        self._operational()
+        info = await self._verb("status")
+        answer = await self._temperatures(request, info, lambda name: name == "bed")
+        if "bed" not in answer:
+            raise web.HTTPConflict(text="the printer reports no heated bed")
+        return web.json_response(answer)
+
+    async def _temperatures(
+        self, request: web.Request, info: dict[str, Any], wanted: Callable[[str], bool]
+    ) -> dict[str, Any]:
+        """OctoPrint's temperature block of the heaters `wanted` keeps, with their `history` if the query asks
+        (`history=true`, the last `limit` readings, default 300; `limit=0` all, as OctoPrint reads it)."""
         latest = info["latest"]
-        for key, (actual, target, _power) in (latest["heaters"] if latest else {}).items():
-            name = {"T": "tool0", "B": "bed", "C": "chamber"}.get(key)
-            if name is None and key.startswith("T") and key[1:].isdigit():
-                name = f"tool{key[1:]}"
-            if name is not None and name not in temperature:
-                temperature[name] = {"actual": actual, "target": target, "offset": 0}
-        job = info["job"]
-        state = JobState(job["state"]) if job is not None and job["active"] else None
-        flags = {
-            "operational": True,
-            "printing": state in (JobState.STARTING, JobState.PRINTING),
-            "paused": state is JobState.PAUSED,
-            "pausing": False,
-            "resuming": False,
-            "cancelling": state is JobState.CANCELLING,
-            "finishing": False,
-            "closedOrError": False,
-            "error": False,
-            "ready": state is None,
-            "sdReady": False,
+        answer: dict[str, Any] = {
+            name: {"actual": actual, "target": target, "offset": 0}
+            for name, (actual, target) in _heaters(latest["heaters"] if latest else {}).items()
+            if wanted(name)
         }
-        return web.json_response({"temperature": temperature, "state": {"text": self._state_text(), "flags": flags}})
+        if request.query.get("history", "").lower() in ("true", "yes", "y", "1"):
+            text = request.query.get("limit", "")
+            limit = int(text) if text.isdigit() else HISTORY_READINGS
+            kept = await self._verb("history", seconds=HISTORY_SECONDS)
+            readings = json.loads(kept.json)["readings"]
+            entries = [
+                {"time": int(reading["time_s"])}
+                | {
+                    name: {"actual": actual, "target": target}
+                    for name, (actual, target) in _heaters(reading["heaters"]).items()
+                    if wanted(name)
+                }
+                for reading in readings
+            ]
+            answer["history"] = entries[-limit:] if limit else entries
+        return answer
 
     async def job(self, request: web.Request) -> web.Response:
         """`GET /api/job`: the printer's job (running or last run; or the file selected), and its progress."""
@@ -539,6 +588,19 @@ class OctoPrintApi:
         if decision == "granted":
             return web.json_response({"api_key": key})
         return _error(404, "No such request, or it was denied")
+
+
+def _heaters(heaters: dict[str, list[float | None]]) -> dict[str, tuple[float | None, float | None]]:
+    """The service's heaters (`T`, `T1`, `B`, `C`: `[actual, target, power]`) by OctoPrint's names (`tool0`,
+    `tool1`, `bed`, `chamber`); others (a probe, the board) are not OctoPrint's."""
+    named: dict[str, tuple[float | None, float | None]] = {}
+    for key, (actual, target, *_power) in heaters.items():
+        name = {"T": "tool0", "B": "bed", "C": "chamber"}.get(key)
+        if name is None and key.startswith("T") and key[1:].isdigit():
+            name = f"tool{key[1:]}"
+        if name is not None and name not in named:
+            named[name] = (actual, target)
+    return named
 
 
 async def _json(request: web.Request) -> dict[str, Any]:

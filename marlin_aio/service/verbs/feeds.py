@@ -11,7 +11,17 @@ from typing import Any
 import marlin_aio
 from marlin_aio.protocol.rpc import INVALID_PARAMS, RpcError
 from marlin_aio.service.verbs.printer import info
-from marlin_aio.service.verbs.table import SOCKETS, Access, Arg, Context, Encoded, Queue, Subscriber, verb
+from marlin_aio.service.verbs.table import (
+    SOCKETS,
+    SOCKETS_AND_HTTP,
+    Access,
+    Arg,
+    Context,
+    Encoded,
+    Queue,
+    Subscriber,
+    verb,
+)
 
 __all__ = ["MAX_HISTORY_READINGS", "TOPICS"]
 
@@ -87,7 +97,7 @@ async def unsubscribe(context: Context, args: dict[str, Any]) -> object:
     Arg("seconds", float, 300.0, "how far back"),
     access=Access.READ,
     queue=Queue.HEAVY,
-    doors=SOCKETS,
+    doors=SOCKETS_AND_HTTP,
     result="{readings, console}",
 )
 async def history(context: Context, args: dict[str, Any]) -> object:
