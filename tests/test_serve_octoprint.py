@@ -336,3 +336,29 @@ def test_octorests_temperature_calls_take_exclude_history_and_limit(octo: tuple[
     assert set(tools) == {"tool0", "history"} and set(tools["history"][0]) == {"time", "tool0"}
     bed = client.bed()
     assert set(bed) == {"bed"} and set(bed["bed"]) == {"actual", "target", "offset"}
+
+
+def test_octorests_printhead_and_tool_calls_move_home_and_refuse_what_is_out_of_bounds(
+    octo: tuple[Served, str],
+) -> None:
+    _, url = octo
+    client = OctoRest(url=url, apikey=KEY)
+    client.home(["x", "y"])  # G28 X Y
+    client.jog(x=10, y=-5)  # relative G1
+    client.jog()  # no axes: nothing to do, as OctoPrint takes it
+    client.feedrate(90)  # M220 S90
+    client.feedrate(1.1)  # a fraction: 110 %
+    client.flowrate(95)  # M221 S95
+    client.tool_select("tool0")  # T0
+    client.extrude(1)  # cold: the printer's own answer, not an error
+    client.tool_target(30)
+    for call in (
+        lambda: client.jog(x=1e9),  # beyond any printer
+        lambda: client.feedrate(5000),
+        lambda: client.tool_select("nozzle"),
+        lambda: client.tool_target({"tool7x": 30}),
+        lambda: client.tool_target(900),  # over the hotend's limit
+    ):
+        with pytest.raises(RuntimeError):
+            call()
+    assert client.printer()["state"]["flags"]["operational"]

@@ -36,6 +36,7 @@ from aiohttp import web
 import marlin_aio
 from marlin_aio.farm.job import JobState
 from marlin_aio.farm.supervisor import FarmPrinter
+from marlin_aio.protocol.motion import extrude_commands, home_command, move_commands
 from marlin_aio.protocol.rpc import RpcError, progress_from_json
 from marlin_aio.service import verbs
 from marlin_aio.service.appkeys import AppKeyError
@@ -59,6 +60,11 @@ MAX_COMMANDS = 100
 #: Readings a temperature history answers by default, and how far back it looks (OctoPrint keeps 300).
 HISTORY_READINGS = 300
 HISTORY_SECONDS = 600.0
+#: Feed and flow rate factors accepted (OctoPrint's own checks once were 50..200 %).
+MIN_FACTOR_PERCENT = 10
+MAX_FACTOR_PERCENT = 500
+#: An extrusion's speed when the request gives none (mm/min).
+EXTRUDE_MM_MIN = 300.0
 
 #: The OctoPrint release whose API this imitates (clients check it is at least 1.x).
 OCTOPRINT_VERSION = "1.10.0"
@@ -115,6 +121,7 @@ class OctoPrintApi:
                 web.post("/api/printer/tool", self.tool),
                 web.post("/api/printer/bed", self.bed),
                 web.get("/api/printer/tool", self.tools),
+                web.post("/api/printer/printhead", self.printhead),
                 web.get("/api/printer/bed", self.bed_state),
                 web.get("/api/job", self.job),
                 web.post("/api/job", self.job_command),
@@ -425,25 +432,81 @@ class OctoPrintApi:
     # ------------------------------------------------------------------------------------------- act
 
     async def tool(self, request: web.Request) -> web.Response:
-        """`POST /api/printer/tool` `{"command": "target", "targets": {"tool0": 200}}`."""
+        """`POST /api/printer/tool`: `target` (`{"targets": {"tool0": 200}}`), `select` (`{"tool": "tool1"}`),
+        `extrude` (`{"amount": 5, "speed"?}`, 409 while printing), `flowrate` (`{"factor": 90}`); each through the
+        `send` or `set_temperatures` verb, so with the limits every door checks. Unknown tools are refused (400)."""
         body = await _json(request)
-        if body.get("command") != "target" or not isinstance(body.get("targets"), dict):
-            raise web.HTTPBadRequest(text="only the target command is supported")
+        command = body.get("command")
         self._operational()
-        for name, target in body["targets"].items():
-            if not (isinstance(name, str) and name.startswith("tool") and name[4:].isdigit()):
-                raise web.HTTPBadRequest(text=f"unknown tool {str(name)[:20]!r}")
-            await self._verb("set_temperatures", hotend=target, tool=int(name[4:]))
+        if command == "target":
+            targets = body.get("targets")
+            if not isinstance(targets, dict) or not targets:
+                raise web.HTTPBadRequest(text='target needs "targets": {"tool0": celsius, ...}')
+            for name, target in targets.items():
+                await self._verb("set_temperatures", hotend=target, tool=_tool_index(name))
+        elif command == "select":
+            await self._send_all([f"T{_tool_index(body.get('tool'))}"])
+        elif command == "extrude":
+            self._check_idle("extrude")
+            speed = body.get("speed", EXTRUDE_MM_MIN)
+            amount: Any = body.get("amount")  # checked by extrude_commands (a 400 if it is no distance)
+            await self._send_all(_motion(lambda: extrude_commands(amount, feedrate_mm_min=speed)))
+        elif command == "flowrate":
+            await self._send_all([f"M221 S{_percent(body.get('factor'))}"])
+        elif command == "offset":
+            raise web.HTTPBadRequest(text="temperature offsets are not supported: set the target you want")
+        else:
+            raise web.HTTPBadRequest(text=f"unknown tool command {str(command)[:20]!r}")
         return web.Response(status=204)
 
     async def bed(self, request: web.Request) -> web.Response:
-        """`POST /api/printer/bed` `{"command": "target", "target": 60}`."""
+        """`POST /api/printer/bed` `{"command": "target", "target": 60}` (409 without a heated bed)."""
         body = await _json(request)
-        if body.get("command") != "target":
-            raise web.HTTPBadRequest(text="only the target command is supported")
+        command = body.get("command")
+        if command == "offset":
+            raise web.HTTPBadRequest(text="temperature offsets are not supported: set the target you want")
+        if command != "target":
+            raise web.HTTPBadRequest(text=f"unknown bed command {str(command)[:20]!r}")
         self._operational()
         await self._verb("set_temperatures", bed=body.get("target"))
         return web.Response(status=204)
+
+    async def printhead(self, request: web.Request) -> web.Response:
+        """`POST /api/printer/printhead`: `jog` (`{"x"?, "y"?, "z"?, "absolute"?, "speed"?}` mm and mm/min),
+        `home` (`{"axes": ["x", "y"]}`), `feedrate` (`{"factor": 100}` percent, or 1.0); within the moves' limits
+        (`marlin_aio.protocol.motion`), each command through the `send` verb. 409 while printing, but feedrate."""
+        body = await _json(request)
+        command = body.get("command")
+        self._operational()
+        if command == "jog":
+            self._check_idle("jog")
+            axes = {axis: body[axis] for axis in ("x", "y", "z") if body.get(axis) not in (None, 0)}
+            if axes:
+                relative = not body.get("absolute", False)
+                speed = body.get("speed")
+                await self._send_all(
+                    _motion(lambda: move_commands(**axes, feedrate_mm_min=speed or None, relative=relative))
+                )
+        elif command == "home":
+            self._check_idle("home")
+            homed = body.get("axes")
+            if not isinstance(homed, list) or not homed:
+                raise web.HTTPBadRequest(text='home needs "axes": a list of x, y, z')
+            await self._send_all(_motion(lambda: [home_command(homed)]))
+        elif command == "feedrate":
+            await self._send_all([f"M220 S{_percent(body.get('factor'))}"])
+        else:
+            raise web.HTTPBadRequest(text=f"unknown printhead command {str(command)[:20]!r}")
+        return web.Response(status=204)
+
+    def _check_idle(self, what: str) -> None:
+        job = self.farm_printer.job
+        if job is not None and job.active:
+            raise web.HTTPConflict(text=f"cannot {what} while printing: {job.describe()}")
+
+    async def _send_all(self, commands: list[str]) -> None:
+        for command in commands:
+            await self._verb("send", command=command)
 
     async def job_command(self, request: web.Request) -> web.Response:
         """`POST /api/job`: start (the selected file), cancel, pause (`action` pause, resume or toggle), restart."""
@@ -601,6 +664,32 @@ def _heaters(heaters: dict[str, list[float | None]]) -> dict[str, tuple[float | 
         if name is not None and name not in named:
             named[name] = (actual, target)
     return named
+
+
+def _tool_index(name: object) -> int:
+    """The number of OctoPrint's `toolN` (400 for anything else)."""
+    if not (isinstance(name, str) and name.startswith("tool") and name[4:].isdigit() and len(name) <= 6):
+        raise web.HTTPBadRequest(text=f"unknown tool {str(name)[:20]!r}: tools are tool0, tool1, ...")
+    return int(name[4:])
+
+
+def _percent(factor: object) -> int:
+    """OctoPrint's factor as a percentage: an integer is one, a float is a fraction (1.0 is 100); 400 outside
+    `MIN_FACTOR_PERCENT`..`MAX_FACTOR_PERCENT`."""
+    if isinstance(factor, bool) or not isinstance(factor, int | float):
+        raise web.HTTPBadRequest(text='"factor" is a number: a percentage, or a fraction as 1.0')
+    percent = round(factor * 100) if isinstance(factor, float) else factor
+    if not MIN_FACTOR_PERCENT <= percent <= MAX_FACTOR_PERCENT:
+        raise web.HTTPBadRequest(text=f"factor {percent} % is outside {MIN_FACTOR_PERCENT}..{MAX_FACTOR_PERCENT} %")
+    return percent
+
+
+def _motion(build: Callable[[], list[str]]) -> list[str]:
+    """The commands `build` makes, its ValueError (a distance or speed out of bounds) as a 400."""
+    try:
+        return build()
+    except (TypeError, ValueError) as exc:
+        raise web.HTTPBadRequest(text=str(exc)) from None
 
 
 async def _json(request: web.Request) -> dict[str, Any]:
