@@ -9,7 +9,7 @@ import asyncio
 import re
 import socket
 import sys
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 
 import aiohttp
@@ -17,7 +17,7 @@ import pytest
 from conftest import until
 from octorest import OctoRest
 from pyoctoprintapi import OctoprintClient
-from pyoctoprintapi.exceptions import ApiError, UnauthorizedException
+from pyoctoprintapi.exceptions import ApiError, PrinterOffline, UnauthorizedException
 from test_serve import Served, serving
 
 from marlin_aio.service.uploads import UploadError, Uploads, safe_name
@@ -352,13 +352,35 @@ def test_octorests_printhead_and_tool_calls_move_home_and_refuse_what_is_out_of_
     client.tool_select("tool0")  # T0
     client.extrude(1)  # cold: the printer's own answer, not an error
     client.tool_target(30)
-    for call in (
+    refused: list[Callable[[], object]] = [
         lambda: client.jog(x=1e9),  # beyond any printer
         lambda: client.feedrate(5000),
         lambda: client.tool_select("nozzle"),
         lambda: client.tool_target({"tool7x": 30}),
         lambda: client.tool_target(900),  # over the hotend's limit
-    ):
+    ]
+    for call in refused:
         with pytest.raises(RuntimeError):
             call()
     assert client.printer()["state"]["flags"]["operational"]
+
+
+async def test_home_assistants_connect_service_closes_and_reopens_the_port(octo: tuple[Served, str]) -> None:
+    # HA's `octoprint.printer_connect` and pyoctoprintapi's disconnect: POST /api/connection.
+    served, url = octo
+    port = int(url.rsplit(":", 1)[1])
+    async with aiohttp.ClientSession() as session:
+        client = OctoprintClient("127.0.0.1", session, port=port)
+        client.set_api_key(KEY)
+        await client.disconnect()
+        await until(lambda: any(": disconnected:" in line for line in served.lines), "the port to close")
+        with pytest.raises(PrinterOffline):
+            await client.get_printer_info()  # 409: offline, as OctoPrint says it
+        assert (await client.get_job_info()).state == "Offline"
+        async with session.post(
+            f"{url}/api/connection", json={"command": "connect", "port": "/dev/other"}, headers={"X-Api-Key": KEY}
+        ) as response:
+            assert response.status == 400  # not the port this printer is on
+        await client.connect()
+        await until(lambda: sum(": connected:" in line for line in served.lines) >= 2, "the port to open again")
+        assert (await client.get_printer_info()).state.flags.operational

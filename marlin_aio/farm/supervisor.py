@@ -160,6 +160,8 @@ class FarmPrinter:
     """The board's MACHINE_TYPE from M115, if it says."""
     reconnect_at_s: float | None = None
     """While the supervisor waits to reconnect: when it tries again (`time.monotonic()`), else None."""
+    closed_on_request: bool = False
+    """Its port was closed on request (`Farm.disconnect`) and stays closed until `Farm.connect`."""
     reading_listeners: list[Callable[[marlin_aio.TemperatureReading], None]] = field(default_factory=list)
     """Called with every reading after it is kept (a farm view keeps each printer's history with one)."""
     request_listeners: list[Callable[[marlin_aio.HostRequest], None]] = field(default_factory=list)
@@ -269,6 +271,7 @@ class Farm:
         self.wire_log: WireLog | None = None
         """Where every printer's wire goes, each line with the printer's name (set before `run`), or None."""
         self._group: asyncio.TaskGroup | None = None
+        self._supervisors: dict[str, asyncio.Task[None]] = {}  # by printer: the task that keeps it connected
         # --- issue 33 life cycle hook: the service bounds each print's feed by its record (service.lifecycle)
         self.feed_guard: Callable[[FarmPrinter, Path], FeedGuard] | None = None
         """Makes the guard of each print started (None: prints are not bounded)."""
@@ -280,11 +283,48 @@ class Farm:
             async with asyncio.TaskGroup() as group:
                 self._group = group  # prints run here, next to their printer's supervisor
                 for farm_printer in self.printers.values():
-                    group.create_task(self._supervise(farm_printer), name=f"printer {farm_printer.name}")
+                    self.connect(farm_printer)
+                # Until cancelled, whether or not a printer is connected: a printer disconnected on request
+                # (`disconnect`) must not end the farm with its supervisor.
+                await asyncio.Event().wait()
         finally:
             self._group = None
+            self._supervisors.clear()
             for server in self.sims.values():
                 await server.aclose()
+
+    def connect(self, farm_printer: FarmPrinter) -> None:
+        """Keep the printer connected (again, after `disconnect`): open its port, and reopen it whenever it is lost.
+
+        Raises:
+            RuntimeError: the farm is not running.
+        """
+        if farm_printer.name in self._supervisors:
+            return  # connected, or trying to be
+        if self._group is None:
+            raise RuntimeError("the farm is not running")
+        farm_printer.closed_on_request = False
+        task = self._group.create_task(self._supervise(farm_printer), name=f"printer {farm_printer.name}")
+        self._supervisors[farm_printer.name] = task
+
+    async def disconnect(self, farm_printer: FarmPrinter) -> None:
+        """Close the printer's port and keep it closed until `connect` (heaters are left as they are, as
+        OctoPrint's disconnect leaves them).
+
+        Raises:
+            RuntimeError: a print is running (cancel it first).
+        """
+        job = farm_printer.job
+        if job is not None and job.active:
+            raise RuntimeError(f"a print is running: {job.describe()}; cancel it before disconnecting")
+        task = self._supervisors.pop(farm_printer.name, None)
+        if task is None:
+            return
+        task.cancel()
+        await asyncio.wait([task])  # its port closed (the printer's context ends as the task does)
+        farm_printer.closed_on_request = True
+        farm_printer.reconnect_at_s = None
+        self.emit(farm_printer, "disconnected", "its port was closed on request; connect to open it again")
 
     async def start_print(
         self,

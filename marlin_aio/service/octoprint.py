@@ -114,6 +114,7 @@ class OctoPrintApi:
                 web.get("/api/version", self.version),
                 web.get("/api/server", self.server),
                 web.get("/api/connection", self.connection),
+                web.post("/api/connection", self.connection_command),
                 web.get("/api/settings", self.settings),
                 web.get("/api/printerprofiles", self.profiles),
                 web.get("/api/printerprofiles/{profile}", self.profile),
@@ -230,6 +231,23 @@ class OctoPrintApi:
             "printerProfiles": [{"id": "_default", "name": self.farm_printer.name}],
         }
         return web.json_response({"current": current, "options": options})
+
+    async def connection_command(self, request: web.Request) -> web.Response:
+        """`POST /api/connection` `{"command": "connect" | "disconnect" | "fake_ack"}`: open or close the port the
+        service holds (a `port` or `baudrate` other than its own is refused, 400; a disconnect while printing, 409)."""
+        body = await _json(request)
+        command = body.get("command")
+        spec = self.farm_printer.spec
+        if command == "connect":
+            port, baud = body.get("port"), body.get("baudrate")
+            if port not in (None, "AUTO", spec.port or "sim") or baud not in (None, 0, spec.baud):
+                raise web.HTTPBadRequest(text=f"this printer is on {spec.port or 'sim'} at {spec.baud} baud")
+            await self._verb("connect")
+        elif command == "disconnect":
+            await self._verb("disconnect")
+        elif command != "fake_ack":  # nothing to acknowledge: the library never waits for an ok it lost
+            raise web.HTTPBadRequest(text=f"unknown connection command {str(command)[:20]!r}")
+        return web.Response(status=204)
 
     async def settings(self, request: web.Request) -> web.Response:
         """`GET /api/settings`: what clients read of OctoPrint's settings. Home Assistant takes

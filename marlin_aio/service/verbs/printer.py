@@ -252,3 +252,19 @@ async def apply_preset(context: Context, args: dict[str, Any]) -> object:
     check_heaters(farm_printer, dict(targets), None)
     await connected(farm_printer).set_temperatures(hotend=targets.get("hotend"), bed=targets.get("bed"))
     return {"targets": dict(targets), "preset": preset.name}
+
+
+@verb("connect", access=Access.CONTROL, doors=SOCKETS_AND_HTTP, result="{connected: bool}")
+async def connect(context: Context, args: dict[str, Any]) -> object:
+    """Open the printer's port again after a `disconnect`, and keep it open (reopened whenever it is lost)."""
+    farm_printer = context.farm_printer
+    context.owner.farm.connect(farm_printer)
+    return {"connected": farm_printer.link_up}
+
+
+@verb("disconnect", access=Access.CONTROL, doors=SOCKETS_AND_HTTP, result="{disconnected: true}")
+async def disconnect(context: Context, args: dict[str, Any]) -> object:
+    """Close the printer's port and keep it closed until `connect` (refused while a print runs; heaters are left
+    as they are)."""
+    await context.owner.farm.disconnect(context.farm_printer)
+    return {"disconnected": True}
