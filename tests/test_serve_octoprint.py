@@ -206,20 +206,29 @@ def _token(lines: list[str]) -> str | None:
     return None
 
 
+async def _ask_for_key(
+    session: aiohttp.ClientSession, octo: tuple[Served, str], app: str, user: str
+) -> tuple[OctoprintClient, asyncio.Task[str], str]:
+    """pyoctoprintapi's `request_app_key` under way (as Home Assistant calls it), and the token the service said."""
+    served, url = octo
+    client = OctoprintClient("127.0.0.1", session, port=int(url.rsplit(":", 1)[1]))
+    asking = asyncio.create_task(client.request_app_key(app, user, 300))
+    await until(lambda: _token(served.lines) is not None, "the service to say that a request waits")
+    token = _token(served.lines)
+    assert token is not None
+    return client, asking, token
+
+
 async def test_home_assistants_config_flow_gets_a_key_once_the_owner_approves_it(
     octo: tuple[Served, str],
 ) -> None:
     # Home Assistant's config flow, with its own library (pyoctoprintapi): probe, request, poll until the owner
     # decides, then the key, the discovery info (its device id), the printer and the job.
-    served, url = octo
-    port = int(url.rsplit(":", 1)[1])
+    served, _ = octo
     service = f"serve:sim@{served.socket}"
     async with aiohttp.ClientSession() as session:
-        client = OctoprintClient("127.0.0.1", session, port=port)
-        asking = asyncio.create_task(client.request_app_key("Home Assistant", "homeassistant", 300))
-        await until(lambda: _token(served.lines) is not None, "the service to say that a request waits")
-        token = _token(served.lines)
-        assert token is not None and not asking.done()  # nothing is handed out before the owner decides
+        client, asking, token = await _ask_for_key(session, octo, "Home Assistant", "homeassistant")
+        assert not asking.done()  # nothing is handed out before the owner decides
         code, output = await _marlin_temp("keys", "--port", service)
         assert code == 0 and f"waiting: Home Assistant (user homeassistant): marlin-temp keys approve {token}" in output
         code, output = await _marlin_temp("keys", "approve", token, "--port", service)
@@ -246,14 +255,9 @@ async def test_home_assistants_config_flow_gets_a_key_once_the_owner_approves_it
 
 async def test_a_denied_or_unknown_request_gets_no_key(octo: tuple[Served, str]) -> None:
     served, url = octo
-    port = int(url.rsplit(":", 1)[1])
     service = f"serve:sim@{served.socket}"
     async with aiohttp.ClientSession() as session:
-        client = OctoprintClient("127.0.0.1", session, port=port)
-        asking = asyncio.create_task(client.request_app_key("Some App", "", 300))
-        await until(lambda: _token(served.lines) is not None, "the service to say that a request waits")
-        token = _token(served.lines)
-        assert token is not None
+        _, asking, token = await _ask_for_key(session, octo, "Some App", "")
         code, output = await _marlin_temp("keys", "deny", token, "--port", service)
         assert code == 0 and "denied" in output
         with pytest.raises(ApiError):
