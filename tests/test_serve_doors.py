@@ -254,3 +254,22 @@ async def test_a_served_cancel_with_an_empty_script_keeps_the_heaters(tmp_path: 
         assert reading.hotend is not None and reading.hotend.target == 200
         assert reading.bed is not None and reading.bed.target == 60
     assert any("cancel_script: part.gcode: ran nothing" in line for line in served.lines), served.lines
+
+
+@pytest.mark.parametrize("door", ["tcp", "mqtt", "http"])
+async def test_only_the_owners_socket_decides_app_keys(door: verbs.Door) -> None:
+    # An app that asks for a key must never be the one that grants it: a TCP client (another machine), an MQTT
+    # command or the HTTP API itself are told there is no such method, and the request still waits.
+    from marlin_aio.farm.supervisor import Farm, PrinterSpec
+    from marlin_aio.protocol.rpc import METHOD_NOT_FOUND, RpcError
+
+    owner = verbs.FarmOwner(Farm([PrinterSpec("sim", None, sim=True)], lambda event: None), ())
+    asked = owner.app_keys.request("Some App")
+    for name, params in (("approve_key", {"token": asked.token}), ("keys", {}), ("revoke_key", {"key": "Some App"})):
+        with pytest.raises(RpcError) as refused:
+            await verbs.call(owner, name, params, verbs.Caller(door, "someone"))
+        assert refused.value.code == METHOD_NOT_FOUND
+    assert [request.token for request in owner.app_keys.pending()] == [asked.token]
+    params = {"token": asked.token, "printer": "sim"}
+    approved = await verbs.call(owner, "approve_key", params, verbs.Caller("socket", "owner"))
+    assert approved == {"token": asked.token, "app": "Some App", "user": "", "approved": True}
