@@ -20,6 +20,7 @@ from pyoctoprintapi import OctoprintClient
 from pyoctoprintapi.exceptions import ApiError, PrinterOffline, UnauthorizedException
 from test_serve import Served, serving
 
+import marlin_aio
 from marlin_aio.service.uploads import UploadError, Uploads, safe_name
 
 KEY = "0123456789abcdef0123456789abcdef"
@@ -388,3 +389,44 @@ async def test_home_assistants_connect_service_closes_and_reopens_the_port(octo:
         await client.connect()
         await until(lambda: sum(": connected:" in line for line in served.lines) >= 2, "the port to open again")
         assert (await client.get_printer_info()).state.flags.operational
+
+
+def _relative_moves(count: int) -> bytes:
+    """A print whose end position counts the moves that ran: each line moves X by 0.1 mm, relative."""
+    return ("G91\n" + "G1 X0.1 F6000\n" * count + "G90\n").encode()
+
+
+@pytest.mark.parametrize(
+    ("slicer", "fields"),
+    [
+        # PrusaSlicer's and OrcaSlicer's OctoPrint host: the file, then `print` (and an empty `path`).
+        ("prusaslicer", {"print": "true", "path": ""}),
+        # Cura's OctoPrint plugin with "start print job after uploading": `select` and `print`.
+        ("cura", {"select": "true", "print": "true"}),
+    ],
+)
+async def test_a_slicers_upload_and_print_runs_every_line_once(
+    octo: tuple[Served, str], slicer: str, fields: dict[str, str]
+) -> None:
+    served, url = octo
+    lines = 300
+    async with marlin_aio.connect(f"serve:sim@{served.socket}") as printer:
+        start = (await printer.position())["X"]
+        async with aiohttp.ClientSession() as session:
+            form = aiohttp.FormData()
+            form.add_field("file", _relative_moves(lines), filename=f"{slicer}.gcode")
+            for name, value in fields.items():
+                form.add_field(name, value)
+            async with session.post(f"{url}/api/files/local", data=form, headers={"X-Api-Key": KEY}) as response:
+                assert response.status == 201, await response.text()
+                assert (await response.json())["effectivePrint"] is True
+            state = ""
+            for _ in range(3000):  # bounded polling of the job, as the slicers' monitors do
+                async with session.get(f"{url}/api/job", headers={"X-Api-Key": KEY}) as response:
+                    job = await response.json()
+                state = job["state"]
+                if state == "Operational" and job["progress"]["completion"] == 100.0:
+                    break
+            assert state == "Operational" and job["job"]["file"]["name"] == f"{slicer}.gcode"
+        # Every line ran once: the head is 300 x 0.1 mm further, neither a move more nor a move less.
+        assert (await printer.position())["X"] == pytest.approx(start + lines * 0.1, abs=1e-6)
