@@ -14,6 +14,7 @@ from pathlib import Path
 
 import aiohttp
 import pytest
+import requests
 from conftest import until
 from octorest import OctoRest
 from pyoctoprintapi import OctoprintClient
@@ -430,3 +431,24 @@ async def test_a_slicers_upload_and_print_runs_every_line_once(
             assert state == "Operational" and job["job"]["file"]["name"] == f"{slicer}.gcode"
         # Every line ran once: the head is 300 x 0.1 mm further, neither a move more nor a move less.
         assert (await printer.position())["X"] == pytest.approx(start + lines * 0.1, abs=1e-6)
+
+
+def test_octorests_chamber_custom_and_system_calls_answer_as_octoprint_without_them(
+    octo: tuple[Served, str],
+) -> None:
+    # What OctoPrint 1.11 answers for a printer without a chamber, with no custom controls and no system commands.
+    _, url = octo
+    client = OctoRest(url=url, apikey=KEY)
+    assert client.custom_control_request() == {"controls": []}
+    assert client.system_commands() == {"core": [], "plugin": [], "custom": []}
+    assert client.source_system_commands("core") == []
+    # octorest raises on each; the statuses, read directly, are OctoPrint's: 409 without a heated chamber, 404 for a
+    # system command it does not have.
+    with pytest.raises(RuntimeError):
+        client.chamber()
+    headers = {"X-Api-Key": KEY}
+    assert requests.get(f"{url}/api/printer/chamber", headers=headers, timeout=30).status_code == 409
+    target: dict[str, str | int] = {"command": "target", "target": 40}
+    assert requests.post(f"{url}/api/printer/chamber", json=target, headers=headers, timeout=30).status_code == 409
+    reboot = f"{url}/api/system/commands/core/reboot"
+    assert requests.post(reboot, headers=headers, timeout=30).status_code == 404

@@ -123,6 +123,12 @@ class OctoPrintApi:
                 web.post("/api/printer/bed", self.bed),
                 web.get("/api/printer/tool", self.tools),
                 web.post("/api/printer/printhead", self.printhead),
+                web.get("/api/printer/chamber", self.chamber_state),
+                web.post("/api/printer/chamber", self.chamber),
+                web.get("/api/printer/command/custom", self.custom_controls),
+                web.get("/api/system/commands", self.system_commands),
+                web.get("/api/system/commands/{source}", self.system_commands),
+                web.post("/api/system/commands/{source}/{action}", self.system_command),
                 web.get("/api/printer/bed", self.bed_state),
                 web.get("/api/job", self.job),
                 web.post("/api/job", self.job_command),
@@ -359,6 +365,46 @@ class OctoPrintApi:
         if "bed" not in answer:
             raise web.HTTPConflict(text="the printer reports no heated bed")
         return web.json_response(answer)
+
+    async def chamber_state(self, request: web.Request) -> web.Response:
+        """`GET /api/printer/chamber[?history=true&limit=N]`: the chamber's temperature (409 if the printer
+        reports none, as OctoPrint answers without a heated chamber)."""
+        self._operational()
+        info = await self._verb("status")
+        answer = await self._temperatures(request, info, lambda name: name == "chamber")
+        if "chamber" not in answer:
+            raise web.HTTPConflict(text="the printer reports no heated chamber")
+        return web.json_response(answer)
+
+    async def chamber(self, request: web.Request) -> web.Response:
+        """`POST /api/printer/chamber` `{"command": "target", "target": 40}` (409 without a heated chamber)."""
+        body = await _json(request)
+        if body.get("command") != "target":
+            raise web.HTTPBadRequest(text="temperature offsets are not supported: set the target you want")
+        self._operational()
+        latest = self.farm_printer.latest
+        if latest is None or latest.temperatures.chamber is None:
+            raise web.HTTPConflict(text="the printer reports no heated chamber")
+        await self._verb("set_temperatures", chamber=body.get("target"))
+        return web.Response(status=204)
+
+    async def custom_controls(self, request: web.Request) -> web.Response:
+        """`GET /api/printer/command/custom`: no custom controls are configured."""
+        return web.json_response({"controls": []})
+
+    async def system_commands(self, request: web.Request) -> web.Response:
+        """`GET /api/system/commands[/SOURCE]`: none (the service runs no shell command for a client)."""
+        source = request.match_info.get("source")
+        if source is None:
+            return web.json_response({"core": [], "plugin": [], "custom": []})
+        if source not in ("core", "plugin", "custom"):
+            raise web.HTTPNotFound(text=f"no source {source[:20]!r}")
+        return web.json_response([])
+
+    async def system_command(self, request: web.Request) -> web.Response:
+        """`POST /api/system/commands/SOURCE/ACTION`: 404, as OctoPrint answers an action it does not have (the
+        service never restarts or shuts down its machine for a client)."""
+        raise web.HTTPNotFound(text="no such system command: the service runs none for its clients")
 
     async def _temperatures(
         self, request: web.Request, info: dict[str, Any], wanted: Callable[[str], bool]
