@@ -433,7 +433,7 @@ async def test_a_slicers_upload_and_print_runs_every_line_once(
         assert (await printer.position())["X"] == pytest.approx(start + lines * 0.1, abs=1e-6)
 
 
-def test_octorests_chamber_custom_and_system_calls_answer_as_octoprint_without_them(
+def test_octorests_chamber_custom_system_and_empty_calls_answer_as_octoprint_without_them(
     octo: tuple[Served, str],
 ) -> None:
     # What OctoPrint 1.11 answers for a printer without a chamber, with no custom controls and no system commands.
@@ -442,6 +442,9 @@ def test_octorests_chamber_custom_and_system_calls_answer_as_octoprint_without_t
     assert client.custom_control_request() == {"controls": []}
     assert client.system_commands() == {"core": [], "plugin": [], "custom": []}
     assert client.source_system_commands("core") == []
+    assert client.languages()["language_packs"]["_core"]["languages"] == []
+    assert client.timelapses() == {"config": {"type": "off"}, "enabled": False, "files": [], "unrendered": []}
+    assert client.slicers() == {}
     # octorest raises on each; the statuses, read directly, are OctoPrint's: 409 without a heated chamber, 404 for a
     # system command it does not have.
     with pytest.raises(RuntimeError):

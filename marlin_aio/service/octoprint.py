@@ -126,6 +126,9 @@ class OctoPrintApi:
                 web.get("/api/printer/chamber", self.chamber_state),
                 web.post("/api/printer/chamber", self.chamber),
                 web.get("/api/printer/command/custom", self.custom_controls),
+                web.get("/api/languages", self.languages),
+                web.get("/api/timelapse", self.timelapses),
+                web.get("/api/slicing", self.slicers),
                 web.get("/api/system/commands", self.system_commands),
                 web.get("/api/system/commands/{source}", self.system_commands),
                 web.post("/api/system/commands/{source}/{action}", self.system_command),
@@ -391,6 +394,20 @@ class OctoPrintApi:
     async def custom_controls(self, request: web.Request) -> web.Response:
         """`GET /api/printer/command/custom`: no custom controls are configured."""
         return web.json_response({"controls": []})
+
+    async def languages(self, request: web.Request) -> web.Response:
+        """`GET /api/languages`: no language pack is installed (the API speaks no UI)."""
+        return web.json_response(
+            {"language_packs": {"_core": {"identifier": "_core", "display": "Core", "languages": []}}}
+        )
+
+    async def timelapses(self, request: web.Request) -> web.Response:
+        """`GET /api/timelapse`: timelapses are off (the service has no camera)."""
+        return web.json_response({"config": {"type": "off"}, "enabled": False, "files": [], "unrendered": []})
+
+    async def slicers(self, request: web.Request) -> web.Response:
+        """`GET /api/slicing`: no slicer is installed (slicers upload G-code)."""
+        return web.json_response({})
 
     async def system_commands(self, request: web.Request) -> web.Response:
         """`GET /api/system/commands[/SOURCE]`: none (the service runs no shell command for a client)."""
