@@ -362,21 +362,19 @@ class OctoPrintApi:
 
     async def bed_state(self, request: web.Request) -> web.Response:
         """`GET /api/printer/bed[?history=true&limit=N]`: the bed's temperature (409 if the printer reports none)."""
-        self._operational()
-        info = await self._verb("status")
-        answer = await self._temperatures(request, info, lambda name: name == "bed")
-        if "bed" not in answer:
-            raise web.HTTPConflict(text="the printer reports no heated bed")
-        return web.json_response(answer)
+        return await self._one_heater(request, "bed")
 
     async def chamber_state(self, request: web.Request) -> web.Response:
         """`GET /api/printer/chamber[?history=true&limit=N]`: the chamber's temperature (409 if the printer
         reports none, as OctoPrint answers without a heated chamber)."""
+        return await self._one_heater(request, "chamber")
+
+    async def _one_heater(self, request: web.Request, heater: str) -> web.Response:
         self._operational()
         info = await self._verb("status")
-        answer = await self._temperatures(request, info, lambda name: name == "chamber")
-        if "chamber" not in answer:
-            raise web.HTTPConflict(text="the printer reports no heated chamber")
+        answer = await self._temperatures(request, info, lambda name: name == heater)
+        if heater not in answer:
+            raise web.HTTPConflict(text=f"the printer reports no heated {heater}")
         return web.json_response(answer)
 
     async def chamber(self, request: web.Request) -> web.Response:
