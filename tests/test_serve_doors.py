@@ -273,3 +273,13 @@ async def test_only_the_owners_socket_decides_app_keys(door: verbs.Door) -> None
     params = {"token": asked.token, "printer": "sim"}
     approved = await verbs.call(owner, "approve_key", params, verbs.Caller("socket", "owner"))
     assert approved == {"token": asked.token, "app": "Some App", "user": "", "approved": True}
+
+
+def test_an_app_key_request_token_can_be_typed_as_an_argument() -> None:
+    # A token of `secrets.token_urlsafe` once began with `-`, and `marlin-temp keys approve -eiK...` was read as an
+    # option (exit 2): tokens are hexadecimal now.
+    from marlin_aio.service.appkeys import AppKeys
+
+    keys = AppKeys(None)
+    tokens = [keys.request(f"app {i}").token for i in range(200)]
+    assert all(token.isalnum() and not token.startswith("-") for token in tokens)

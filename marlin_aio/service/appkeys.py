@@ -108,7 +108,9 @@ class AppKeys:
         self._expire()
         while len(self._requests) >= MAX_PENDING:
             del self._requests[next(iter(self._requests))]
-        request = KeyRequest(secrets.token_urlsafe(16), name, who, self._clock())
+        # Hexadecimal: a token typed as a command's argument must never start with `-` (an option to the shell's
+        # eye), which a URL-safe one may.
+        request = KeyRequest(secrets.token_hex(12), name, who, self._clock())
         self._requests[request.token] = request
         return request
 
