@@ -195,7 +195,7 @@ async def test_a_second_print_is_one_line_naming_the_running_job_and_stores_noth
 
 
 async def test_a_print_sent_by_the_cli_keeps_its_name_everywhere_and_its_copy_is_removed(tmp_path: Path) -> None:
-    gcode = tmp_path / "benchy part.gcode"
+    gcode = tmp_path / "benchy [bold]part.gcode"  # a name rich would read as markup
     gcode.write_text(moves(30))
     async with serving(tmp_path) as served, raw_client(served) as raw:
         process = await asyncio.create_subprocess_exec(
@@ -213,16 +213,30 @@ async def test_a_print_sent_by_the_cli_keeps_its_name_everywhere_and_its_copy_is
         out, err = await asyncio.wait_for(process.communicate(), 120)
         assert process.returncode == 0, (out, err)
         job = (await raw.call("job", printer="sim"))["result"]
-        assert job["file"] == "benchy part.gcode" and job["state"] == "done", job
+        assert job["file"] == "benchy [bold]part.gcode" and job["state"] == "done", job
         assert job["started_by"].startswith("socket client")
         await until(lambda: any("print_finished" in line for line in served.lines), "the end told")
         told = [line for line in served.lines if "print_started" in line or "print_finished" in line]
-        assert told and all("benchy part.gcode" in line for line in told), told
+        assert told and all("benchy [bold]part.gcode" in line for line in told), told
         assert not any("sent" in line and ".gcode" in line for line in served.lines), served.lines
         uploads = served.socket.parent / "uploads"
         assert not (uploads.exists() and [p.name for p in uploads.iterdir() if not p.name.startswith(".")]), list(
             uploads.iterdir()
         )  # the service's copy went with its job
+        # `marlin-temp job` says it as it is, with no markup read into the name.
+        status = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "marlin_temp",
+            "job",
+            "--port",
+            served.url(),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
+            env=served.env(),
+        )
+        out, err = await asyncio.wait_for(status.communicate(), 120)
+        assert status.returncode == 0 and "benchy [bold]part.gcode" in out.decode(), (out, err)
 
 
 async def test_the_farm_ends_a_print_on_sigterm_as_serve_does(tmp_path: Path, broker: Broker) -> None:
@@ -280,6 +294,29 @@ def test_an_app_key_request_token_can_be_typed_as_an_argument() -> None:
     # option (exit 2): tokens are hexadecimal now.
     from marlin_aio.service.appkeys import AppKeys
 
-    keys = AppKeys(None)
-    tokens = [keys.request(f"app {i}").token for i in range(200)]
+    clock = [0.0]
+    keys = AppKeys(None, clock=lambda: clock[0])
+    tokens = []
+    for i in range(200):
+        clock[0] = 7.0 * i  # under the rate bound
+        tokens.append(keys.request(f"app {i}").token)
     assert all(token.isalnum() and not token.startswith("-") for token in tokens)
+
+
+def test_requests_for_app_keys_are_bounded_in_rate_and_in_number_waiting() -> None:
+    # The endpoint needs no key and each request is a line on the owner's console: a flood is refused (429 at the
+    # HTTP door) before it can push out the request someone is about to approve.
+    from marlin_aio.service.appkeys import MAX_PENDING, MAX_REQUESTS_PER_MINUTE, AppKeys, TooManyRequestsError
+
+    clock = [100.0]
+    keys = AppKeys(None, clock=lambda: clock[0])
+    first = keys.request("Home Assistant")
+    for i in range(MAX_REQUESTS_PER_MINUTE - 1):
+        keys.request(f"flood {i}")
+    with pytest.raises(TooManyRequestsError):
+        keys.request("one too many")
+    assert first.token in [request.token for request in keys.pending()]
+    clock[0] += 60.0  # a minute later, requests are taken again; the waiting ones stay bounded
+    for i in range(MAX_REQUESTS_PER_MINUTE):
+        keys.request(f"later {i}")
+    assert len(keys.pending()) == MAX_PENDING

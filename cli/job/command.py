@@ -56,9 +56,9 @@ async def run_job(options: ConnectOptions, action: str, json_output: bool, conso
         job = await call("job")
         if action == "status":
             if job is None:
-                errors.print(f"no print job on {label} yet")
+                errors.print(f"no print job on {label} yet", markup=False)
                 return Exit.NO_PORT
-            console.print(json.dumps(job) if json_output else describe_job(job))
+            console.print(json.dumps(job) if json_output else describe_job(job), markup=False)  # names are users'
             return Exit.OK
         if job is None or not job.get("active"):
             last = "" if job is None else f" (the last: {describe_job(job)})"
@@ -70,27 +70,27 @@ async def run_job(options: ConnectOptions, action: str, json_output: bool, conso
         except RuntimeError as exc:
             raise UsageProblem(str(exc)) from None
         ended = value.get("job", value) if action == "cancel" else value
-        console.print(json.dumps(ended) if json_output else describe_job(ended))
+        console.print(json.dumps(ended) if json_output else describe_job(ended), markup=False)
         return Exit.OK
 
 
 async def _attach(call: Any, job: dict[str, Any], console: Console, errors: Console, json_output: bool) -> Exit:
     """Follow the job until it ends: a line whenever its state or percent changes; Ctrl-C leaves it running."""
-    errors.print(f"attached to {job['file']} on {job['printer']}; Ctrl-C leaves it running", style="dim")
+    errors.print(f"attached to {job['file']} on {job['printer']}; Ctrl-C leaves it running", style="dim", markup=False)
     said = None
     try:
         while True:
             line = json.dumps(job) if json_output else describe_job(job)
             if line != said:
-                console.print(line)
+                console.print(line, markup=False)
                 said = line
             if job["state"] in _ENDED:
                 return _ENDED[job["state"]]
             await asyncio.sleep(ATTACH_EVERY_S)  # a ticker: the job is read at this rate, nothing waits on it
             job = await call("job")
     except asyncio.CancelledError:
-        errors.print(f"left {job['file']} running in the service", style="dim")
+        errors.print(f"left {job['file']} running in the service", style="dim", markup=False)
         raise
     except marlin_aio.ConnectionLostError as exc:
-        errors.print(f"the service went away: {exc}; {describe_job(job)}")
+        errors.print(f"the service went away: {exc}; {describe_job(job)}", markup=False)
         return Exit.LOST

@@ -4,6 +4,7 @@ through the service's own socket, which only its owner reaches."""
 from __future__ import annotations
 
 import json
+import time
 from typing import Any
 
 from rich.console import Console
@@ -15,8 +16,6 @@ __all__ = ["run_keys"]
 
 
 def _when(seconds: object) -> str:
-    import time
-
     return time.strftime("%Y-%m-%d %H:%M", time.localtime(float(seconds))) if isinstance(seconds, int | float) else "?"
 
 
@@ -33,7 +32,8 @@ async def run_keys(
     if not (options.port or "").startswith("serve:"):
         raise UsageProblem("app keys are the service's: give --port serve:NAME (marlin-temp serve owns the printer)")
     if action != "list" and not what:
-        raise UsageProblem(f"keys {action} needs what to {action}: a request's token (keys list shows them)")
+        what_to = "a key's first characters or an app's name" if action == "revoke" else "a request's token"
+        raise UsageProblem(f"keys {action} needs what to {action}: {what_to} (keys list shows them)")
     async with open_printer(options, errors) as (printer, label):
         call = getattr(printer, "call", None)
         if call is None:
@@ -49,7 +49,7 @@ async def run_keys(
         except ValueError as exc:  # the service's INVALID_PARAMS: no such request or key
             raise UsageProblem(str(exc)) from None
     if json_output:
-        console.print(json.dumps(value))
+        console.print(json.dumps(value), markup=False)  # an app's name is the app's to choose
         return Exit.OK
     if action == "list":
         if not value["pending"] and not value["issued"]:

@@ -410,7 +410,7 @@ class Connection:
                 # and callers wait behind entries that no ok will settle. The `ok T:` of a probe behind them all
                 # settles those (at most one probe a timeout).
                 core.probes.asked(now, emergency=True)
-                core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
+                core.queue.appendleft(core.new_probe(now))
         core.trace.sent(now, bare)
         return wire
 

@@ -133,6 +133,10 @@ class CoreState:
         self.next_id += 1
         return self.next_id
 
+    def new_probe(self, now: float) -> Command:
+        """A numbered M105 asking whether the oldest line's `ok` was lost (`Probes`), as patient as a print line."""
+        return self.probes.new_probe(self.new_id(), now, self.feed.timeout_s)
+
     def new_placeholder(self, number: int, now: float) -> Command:
         """`M110 N<number>`: takes a line number without running anything (nobody waits for its answer)."""
         text = f"M110 N{number}"

@@ -4,8 +4,9 @@ The oldest command in flight has three deadlines (`_deadlines`): its timeout, co
 or from the last sign of life (a busy keepalive, a wait line); while lines are being resent, a shorter one after
 which a resent line is written again; and a probe after a few round trips of silence, in a print or not. A
 command that times out keeps its place, in doubt (its late ok must land on it, not on the next caller's); each
-command behind it ends at its own bound, its timeout from when it began waiting there, unless the printer answers
-first; a print line that times out stalls the print.
+command behind it ends at its own bound, its timeout from when it began waiting there or from the printer's last
+word if that came first (`_caller_bound`), unless the printer answers first; a print line that times out stalls
+the print.
 """
 
 from __future__ import annotations
@@ -169,7 +170,7 @@ class Deadlines:
                     core.resends.probe_m110(head.line_number)
                     head.waits_from(now)
                     core.want_line_end()
-                    core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
+                    core.queue.appendleft(core.new_probe(now))
                     return
                 core.check(resends.write_m110_again(head, core.in_flight, core.queue, now), now)
                 return
@@ -218,9 +219,9 @@ class Deadlines:
             head.overdue(now)
             if not was_orphan:
                 core.in_flight.finish(head, CommandTimeoutError(summary, command=redact(head.text)))
-            # What waits behind it is not failed with it, silent printer or not: each caller ends at its own bound,
-            # its timeout from when it began waiting behind a command in doubt (`_settle_doubt`), unless the
-            # printer answers first (a probe goes behind it).
+            # What waits behind it is not failed with it, silent printer or not: each caller ends at its own bound
+            # (`_caller_bound`, checked in `_settle_doubt`), unless the printer answers first (a probe goes behind
+            # it).
             return
 
     def _settle_doubt(self, head: Command, now: float, timeout_at: float, probe_at: float) -> bool:
@@ -244,7 +245,7 @@ class Deadlines:
         if now >= probe_at:
             core.probes.asked(now)
             core.want_line_end()
-            core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
+            core.queue.appendleft(core.new_probe(now))
         if now >= self._waiting_bound():
             since = head.head_since_s or now
             for command in (*core.in_flight, *core.queue):
@@ -285,7 +286,7 @@ class Deadlines:
                 while at < len(core.queue) and core.queue[at].wire:
                     at += 1
                 core.resends.forget_stale()
-                core.queue.insert(at, core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
+                core.queue.insert(at, core.new_probe(now))
             core.resends.nudge()
             return
         # A probe follows several round trips of silence: no rejection of a line written before the last resend
@@ -295,7 +296,7 @@ class Deadlines:
             # One already waits to go out (behind a poll's M105, say, which no M105 may follow): another would go
             # out no sooner, and one a probe delay would pile up and then go out together. The line end goes.
             return
-        core.queue.appendleft(core.probes.new_probe(core.new_id(), now, core.feed.timeout_s))
+        core.queue.appendleft(core.new_probe(now))
 
     def _stall_job(self, head: Command, now: float) -> None:
         """The stream got no answer within the timeout: end the print with a diagnosis, drop its lines."""

@@ -44,10 +44,6 @@ _log = logging.getLogger("marlin_aio")
 CALM_LINES = 100
 
 
-def _no_placeholders(number: int, now: float) -> Command:
-    raise RuntimeError("Resends.make_placeholder was not set")
-
-
 def wanted(line: Command) -> bool:
     """Should `line` run if the printer asks for it again?
 
@@ -80,6 +76,7 @@ class Resends:
         ok_after_resend: the firmware follows every `Resend:` with an `ok` that answers nothing (Marlin 2.1).
         resend_timeout_s: while lines are being resent, how long a resent line may go unanswered (with the printer
             talking) before it is written again (its rejection may have been taken for a stale one).
+        make_placeholder: builds the `M110 N<n>` (at a time) that takes the number n of lines that must not run.
     """
 
     def __init__(
@@ -88,7 +85,7 @@ class Resends:
         max_resends: int,
         ok_after_resend: bool,
         resend_timeout_s: float,
-        make_placeholder: Callable[[int, float], Command] | None = None,
+        make_placeholder: Callable[[int, float], Command],
     ) -> None:
         self.max_resends = max_resends
         self.ok_after_resend = ok_after_resend
@@ -112,8 +109,7 @@ class Resends:
         self.unanswered_m110: int | None = None  # the value of an M110 written twice and still unanswered
         self.held: Command | None = None  # a line asked for again that may have run unnumbered (see `resend`)
         self.nudge_pending = False  # let the next resend out past the window, as a probe
-        # Builds the `M110 N<n>` that takes the number n of lines that must not run (the connection's).
-        self.make_placeholder: Callable[[int, float], Command] = make_placeholder or _no_placeholders
+        self.make_placeholder = make_placeholder
         self.requests = 0
         self.fragments = 0  # pieces of lines the printer received on their own after a flush (and refused)
         self.fragments_run = 0  # pieces of lines the printer ran on their own: a line ran out of place

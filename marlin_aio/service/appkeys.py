@@ -11,8 +11,10 @@ Keys issued this way are kept in a file of the service's private folder (owner-o
 they outlive a restart; they are listed and revoked with `marlin-temp keys`. Each works as the service's own API
 key on the OctoPrint API.
 
-Bounds, as every door has them: at most `MAX_PENDING` requests wait at once (the oldest then goes), a request is
-forgotten `REQUEST_TTL_S` after it was made, and at most `MAX_KEYS` keys are kept.
+Bounds, as every door has them: at most `MAX_REQUESTS_PER_MINUTE` requests are taken a minute (OctoPrint's plugin
+limits them too: the endpoint needs no key, and each request is a line on the owner's console), at most
+`MAX_PENDING` wait at once (the oldest then goes), a request is forgotten `REQUEST_TTL_S` after it was made, and at
+most `MAX_KEYS` keys are kept.
 """
 
 from __future__ import annotations
@@ -23,13 +25,26 @@ import json
 import os
 import secrets
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-__all__ = ["MAX_KEYS", "MAX_PENDING", "REQUEST_TTL_S", "AppKeyError", "AppKeys", "IssuedKey", "KeyRequest"]
+__all__ = [
+    "MAX_KEYS",
+    "MAX_PENDING",
+    "MAX_REQUESTS_PER_MINUTE",
+    "REQUEST_TTL_S",
+    "AppKeyError",
+    "AppKeys",
+    "IssuedKey",
+    "KeyRequest",
+    "TooManyRequestsError",
+]
 
+#: Requests taken in any minute; more are refused (HTTP 429) until the minute has passed.
+MAX_REQUESTS_PER_MINUTE = 10
 #: Requests waiting for a decision at once; a further one pushes the oldest out.
 MAX_PENDING = 16
 #: How long a request waits for its decision (OctoPrint: 10 minutes).
@@ -43,6 +58,10 @@ MAX_NAME_CHARS = 100
 class AppKeyError(ValueError):
     """A request for a key the service cannot take (no app name, too many keys), or a decision about a request
     it does not know."""
+
+
+class TooManyRequestsError(AppKeyError):
+    """More requests for keys than `MAX_REQUESTS_PER_MINUTE`: this one was not taken."""
 
 
 @dataclass
@@ -91,6 +110,7 @@ class AppKeys:
         self._path = path
         self._clock = clock
         self._requests: dict[str, KeyRequest] = {}
+        self._recent: deque[float] = deque()  # when the requests of the last minute were made
         self._keys: list[IssuedKey] = self._load()
 
     # ------------------------------------------------------------------------------------------- the app's side
@@ -99,8 +119,14 @@ class AppKeys:
         """A new request of `app` (for `user`, if given), waiting for the owner's decision.
 
         Raises:
+            TooManyRequestsError: `MAX_REQUESTS_PER_MINUTE` were taken in the last minute.
             AppKeyError: no app name, or the service keeps as many keys as it may.
         """
+        now = self._clock()
+        while self._recent and self._recent[0] <= now - 60.0:
+            self._recent.popleft()
+        if len(self._recent) >= MAX_REQUESTS_PER_MINUTE:
+            raise TooManyRequestsError(f"more than {MAX_REQUESTS_PER_MINUTE} requests for keys a minute: ask later")
         name = _name(app, "app")
         who = "" if user is None or user == "" else _name(user, "user")
         if len(self._keys) >= MAX_KEYS:
@@ -110,7 +136,8 @@ class AppKeys:
             del self._requests[next(iter(self._requests))]
         # Hexadecimal: a token typed as a command's argument must never start with `-` (an option to the shell's
         # eye), which a URL-safe one may.
-        request = KeyRequest(secrets.token_hex(12), name, who, self._clock())
+        self._recent.append(now)
+        request = KeyRequest(secrets.token_hex(12), name, who, now)
         self._requests[request.token] = request
         return request
 

@@ -39,7 +39,7 @@ from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.protocol.motion import extrude_commands, home_command, move_commands
 from marlin_aio.protocol.rpc import RpcError, progress_from_json
 from marlin_aio.service import verbs
-from marlin_aio.service.appkeys import AppKeyError
+from marlin_aio.service.appkeys import AppKeyError, TooManyRequestsError
 from marlin_aio.service.httpbounds import (
     MAX_JSON_BYTES,
     bounded_runner,
@@ -706,6 +706,8 @@ class OctoPrintApi:
         body = await _json(request)
         try:
             asked = self.owner.app_keys.request(body.get("app"), body.get("user"))
+        except TooManyRequestsError as exc:
+            return _error(429, str(exc))
         except AppKeyError as exc:
             return _error(400, str(exc))
         _log.warning(
