@@ -30,11 +30,11 @@ def moves(count: int) -> str:
     return "G28\n" + "".join(f"G1 X{i % 200} Y{(i * 7) % 200} F6000\n" for i in range(count))
 
 
-async def _cancel_over_http(port: int, key: str) -> int:
+async def _job_over_http(port: int, key: str, command: str) -> int:
     def post() -> int:
         request = urllib.request.Request(
             f"http://127.0.0.1:{port}/api/job",
-            data=json.dumps({"command": "cancel"}).encode(),
+            data=json.dumps({"command": command}).encode(),
             headers={"X-Api-Key": key, "Content-Type": "application/json"},
             method="POST",
         )
@@ -44,10 +44,10 @@ async def _cancel_over_http(port: int, key: str) -> int:
     return await asyncio.to_thread(post)
 
 
-async def _cancel_over_mqtt(broker: Broker, printer: str) -> dict[str, Any]:
+async def _job_over_mqtt(broker: Broker, printer: str, action: str) -> dict[str, Any]:
     async with aiomqtt.Client("127.0.0.1", broker.port, identifier="canceller") as client:
         await client.subscribe(f"marlin/{printer}/response", qos=1)
-        await client.publish(f"marlin/{printer}/command", json.dumps({"id": 7, "action": "cancel"}), qos=1)
+        await client.publish(f"marlin/{printer}/command", json.dumps({"id": 7, "action": action}), qos=1)
         async with asyncio.timeout(60):
             async for message in client.messages:
                 answer: dict[str, Any] = json.loads(bytes(message.payload))
@@ -56,13 +56,13 @@ async def _cancel_over_mqtt(broker: Broker, printer: str) -> dict[str, Any]:
     raise AssertionError("no answer")
 
 
-async def _cancel_over_cli(served: Served, printer: str) -> tuple[int, str]:
+async def _job_over_cli(served: Served, printer: str, action: str) -> tuple[int, str]:
     process = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
         "marlin_temp",
         "job",
-        "cancel",
+        action,
         "--port",
         served.url(printer),
         stdout=asyncio.subprocess.PIPE,
@@ -100,15 +100,15 @@ async def test_a_cancel_through_each_door_ends_in_the_same_state(
                 answer = await raw.call("cancel", printer=printer_name)
                 assert answer["result"]["job"]["state"] == "cancelled", answer
             elif door == "cli":
-                code, output = await _cancel_over_cli(served, printer_name)
+                code, output = await _job_over_cli(served, printer_name, "cancel")
                 assert code == 0 and "part.gcode on sim: cancelled" in output, output
             elif door == "mqtt":
                 assert broker is not None
-                answer = await _cancel_over_mqtt(broker, printer_name)
+                answer = await _job_over_mqtt(broker, printer_name, "cancel")
                 assert answer["ok"] is True and answer["result"]["job"]["state"] == "cancelled", answer
             else:
                 key = (served.socket.parent / "api-key").read_text().strip()
-                assert await _cancel_over_http(http_port, key) == 204
+                assert await _job_over_http(http_port, key, "cancel") == 204
             final = await handle.wait()
             assert final.state is marlin_aio.PrintState.CANCELLED
             # The heaters off at the printer: its own report, polled by the service, says targets 0.
@@ -126,6 +126,61 @@ async def test_a_cancel_through_each_door_ends_in_the_same_state(
     assert len(ran) == 1, served.lines
 
 
+@pytest.mark.parametrize("door", DOORS)
+async def test_a_restart_through_each_door_prints_the_paused_file_again_with_the_heaters_on(
+    door: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    """OctoPrint's restart, a verb of the table: the paused job ends without its cancel script and the same file
+    starts again from its first line, whichever door asked."""
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text(moves(4_000))
+    args: tuple[str, ...] = ("--sim", "--sim-speed", "50", "--interval", "0.05")
+    command, printer_name, http_port = "serve", "sim", free_port()
+    broker: Broker | None = None
+    if door == "http":
+        args += ("--octoprint", f"127.0.0.1:{http_port}")
+    if door == "mqtt":
+        broker = request.getfixturevalue("broker")
+        args = ("--sims", "1", "--sim-speed", "50", "--interval", "0.05", "--broker", f"127.0.0.1:{broker.port}")
+        args += ("--allow-commands",)
+        command, printer_name = "farm", "sim1"
+    async with (
+        serving(tmp_path, *args, command=command) as served,
+        raw_client(served) as raw,
+        marlin_aio.connect(served.url(printer_name)) as printer,
+    ):
+        await printer.set_temperatures(hotend=200, bed=60)
+        handle = await printer.start_print(gcode)
+        await until(lambda: handle.progress.lines_acked > 20, "the print under way")
+        refused = await raw.call("restart", printer=printer_name)
+        assert "only a paused print" in refused["error"]["message"], refused  # running: pause it first
+        first = (await raw.call("pause", printer=printer_name))["result"]
+        if door == "socket":
+            answer = await raw.call("restart", printer=printer_name)
+            assert answer["result"]["state"] in ("starting", "printing"), answer
+        elif door == "cli":
+            code, output = await _job_over_cli(served, printer_name, "restart")
+            assert code == 0 and "part.gcode on sim" in output, output
+        elif door == "mqtt":
+            assert broker is not None
+            answer = await _job_over_mqtt(broker, printer_name, "restart")
+            assert answer["ok"] is True, answer
+        else:
+            key = (served.socket.parent / "api-key").read_text().strip()
+            assert await _job_over_http(http_port, key, "restart") == 204
+        job = (await raw.call("job", printer=printer_name))["result"]
+        assert job["id"] != first["id"] and job["file"] == "part.gcode" and job["active"], job
+        # The heaters stay on: the print that starts again wants them (no cancel script ran).
+        reading = await printer.read_temperatures()
+        assert reading.hotend is not None and reading.hotend.target == 200
+        assert reading.bed is not None and reading.bed.target == 60
+        await raw.call("cancel", printer=printer_name)
+    restarted = [line for line in served.lines if "cancel_script: part.gcode: ran nothing" in line]
+    assert len(restarted) == 1, served.lines
+    started = [line for line in served.lines if "print_started: printing part.gcode" in line]
+    assert len(started) == 2, served.lines
+
+
 def test_every_door_offers_the_verbs_of_the_table_and_nothing_else() -> None:
     """The socket's methods, MQTT's actions, the OctoPrint API's calls and what jumps the queue at each door are
     read from the one table: a door offers exactly the verbs the table says it does."""
@@ -141,7 +196,8 @@ def test_every_door_offers_the_verbs_of_the_table_and_nothing_else() -> None:
     assert offered["socket"] - offered["tcp"] == {"keys", "approve_key", "deny_key", "revoke_key"}
     assert not offered["mqtt"] & {"keys", "approve_key"} and not offered["http"] & {"keys", "approve_key"}
     assert set(ACTION_VERBS.values()) == offered["mqtt"]
-    http_calls = set(re.findall(r'_verb\("([a-z_]+)"', Path(octoprint.__file__).read_text()))
+    sources = "".join(path.read_text() for path in Path(octoprint.__file__).parent.glob("*.py"))
+    http_calls = set(re.findall(r'\.verb\("([a-z_]+)"', sources))
     assert http_calls == offered["http"]
     assert {a for a, v in ACTION_VERBS.items() if verbs.VERBS[v].queue is verbs.Queue.URGENT} == UNQUEUED_ACTIONS
     assert PRIORITY_METHODS - {"cancel_request"} == verbs.urgent_verbs()

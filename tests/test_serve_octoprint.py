@@ -11,12 +11,14 @@ import socket
 import sys
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
+from typing import Any
 
 import aiohttp
 import pytest
 import requests
 from conftest import until
 from octorest import OctoRest
+from octorest_calls import load, run
 from pyoctoprintapi import OctoprintClient
 from pyoctoprintapi.exceptions import ApiError, PrinterOffline, UnauthorizedException
 from test_serve import Served, serving
@@ -255,6 +257,94 @@ async def test_home_assistants_config_flow_gets_a_key_once_the_owner_approves_it
             await client.get_printer_info()
 
 
+async def test_curas_app_key_request_shows_how_to_approve_and_gets_the_key_once_approved(
+    octo: tuple[Served, str],
+) -> None:
+    # The requests Cura's OctoPrint plugin (DiscoverOctoPrintAction) makes, in its order: probe, request with
+    # {"app": "Cura"} (it opens `auth_dialog` in a browser), poll the 201's Location every 500 ms with an empty
+    # Content-Type until 200, then GET api/settings with the key (it reads feature, webcam and plugins).
+    served, url = octo
+    async with aiohttp.ClientSession() as session:
+        async with session.get(f"{url}/plugin/appkeys/probe") as response:
+            assert response.status == 204
+        async with session.post(f"{url}/plugin/appkeys/request", json={"app": "Cura"}) as response:
+            assert response.status == 201
+            asked = await response.json()
+            poll_url = response.headers["Location"]
+        token = asked["app_token"]
+        assert poll_url == f"{url}/plugin/appkeys/request/{token}"
+        async with session.get(asked["auth_dialog"]) as response:
+            page = await response.text()
+            # The page says how to approve; it decides nothing (the owner's socket does).
+            assert response.status == 200 and f"marlin-temp keys approve {token}" in page
+        async with session.get(poll_url, headers={"Content-Type": ""}) as response:
+            assert response.status == 202
+        code, output = await _marlin_temp("keys", "approve", token, "--port", f"serve:sim@{served.socket}")
+        assert code == 0, output
+        async with session.get(poll_url, headers={"Content-Type": ""}) as response:
+            assert response.status == 200
+            key = (await response.json())["api_key"]
+        async with session.get(poll_url, headers={"Content-Type": ""}) as response:
+            assert response.status == 404  # said once
+        async with session.get(f"{url}/api/settings", headers={"X-Api-Key": key}) as response:
+            assert response.status == 200
+            settings = await response.json()
+    assert settings["feature"]["sdSupport"] is False and settings["webcam"]["streamUrl"] == ""
+    assert list(settings["plugins"]) == ["discovery"]
+
+
+async def test_curas_monitor_polls_jogs_and_steers_a_print_with_its_own_requests(
+    octo: tuple[Served, str], tmp_path: Path
+) -> None:
+    # Cura's OctoPrint plugin (OctoPrintOutputDevice) once connected: GET version, POST login (passive; a 404 is
+    # "anonymous user" to it), GET printerprofiles (axes' speed and inverted), settings; then every 2 s GET printer
+    # and job, all with `Content-Type: application/json`, GETs too. Its jog is G91, G0, G90 in one
+    # printer/command; its pause and resume are `pause` (a toggle) on the job; it reads the keys it indexes.
+    _, url = octo
+    headers = {"X-Api-Key": KEY, "Content-Type": "application/json"}
+    async with aiohttp.ClientSession(headers=headers) as session:
+
+        async def get(path: str) -> dict[str, Any]:
+            async with session.get(f"{url}/api/{path}") as response:
+                assert response.status == 200, (path, await response.text())
+                answer: dict[str, Any] = await response.json()
+                return answer
+
+        async def post(path: str, body: dict[str, Any]) -> int:
+            async with session.post(f"{url}/api/{path}", json=body) as response:
+                return response.status
+
+        assert "server" in await get("version")
+        assert await post("login", {"passive": True}) in (200, 404)
+        for profile in (await get("printerprofiles"))["profiles"].values():
+            assert all({"speed", "inverted"} <= set(profile["axes"][axis]) for axis in "xyze")
+        assert "sdSupport" in (await get("settings"))["feature"]
+        printer = await get("printer")
+        assert printer["state"]["flags"]["operational"] and "actual" in printer["temperature"]["tool0"]
+        assert await post("printer/command", {"commands": ["G91", "G0 X10 Y0 Z0 F6000", "G90"]}) == 204
+        form = aiohttp.FormData()
+        form.add_field("path", "", content_type="text/plain")
+        form.add_field("file", _relative_moves(2000), filename="cura.gcode", content_type="application/octet-stream")
+        form.add_field("select", "true", content_type="text/plain")
+        form.add_field("print", "true", content_type="text/plain")
+        # The upload without the session's Content-Type: Qt sets the form's own.
+        async with (
+            aiohttp.ClientSession() as upload,
+            upload.post(f"{url}/api/files/local", data=form, headers={"X-Api-Key": KEY}) as response,
+        ):
+            assert response.status == 201
+            assert response.headers["Location"].split("api/", 1)[1] == "files/local/cura.gcode"
+        job = await get("job")
+        assert job["state"] in ("Starting", "Printing") and job["job"]["file"]["name"] == "cura.gcode"
+        assert {"printTime", "completion", "printTimeLeft"} <= set(job["progress"])
+        assert await post("job", {"command": "pause"}) == 204
+        assert (await get("job"))["state"] == "Paused" and (await get("printer"))["state"]["flags"]["paused"]
+        assert await post("job", {"command": "pause"}) == 204  # Cura's resume: the toggle
+        assert (await get("job"))["state"] == "Printing"
+        assert await post("job", {"command": "cancel"}) == 204
+        assert (await get("job"))["state"] == "Operational"
+
+
 async def test_a_denied_or_unknown_request_gets_no_key(octo: tuple[Served, str]) -> None:
     served, url = octo
     service = f"serve:sim@{served.socket}"
@@ -440,9 +530,6 @@ def test_octorests_chamber_custom_system_and_empty_calls_answer_as_octoprint_wit
     _, url = octo
     client = OctoRest(url=url, apikey=KEY)
     assert client.custom_control_request() == {"controls": []}
-    assert client.system_commands() == {"core": [], "plugin": [], "custom": []}
-    assert client.source_system_commands("core") == []
-    assert client.languages()["language_packs"]["_core"]["languages"] == []
     assert client.timelapses() == {"config": {"type": "off"}, "enabled": False, "files": [], "unrendered": []}
     assert client.slicers() == {}
     # octorest raises on each; the statuses, read directly, are OctoPrint's: 409 without a heated chamber, 404 for a
@@ -453,5 +540,35 @@ def test_octorests_chamber_custom_system_and_empty_calls_answer_as_octoprint_wit
     assert requests.get(f"{url}/api/printer/chamber", headers=headers, timeout=30).status_code == 409
     target: dict[str, str | int] = {"command": "target", "target": 40}
     assert requests.post(f"{url}/api/printer/chamber", json=target, headers=headers, timeout=30).status_code == 409
+    # System commands are an administrator's (OctoPrint answers an operator's key 403): the service never restarts
+    # or shuts down its machine for a client.
     reboot = f"{url}/api/system/commands/core/reboot"
-    assert requests.post(reboot, headers=headers, timeout=30).status_code == 404
+    assert requests.post(reboot, headers=headers, timeout=30).status_code == 403
+    assert requests.get(f"{url}/api/system/commands", headers=headers, timeout=30).status_code == 403
+
+
+#: What OctoPrint 1.11.8 answered to octorest's calls, and where the service answers otherwise, with why.
+OCTOPRINT_RECORD = Path(__file__).parent / "data" / "octorest-octoprint-1.11.8.json"
+NOT_AS_OCTOPRINT = {
+    # The service has no user accounts: a key is not a user, so there is no own user record to read or change
+    # (OctoPrint lets a key read and change its own user's); every other user call is 403 in both.
+    "user": (200, 403),
+    "user_settings": (200, 403),
+    "update_user_settings": (200, 403),
+}
+
+
+def test_every_octorest_call_answers_with_octoprints_status_for_the_same_state(
+    octo: tuple[Served, str], tmp_path: Path
+) -> None:
+    """octorest 0.4's whole public API, call by call (tests/octorest_calls.py: reading, controlling, files, a print
+    started, paused, restarted, resumed and cancelled, disconnect and connect), against the statuses a real
+    OctoPrint 1.11.8 gave for the same calls from the same state (an operator's key, the printer idle)."""
+    _, url = octo
+    server, recorded = load(OCTOPRINT_RECORD)
+    assert server == "OctoPrint 1.11.8"
+    answered = run(url, KEY, tmp_path)
+    assert [name for name, _ in answered] == [name for name, _ in recorded]
+    pairs = zip(recorded, answered, strict=True)
+    differences = {name: (expected, status) for (name, expected), (_, status) in pairs if status != expected}
+    assert differences == NOT_AS_OCTOPRINT

@@ -20,7 +20,8 @@ JOB_HELP = "\n\n".join(
         "status (the default) says what it is, where it stands, who started it and the line to resume from; "
         "attach follows it until it ends (Ctrl-C leaves it running); pause, resume and cancel act on it as every "
         "door of the service does: a cancel stops feeding, lets the printer finish what it has, then runs the "
-        "job's cancel script (by default every heater and the fan off).",
+        "job's cancel script (by default every heater and the fan off). restart prints a paused job's file again "
+        "from its first line, the heaters left on (OctoPrint's restart).",
         "Exit codes for status: 0 a job is known (running or ended), 3 none.",
     )
 )
@@ -33,6 +34,7 @@ class JobAction(StrEnum):
     ATTACH = "attach"
     PAUSE = "pause"
     RESUME = "resume"
+    RESTART = "restart"
     CANCEL = "cancel"
 
 

@@ -10,7 +10,7 @@ A command is a JSON object published to `PREFIX/NAME/command`; its answer goes t
     {"id": 4, "action": "print", "path": "benchy.gcode"}                      (inside --allowed-dir only;
                                                                               "stop_on_unknown": true stops at a
                                                                               command the firmware lacks)
-    {"id": 5, "action": "pause"} / "resume" / "cancel"
+    {"id": 5, "action": "pause"} / "resume" / "cancel" / "restart"         (restart: a paused print from line 1)
     {"id": 6, "action": "emergency_stop"}
     {"id": 8, "action": "answer_prompt", "index": 0}                        (button 0 of the printer's open prompt)
 
@@ -78,6 +78,7 @@ ACTIONS = (
     "print",
     "pause",
     "resume",
+    "restart",
     "cancel",
     "emergency_stop",
     "answer_prompt",
@@ -446,6 +447,7 @@ _FIELDS: dict[str, set[str]] = {
     "print": {"path", "stop_on_unknown"},
     "pause": set(),
     "resume": set(),
+    "restart": set(),
     "cancel": set(),
     "emergency_stop": set(),
     "answer_prompt": {"index"},
@@ -520,6 +522,7 @@ ACTION_VERBS = {
     "print": "start_print",
     "pause": "pause",
     "resume": "resume",
+    "restart": "restart",
     "cancel": "cancel",
     "emergency_stop": "emergency_stop",
     "answer_prompt": "answer_prompt",

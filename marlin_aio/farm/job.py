@@ -80,6 +80,8 @@ class Job:
     """Which door and client started it (`socket client 3`, `mqtt`, `octoprint`)."""
     cancel_script: tuple[str, ...] = DEFAULT_CANCEL_SCRIPT
     end_script: tuple[str, ...] = DEFAULT_END_SCRIPT
+    options: dict[str, Any] = field(default_factory=dict)
+    """How its lines are fed (send_ahead, timeout_s, window_bytes, stop_on_unknown): a restart feeds them alike."""
     remove_file: bool = False
     """The service's own copy (sent by a client as lines): removed when the job ends, unless kept on purpose."""
     id: str = field(default_factory=lambda: secrets.token_hex(4))

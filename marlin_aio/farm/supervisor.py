@@ -33,7 +33,7 @@ import marlin_aio
 import marlin_aio.protocol
 from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
 from marlin_aio.aio.printhandle import FEED_GUARD, FeedGuard
-from marlin_aio.farm.job import DEFAULT_END_SCRIPT, Job, cancel_script_for
+from marlin_aio.farm.job import DEFAULT_END_SCRIPT, Job, JobState, cancel_script_for
 
 if TYPE_CHECKING:
     from marlin_aio.simulator import SimulatorServer
@@ -366,6 +366,12 @@ class Farm:
         script = cancel_script_for(farm_printer.latest) if cancel_script is None else cancel_script
         # The job holds the printer from before the first await: two print commands back to back (a double press,
         # a redelivered message) must not both pass the check above while the first one's M110 is on its way.
+        options: dict[str, Any] = {
+            "send_ahead": send_ahead,
+            "timeout_s": timeout_s,
+            "window_bytes": window_bytes,
+            "stop_on_unknown": stop_on_unknown,
+        }
         job = Job(
             farm_printer.name,
             name or path.name,
@@ -373,19 +379,14 @@ class Farm:
             started_by,
             cancel_script=script,
             end_script=end_script,
+            options=options,
             remove_file=remove_file,
         )
         farm_printer.job = job
         # --- issue 33 life cycle hook: the guard is found by the print's handle before its first line is fed
         guard = FEED_GUARD.set(None if self.feed_guard is None else self.feed_guard(farm_printer, path))
         try:
-            job.handle = await printer.start_print(
-                path,
-                send_ahead=send_ahead,
-                timeout_s=timeout_s,
-                window_bytes=window_bytes,
-                stop_on_unknown=stop_on_unknown,
-            )
+            job.handle = await printer.start_print(path, **options)
         except BaseException as exc:
             job.ended(one_line(redact(str(exc))) or type(exc).__name__)
             raise
@@ -454,6 +455,34 @@ class Farm:
             job.cancel_task = asyncio.ensure_future(self._cancel(farm_printer, job))
         await asyncio.shield(job.cancel_task)
         return job
+
+    async def restart_print(self, farm_printer: FarmPrinter, by: str) -> Job:
+        """Print the paused job's file again from its first line (OctoPrint's restart): the paused job ends without
+        its cancel script (the heaters stay on: the print that starts again wants them), and a new job begins with
+        the same file, name, options and scripts. Return the new job.
+
+        Raises:
+            RuntimeError: no print is paused (one running or still starting is not restarted: pause it first).
+            ValueError, OSError, MarlinError: as `start_print` (the old job has ended then).
+        """
+        job, _ = self._started_job(farm_printer, "restart")
+        if job.state is not JobState.PAUSED or job.cancel_task is not None:
+            raise RuntimeError(f"only a paused print can be restarted: {job.describe()}")
+        script, remove_file = job.cancel_script, job.remove_file
+        job.cancel_script, job.remove_file = (), False  # the new job owns the file, and the heaters stay on
+        job.cancelling(f"a restart by {by}")
+        job.cancel_task = asyncio.ensure_future(self._cancel(farm_printer, job))
+        await asyncio.shield(job.cancel_task)
+        return await self.start_print(
+            farm_printer,
+            job.path,
+            name=job.file,
+            started_by=by,
+            cancel_script=script,
+            end_script=job.end_script,
+            remove_file=remove_file,
+            **job.options,
+        )
 
     async def _cancel(self, farm_printer: FarmPrinter, job: Job) -> None:
         assert job.handle is not None  # `_started_job` refuses a job still starting

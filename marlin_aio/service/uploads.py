@@ -19,6 +19,7 @@ import contextlib
 import os
 import re
 import secrets
+import shutil
 import stat
 from pathlib import Path
 
@@ -29,6 +30,7 @@ __all__ = [
     "QUOTA_ENV",
     "UploadError",
     "UploadTooLargeError",
+    "UploadTypeError",
     "Uploads",
     "check_name",
     "safe_name",
@@ -53,6 +55,10 @@ class UploadError(ValueError):
 
 class UploadTooLargeError(UploadError):
     """An upload over its size bound, or one the uploads folder's quota has no room for."""
+
+
+class UploadTypeError(UploadError):
+    """A file name the uploads folder does not keep: not a G-code file's (OctoPrint's "invalid type", 415)."""
 
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
@@ -269,6 +275,56 @@ class Uploads:
         upload_id = self.begin()
         self.append_bytes(upload_id, data)
         return self.finish(upload_id, name)
+
+    def copy(self, source: Path, name: str) -> Path:
+        """Copy the finished upload `source` to a new file `name` in the folder, within the quota; return it.
+
+        Raises:
+            FileNotFoundError: `source` is not a finished upload.
+            UploadTypeError: `name` is not a G-code file's name.
+            UploadError: `name` is not a plain file name of the folder (a path, a hidden or unsafe name).
+            FileExistsError: a file `name` exists (never overwritten).
+            UploadTooLargeError: the copy would go past the quota (nothing is written).
+        """
+        target = self._destination(source, name)
+        size = source.stat().st_size
+        self.check_room(size)
+        upload_id = self.begin()
+        part = self._parts[upload_id]
+        try:
+            with source.open("rb") as reading, part.path.open("ab") as writing:
+                shutil.copyfileobj(reading, writing)
+            os.link(part.path, target)  # never over a file that appeared meanwhile: FileExistsError
+        finally:
+            self.discard(upload_id)
+        self._finished_bytes += size
+        return target
+
+    def move(self, source: Path, name: str) -> Path:
+        """Rename the finished upload `source` to `name` in the folder; return the new path.
+
+        Raises:
+            FileNotFoundError, UploadTypeError, UploadError, FileExistsError: as `copy`.
+        """
+        target = self._destination(source, name)
+        os.link(source, target)  # a rename that never replaces: FileExistsError if `name` is taken
+        source.unlink()
+        return target
+
+    def _destination(self, source: Path, name: str) -> Path:
+        if not self.is_finished(source):
+            raise FileNotFoundError(f"no uploaded file {source.name[:100]!r}")
+        check_name(name)
+        if not name.lower().endswith(_GCODE_SUFFIXES):
+            raise UploadTypeError(f"{name[:100]!r} is not a G-code file's name (.gcode, .gco or .g)")
+        if safe_name(name) != name:
+            raise UploadError(
+                f"{name[:100]!r} is not a file name the uploads keep: one folder, names of letters, digits, . - _"
+            )
+        target = self.folder / name
+        if target.exists():
+            raise FileExistsError(f"{name} exists already")
+        return target
 
     def discard(self, upload_id: str) -> None:
         """Drop an unfinished upload (its client left, or it failed)."""

@@ -179,6 +179,15 @@ async def resume(context: Context, args: dict[str, Any]) -> object:
     return job.to_json()
 
 
+@verb("restart", access=Access.CONTROL, result="job (the new one)")
+async def restart(context: Context, args: dict[str, Any]) -> object:
+    """Print a paused job's file again from its first line: the paused job ends without its cancel script (the
+    heaters stay on) and a new one starts with the same file and options."""
+    job = await context.owner.farm.restart_print(context.farm_printer, context.caller.who)
+    context.owner.tell_progress(context.farm_printer)
+    return job.to_json()
+
+
 @verb(
     "cancel",
     Arg("script", list, None, "commands to run instead of the job's cancel script ([]: none)"),
