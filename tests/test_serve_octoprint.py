@@ -24,7 +24,7 @@ from pyoctoprintapi.exceptions import ApiError, PrinterOffline, UnauthorizedExce
 from test_serve import Served, serving
 
 import marlin_aio
-from marlin_aio.service.uploads import UploadError, Uploads, safe_name
+from marlin_aio.service.uploads import UploadError, Uploads, UploadTooLargeError, UploadTypeError, safe_name
 
 KEY = "0123456789abcdef0123456789abcdef"
 
@@ -59,47 +59,53 @@ async def test_home_assistants_client_reads_state_sets_targets_and_controls_a_pr
         client = OctoprintClient("127.0.0.1", session, port=port)
         with pytest.raises(UnauthorizedException):
             await client.get_printer_info()  # no key, no state
-        client.set_api_key(KEY)
-        assert (await client.get_server_info()).version.startswith("1.")
-        info = await client.get_printer_info()
-        assert info.state.flags.operational and info.state.text == "Operational"
-        assert {t.name for t in info.temperatures} == {"tool0", "bed"}
-        await client.set_tool_temperature("tool0", 50)
-        await client.set_bed_temperature(40)
+        await _home_assistants_session(client, session, url, KEY)
 
-        async def targets() -> dict[str, float]:
-            temps = (await client.get_printer_info()).temperatures
-            return {t.name: t.target_temp for t in temps}
 
-        seen: dict[str, float] = {}
+async def _home_assistants_session(client: OctoprintClient, session: aiohttp.ClientSession, url: str, key: str) -> None:
+    """What Home Assistant's integration does with its key: server, printer, targets, then a print (uploaded as a
+    slicer does) paused, resumed and cancelled."""
+    client.set_api_key(key)
+    assert (await client.get_server_info()).version.startswith("1.")
+    info = await client.get_printer_info()
+    assert info.state.flags.operational and info.state.text == "Operational"
+    assert {t.name for t in info.temperatures} == {"tool0", "bed"}
+    await client.set_tool_temperature("tool0", 50)
+    await client.set_bed_temperature(40)
 
-        async def poll() -> bool:
-            seen.update(await targets())
-            return seen == {"tool0": 50.0, "bed": 40.0}
+    async def targets() -> dict[str, float]:
+        temps = (await client.get_printer_info()).temperatures
+        return {t.name: t.target_temp for t in temps}
 
-        for _ in range(200):  # bounded: each round asks the service once
-            if await poll():
-                break
-        assert seen == {"tool0": 50.0, "bed": 40.0}
+    seen: dict[str, float] = {}
 
-        # A print started by a slicer-style upload, then paused, resumed and cancelled by Home Assistant.
-        form = aiohttp.FormData()
-        form.add_field("file", _gcode(4000), filename="benchy.gcode", content_type="application/octet-stream")
-        form.add_field("print", "true")
-        async with session.post(f"{url}/api/files/local", data=form, headers={"X-Api-Key": KEY}) as response:
-            assert response.status == 201, await response.text()
-            assert (await response.json())["effectivePrint"] is True
-        job = await client.get_job_info()
-        assert job.state == "Printing" and job.job.file.name == "benchy.gcode"
-        await client.pause_job()
-        assert (await client.get_job_info()).state == "Paused"
-        assert (await client.get_printer_info()).state.flags.paused
-        await client.resume_job()
-        assert (await client.get_job_info()).state == "Printing"
-        await client.cancel_job()
-        job = await client.get_job_info()
-        assert job.state == "Operational"
-        assert 0 < job.progress.completion < 100
+    async def poll() -> bool:
+        seen.update(await targets())
+        return seen == {"tool0": 50.0, "bed": 40.0}
+
+    for _ in range(200):  # bounded: each round asks the service once
+        if await poll():
+            break
+    assert seen == {"tool0": 50.0, "bed": 40.0}
+
+    # A print started by a slicer-style upload, then paused, resumed and cancelled by Home Assistant.
+    form = aiohttp.FormData()
+    form.add_field("file", _gcode(4000), filename="benchy.gcode", content_type="application/octet-stream")
+    form.add_field("print", "true")
+    async with session.post(f"{url}/api/files/local", data=form, headers={"X-Api-Key": key}) as response:
+        assert response.status == 201, await response.text()
+        assert (await response.json())["effectivePrint"] is True
+    job = await client.get_job_info()
+    assert job.state == "Printing" and job.job.file.name == "benchy.gcode"
+    await client.pause_job()
+    assert (await client.get_job_info()).state == "Paused"
+    assert (await client.get_printer_info()).state.flags.paused
+    await client.resume_job()
+    assert (await client.get_job_info()).state == "Printing"
+    await client.cancel_job()
+    job = await client.get_job_info()
+    assert job.state == "Operational"
+    assert 0 < job.progress.completion < 100
 
 
 def test_a_slicer_style_client_uploads_selects_and_starts(octo: tuple[Served, str], tmp_path: Path) -> None:
@@ -168,6 +174,29 @@ def test_uploads_are_bounded_and_safe(tmp_path: Path) -> None:
     assert safe_name(".hidden") == "hidden.gcode"
 
 
+def test_a_copy_keeps_to_the_quota_and_neither_copy_nor_move_overwrites(tmp_path: Path) -> None:
+    uploads = Uploads(tmp_path / "up", max_bytes=1000, quota_bytes=250)
+    source = uploads.store("part.gcode", b"G1 X1\n" * 20)  # 120 bytes
+    copied = uploads.copy(source, "copy.gcode")
+    assert copied.read_bytes() == source.read_bytes()
+    with pytest.raises(UploadTooLargeError, match="full"):
+        uploads.copy(source, "third.gcode")  # 360 bytes would be past the quota of 250
+    with pytest.raises(FileExistsError):
+        uploads.copy(source, "copy.gcode")
+    with pytest.raises(FileExistsError):
+        uploads.move(source, "copy.gcode")
+    with pytest.raises(UploadTypeError):
+        uploads.move(source, "folder")  # no G-code file's name: OctoPrint's "invalid type"
+    with pytest.raises(UploadError, match="not a file name"):
+        uploads.copy(source, "../outside.gcode")
+    moved = uploads.move(source, "renamed.gcode")
+    assert not source.exists() and moved.read_bytes() == copied.read_bytes()
+    with pytest.raises(FileNotFoundError):
+        uploads.move(source, "again.gcode")
+    # Nothing else was written: no part file left behind by the refused copy.
+    assert sorted(p.name for p in (tmp_path / "up").iterdir()) == ["copy.gcode", "renamed.gcode"]
+
+
 async def test_the_octoprint_port_in_use_is_one_error_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("MARLIN_SERVE_API_KEY", KEY)
     with socket.socket() as taken:
@@ -228,7 +257,7 @@ async def test_home_assistants_config_flow_gets_a_key_once_the_owner_approves_it
 ) -> None:
     # Home Assistant's config flow, with its own library (pyoctoprintapi): probe, request, poll until the owner
     # decides, then the key, the discovery info (its device id), the printer and the job.
-    served, _ = octo
+    served, served_url = octo
     service = f"serve:sim@{served.socket}"
     async with aiohttp.ClientSession() as session:
         client, asking, token = await _ask_for_key(session, octo, "Home Assistant", "homeassistant")
@@ -248,6 +277,8 @@ async def test_home_assistants_config_flow_gets_a_key_once_the_owner_approves_it
         assert webcam is not None and webcam.enabled is False
         assert (await client.get_printer_info()).state.flags.operational
         assert (await client.get_job_info()).state == "Operational"
+        # Then what the integration does with that key: targets, and a print paused, resumed and cancelled.
+        await _home_assistants_session(client, session, served_url, key)
         # Listed, and revocable: the API refuses the key from then on.
         code, output = await _marlin_temp("keys", "list", "--port", service)
         assert code == 0 and f"issued: Home Assistant (user homeassistant), key {key[:6]}..." in output

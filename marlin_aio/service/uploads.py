@@ -319,7 +319,7 @@ class Uploads:
             raise UploadTypeError(f"{name[:100]!r} is not a G-code file's name (.gcode, .gco or .g)")
         if safe_name(name) != name:
             raise UploadError(
-                f"{name[:100]!r} is not a file name the uploads keep: one folder, names of letters, digits, . - _"
+                f"{name[:100]!r} is not a file name the uploads keep (one folder; letters, digits, . - _)"
             )
         target = self.folder / name
         if target.exists():
