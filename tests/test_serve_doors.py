@@ -73,16 +73,11 @@ async def _job_over_cli(served: Served, printer: str, action: str) -> tuple[int,
     return process.returncode or 0, output.decode()
 
 
-@pytest.mark.parametrize("door", DOORS)
-async def test_a_cancel_through_each_door_ends_in_the_same_state(
-    door: str, tmp_path: Path, request: pytest.FixtureRequest
-) -> None:
-    gcode = tmp_path / "part.gcode"
-    gcode.write_text(moves(4_000))
+def _door_service(door: str, request: pytest.FixtureRequest) -> tuple[tuple[str, ...], str, str, int, Broker | None]:
+    """The service a door's test runs: (its arguments, serve or farm, the printer's name, the OctoPrint API's port,
+    the broker for MQTT's door)."""
     args: tuple[str, ...] = ("--sim", "--sim-speed", "50", "--interval", "0.05")
-    command = "serve"
-    printer_name = "sim"
-    http_port = free_port()
+    command, printer_name, http_port = "serve", "sim", free_port()
     broker: Broker | None = None
     if door == "http":
         args += ("--octoprint", f"127.0.0.1:{http_port}")
@@ -91,6 +86,16 @@ async def test_a_cancel_through_each_door_ends_in_the_same_state(
         args = ("--sims", "1", "--sim-speed", "50", "--interval", "0.05", "--broker", f"127.0.0.1:{broker.port}")
         args += ("--allow-commands",)
         command, printer_name = "farm", "sim1"
+    return args, command, printer_name, http_port, broker
+
+
+@pytest.mark.parametrize("door", DOORS)
+async def test_a_cancel_through_each_door_ends_in_the_same_state(
+    door: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text(moves(4_000))
+    args, command, printer_name, http_port, broker = _door_service(door, request)
     async with serving(tmp_path, *args, command=command) as served, raw_client(served) as raw:
         async with marlin_aio.connect(served.url(printer_name)) as printer:
             await printer.set_temperatures(hotend=200, bed=60)
@@ -134,16 +139,7 @@ async def test_a_restart_through_each_door_prints_the_paused_file_again_with_the
     starts again from its first line, whichever door asked."""
     gcode = tmp_path / "part.gcode"
     gcode.write_text(moves(4_000))
-    args: tuple[str, ...] = ("--sim", "--sim-speed", "50", "--interval", "0.05")
-    command, printer_name, http_port = "serve", "sim", free_port()
-    broker: Broker | None = None
-    if door == "http":
-        args += ("--octoprint", f"127.0.0.1:{http_port}")
-    if door == "mqtt":
-        broker = request.getfixturevalue("broker")
-        args = ("--sims", "1", "--sim-speed", "50", "--interval", "0.05", "--broker", f"127.0.0.1:{broker.port}")
-        args += ("--allow-commands",)
-        command, printer_name = "farm", "sim1"
+    args, command, printer_name, http_port, broker = _door_service(door, request)
     async with (
         serving(tmp_path, *args, command=command) as served,
         raw_client(served) as raw,

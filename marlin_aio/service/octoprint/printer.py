@@ -165,31 +165,29 @@ class PrinterRoutes:
     async def bed(self, request: web.Request) -> web.Response:
         """`POST /api/printer/bed` `{"command": "target", "target": 60}` (or `offset` 0; 409 while offline)."""
         body = await json_body(request)
-        command = body.get("command")
         self.door.operational()
-        if command == "target":
-            await self.door.verb("set_temperatures", bed=body.get("target"))
-        elif command == "offset":
-            _no_offset(body.get("offset"))
-        else:
-            raise web.HTTPBadRequest(text=f"unknown bed command {str(command)[:20]!r}")
+        await self._heater_command(body, "bed")
         return web.Response(status=204)
 
     async def chamber(self, request: web.Request) -> web.Response:
         """`POST /api/printer/chamber` `{"command": "target", "target": 40}` (409 without a heated chamber)."""
         body = await json_body(request)
-        command = body.get("command")
         self.door.operational()
         latest = self.door.farm_printer.latest
         if latest is None or latest.temperatures.chamber is None:
             raise web.HTTPConflict(text="the printer reports no heated chamber")
+        await self._heater_command(body, "chamber")
+        return web.Response(status=204)
+
+    async def _heater_command(self, body: dict[str, Any], heater: str) -> None:
+        """The bed's or the chamber's `target` (through `set_temperatures`) or `offset` (0 only)."""
+        command = body.get("command")
         if command == "target":
-            await self.door.verb("set_temperatures", chamber=body.get("target"))
+            await self.door.verb("set_temperatures", **{heater: body.get("target")})
         elif command == "offset":
             _no_offset(body.get("offset"))
         else:
-            raise web.HTTPBadRequest(text=f"unknown chamber command {str(command)[:20]!r}")
-        return web.Response(status=204)
+            raise web.HTTPBadRequest(text=f"unknown {heater} command {str(command)[:20]!r}")
 
     async def printhead(self, request: web.Request) -> web.Response:
         """`POST /api/printer/printhead`: `jog` (`{"x"?, "y"?, "z"?, "absolute"?, "speed"?}` mm and mm/min),
