@@ -195,7 +195,7 @@ async def farm_run(spec: Result) -> Result:
         bridge = Bridge(
             farm,
             BrokerSettings(port=spec["broker_port"]),
-            BridgeSettings(rate_hz=spec["rate_hz"], discovery=False),
+            BridgeSettings(rate_hz=spec["rate_hz"], discovery=False, batch_telemetry=spec.get("batched", True)),
         )
     tasks = [asyncio.create_task(farm.run())]
     if bridge is not None:

@@ -392,7 +392,9 @@ def _farm(entry: Json) -> list[str]:
         ),
         "",
         f"The bridge costs {_x(entry['ratios'].get('bridge_cpu_over_plain'))} the CPU of the same farm without it; "
-        f"with the json module instead of orjson, {_x(entry['ratios'].get('orjson_gain'))} the bridge's CPU with it. "
+        f"with the json module instead of orjson, {_x(entry['ratios'].get('orjson_gain'))} the bridge's CPU with it; "
+        f"each message through paho's public publish instead of one write a batch through its private queue, "
+        f"{_x(entry['ratios'].get('batch_gain'))}. "
         "Latency runs from the reading's time (in the payload) to its arrival at a subscriber in another process.",
     ]
 
@@ -403,6 +405,12 @@ def _serve(entry: Json) -> list[str]:
     return ["### Sharing a printer: marlin-temp serve against a direct Printer", "", *serve.render(entry)]
 
 
+def _startup(entry: Json) -> list[str]:
+    from benchmarks import startup
+
+    return ["### Start-up: import, connect and --help", "", *startup.render(entry)]
+
+
 _RENDERERS = {
     "roundtrips": _roundtrips,
     "polling": _polling,
@@ -411,6 +419,7 @@ _RENDERERS = {
     "many": _many,
     "farm": _farm,
     "serve": _serve,
+    "startup": _startup,
 }
 
 

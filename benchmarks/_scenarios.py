@@ -733,6 +733,8 @@ def run_farm(settings: Settings) -> Json:
         Contender("plain", "the same farm, no bridge", "plain"),
         # The bridge with the json module instead of orjson (the extra `fast`): what orjson buys, as a row of its own.
         Contender("bridge_json", "the same bridge, json instead of orjson", "bridge", {"orjson": False}),
+        # Every message through paho's public publish: what the private path (one write a batch) buys.
+        Contender("bridge_public", "the same bridge, through paho's public API", "bridge", {"batched": False}),
     ]
     seconds = settings.many_s
     runs: dict[str, list[Json]] = {c.key: [] for c in contenders}
@@ -824,6 +826,8 @@ def run_farm(settings: Settings) -> Json:
             "bridge_cpu_over_plain": ratio,
             # Above 1: the json module costs the bridge more than orjson does.
             "orjson_gain": _ratio(summary["bridge_json"]["cpu_share"], bridge["cpu_share"]),
+            # Above 1: paho's public publish, message by message, costs more than a batch through its queue.
+            "batch_gain": _ratio(summary["bridge_public"]["cpu_share"], bridge["cpu_share"]),
         },
         "targets": targets,
     }
@@ -856,6 +860,16 @@ def run_serve(settings: Settings) -> Json:
     return asyncio.run(serve.measure(settings.runs, settings.quick, settings.log))
 
 
+# ------------------------------------------------------------------------------------------------ 8. start-up
+
+
+def run_startup(settings: Settings) -> Json:
+    """`benchmarks.startup`'s measurements (import, connect and --help against Python and typer's floor)."""
+    from benchmarks import startup
+
+    return startup.measure(10 if settings.quick else 30, settings.log)
+
+
 SCENARIOS = {
     scenario.name: scenario
     for scenario in (
@@ -866,6 +880,7 @@ SCENARIOS = {
         Scenario("many", "Many printers in one process: 10 x 100 Hz, 50 x 10 Hz, 50 x 100 Hz", run_many),
         Scenario("farm", "A farm of 50 printers at 10 Hz through Mosquitto", run_farm),
         Scenario("serve", "Sharing a printer: marlin-temp serve against a direct Printer", run_serve),
+        Scenario("startup", "Start-up: import, connect and --help", run_startup),
     )
 }
 

@@ -20,50 +20,113 @@ readings, results and link events it gives, the heater limits, the ports, and ev
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
-from marlin_aio.aio._serial import PortInfo, list_ports
-from marlin_aio.aio.printer import BAUD_RATES, DEFAULT_BAUDRATE, LinkEvent, Printer, PrintHandle, connect
-from marlin_aio.aio.printhandle import COOL_DOWN
-from marlin_aio.errors import (
-    ChecksumRequiredError,
-    CommandNotExecutedError,
-    CommandTimeoutError,
-    ConnectError,
-    ConnectionLostError,
-    FileChangedError,
-    HandshakeError,
-    HandshakeTimeoutError,
-    LostReplyError,
-    MarlinError,
-    NotSupportedError,
-    PortBusyError,
-    PortNotFoundError,
-    PortPermissionError,
-    PrinterHaltedError,
-    PrinterLockedError,
-    PrinterResetError,
-    PrintStalledError,
-    RemoteProtocolError,
-    ResendLimitError,
-    TemperatureTimeoutError,
-    ThermalRunawayError,
-)
-from marlin_aio.protocol import (
-    DEFAULT_MAX_BED_CELSIUS,
-    DEFAULT_MAX_CHAMBER_CELSIUS,
-    DEFAULT_MAX_HOTEND_CELSIUS,
-    HeaterLimits,
-    HeaterReading,
-    HostRequest,
-    LinkState,
-    LinkStats,
-    PrintProgress,
-    PrintState,
-    Reply,
-    TemperatureReading,
-    Temperatures,
-    redact,
-)
+from marlin_aio._lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from marlin_aio.aio._serial import PortInfo, list_ports
+    from marlin_aio.aio.printer import BAUD_RATES, DEFAULT_BAUDRATE, LinkEvent, Printer, PrintHandle, connect
+    from marlin_aio.aio.printhandle import COOL_DOWN
+    from marlin_aio.errors import (
+        ChecksumRequiredError,
+        CommandNotExecutedError,
+        CommandTimeoutError,
+        ConnectError,
+        ConnectionLostError,
+        FileChangedError,
+        HandshakeError,
+        HandshakeTimeoutError,
+        LostReplyError,
+        MarlinError,
+        NotSupportedError,
+        PortBusyError,
+        PortNotFoundError,
+        PortPermissionError,
+        PrinterHaltedError,
+        PrinterLockedError,
+        PrinterResetError,
+        PrintStalledError,
+        RemoteProtocolError,
+        ResendLimitError,
+        TemperatureTimeoutError,
+        ThermalRunawayError,
+    )
+    from marlin_aio.protocol import (
+        DEFAULT_MAX_BED_CELSIUS,
+        DEFAULT_MAX_CHAMBER_CELSIUS,
+        DEFAULT_MAX_HOTEND_CELSIUS,
+        HeaterLimits,
+        HeaterReading,
+        HostRequest,
+        LinkState,
+        LinkStats,
+        PrintProgress,
+        PrintState,
+        Reply,
+        TemperatureReading,
+        Temperatures,
+        redact,
+    )
+
+#: Where each name of the package lives: imported on its first use (`marlin_aio._lazy`), so a program pays only for
+#: what it uses (the CLI's `--help` never loads the client).
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    "marlin_aio.aio._serial": (
+        "PortInfo",
+        "list_ports",
+    ),
+    "marlin_aio.aio.printer": (
+        "BAUD_RATES",
+        "DEFAULT_BAUDRATE",
+        "LinkEvent",
+        "Printer",
+        "PrintHandle",
+        "connect",
+    ),
+    "marlin_aio.aio.printhandle": ("COOL_DOWN",),
+    "marlin_aio.errors": (
+        "ChecksumRequiredError",
+        "CommandNotExecutedError",
+        "CommandTimeoutError",
+        "ConnectError",
+        "ConnectionLostError",
+        "FileChangedError",
+        "HandshakeError",
+        "HandshakeTimeoutError",
+        "LostReplyError",
+        "MarlinError",
+        "NotSupportedError",
+        "PortBusyError",
+        "PortNotFoundError",
+        "PortPermissionError",
+        "PrinterHaltedError",
+        "PrinterLockedError",
+        "PrinterResetError",
+        "PrintStalledError",
+        "RemoteProtocolError",
+        "ResendLimitError",
+        "TemperatureTimeoutError",
+        "ThermalRunawayError",
+    ),
+    "marlin_aio.protocol": (
+        "DEFAULT_MAX_BED_CELSIUS",
+        "DEFAULT_MAX_CHAMBER_CELSIUS",
+        "DEFAULT_MAX_HOTEND_CELSIUS",
+        "HeaterLimits",
+        "HeaterReading",
+        "HostRequest",
+        "LinkState",
+        "LinkStats",
+        "PrintProgress",
+        "PrintState",
+        "Reply",
+        "TemperatureReading",
+        "Temperatures",
+        "redact",
+    ),
+}
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 __version__ = "0.1.0"
 

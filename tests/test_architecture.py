@@ -22,8 +22,12 @@ ROOT = Path(__file__).resolve().parent.parent
 #: reads only from the ones before it: errors <- protocol <- aio <- (farm, simulator) <- service. `marlin_aio`
 #: alone means the package's public names (its __init__).
 LAYERS: dict[str, tuple[set[str], set[str]]] = {
-    "protocol": ({"marlin_aio.errors", "marlin_aio.protocol"}, set()),
-    "aio": ({"marlin_aio.errors", "marlin_aio.protocol", "marlin_aio.aio"}, {"serial", "serial_asyncio_fast"}),
+    # `marlin_aio._lazy` sits with the errors, below everything: the packages' names imported on first use.
+    "protocol": ({"marlin_aio.errors", "marlin_aio._lazy", "marlin_aio.protocol"}, set()),
+    "aio": (
+        {"marlin_aio.errors", "marlin_aio._lazy", "marlin_aio.protocol", "marlin_aio.aio"},
+        {"serial", "serial_asyncio_fast"},
+    ),
     # Of the asyncio client, only the in-memory transport: a memory link is one pair of transports, the simulator
     # listening on one end (serve_memory) and the client on the other, so both sides share that one module.
     "simulator": (

@@ -228,6 +228,28 @@ async def test_telemetry_state_and_availability_arrive_with_only_the_heaters_eac
     assert bridge.telemetry_dropped == 0 and bridge.events_lost == 0
 
 
+@pytest.mark.parametrize("batched", [True, False])
+async def test_telemetry_goes_out_in_batches_through_the_installed_paho_and_whole_either_way(
+    broker: Broker, batched: bool
+) -> None:
+    """The batch path needs two private names (aiomqtt's `_client`, paho's `_packet_queue`): with the versions
+    installed it must engage (a batch a write, no message one by one), so an upgrade that removes either fails here,
+    not silently in the benchmarks. Either path delivers every message whole, in order, to a real Mosquitto."""
+    async with serve_pty(SimulatorConfig(), time_scale=20) as sim, subscribed(broker.port) as sub:
+        farm, bridge, _ = farm_and_bridge(
+            [PrinterSpec("a", sim.url, poll_interval_s=0.05)], broker.port, batch_telemetry=batched
+        )
+        async with running(farm, bridge):
+            await sub.until(lambda: len(sub.payloads("marlin/a/telemetry")) >= 10, "telemetry arriving")
+            batches, one_by_one = bridge.telemetry_path
+    if batched:
+        assert batches > 0 and one_by_one == 0, bridge.telemetry_path
+    else:
+        assert batches == 0 and one_by_one >= 10, bridge.telemetry_path
+    times = [telemetry["time"] for telemetry in sub.payloads("marlin/a/telemetry")]
+    assert times == sorted(times) and all(isinstance(t, float) for t in times)
+
+
 async def test_discovery_describes_each_heater_of_each_printer_with_valid_topics(broker: Broker) -> None:
     async with serve_pty(SimulatorConfig(has_bed=False), time_scale=20) as sim, subscribed(broker.port) as sub:
         farm, bridge, _ = farm_and_bridge([PrinterSpec("p1", sim.url, poll_interval_s=0.05)], broker.port)

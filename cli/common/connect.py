@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import contextvars
 import getpass
@@ -11,12 +10,17 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 
 import marlin_aio
-from marlin_aio.aio import Backoff, Retry, WireLog, keep_connected
 from marlin_aio.protocol import DEFAULT_LIMITS
+
+if TYPE_CHECKING:
+    import asyncio
+
+    from marlin_aio.aio import Retry, WireLog
 
 from .keys import STOP_SIGNALLED
 
@@ -265,6 +269,8 @@ async def _open_unless_signalled(printer: marlin_aio.Printer) -> None:
         return
     if signalled.is_set():
         raise KeyboardInterrupt
+    import asyncio  # here, not at the top: `--help` loads no event loop
+
     opening = asyncio.create_task(printer.open(), name=f"open {printer.port}")
     stopping = asyncio.create_task(signalled.wait(), name="stop signal")
     try:
@@ -335,5 +341,7 @@ async def run_sessions(
         if before_wait is not None:
             before_wait()
         errors.print(f"{exc}; reconnecting in {retry.delay_s:g} s (Ctrl-C stops)", style="yellow", markup=False)
+
+    from marlin_aio.aio import Backoff, keep_connected  # the client, when a command runs (not for --help)
 
     await keep_connected(connect, run, backoff=Backoff(1.0, 30.0), on_retry=on_retry, stop=stop, deadline=deadline)

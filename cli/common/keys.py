@@ -6,7 +6,6 @@ whole, so a program that reads typed text (watch's G-code line) can ignore it in
 
 from __future__ import annotations
 
-import asyncio
 import codecs
 import contextlib
 import contextvars
@@ -16,6 +15,10 @@ import sys
 import termios
 import tty
 from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import asyncio
 
 __all__ = ["PASTE", "STOP_SIGNALLED", "key_presses", "on_stop_signals", "split_keys"]
 
@@ -37,6 +40,8 @@ def on_stop_signals(callback: Callable[[], None]) -> Iterator[None]:
     Signal handlers can only be installed from the main thread; elsewhere (a test running the command in a worker
     thread) nothing is installed, and the command runs until it ends by itself.
     """
+    import asyncio  # here, not at the top: `--help` loads no event loop
+
     loop = asyncio.get_running_loop()
     signalled = asyncio.Event()
 
@@ -100,6 +105,8 @@ def key_presses(callback: Callable[[str], None], *, raw: bool = False, discard_u
         return
     fd = sys.stdin.fileno()
     saved = termios.tcgetattr(fd)
+    import asyncio  # here, not at the top: `--help` loads no event loop
+
     loop = asyncio.get_running_loop()
     # A character of several bytes may be split between two reads: decode incrementally.
     decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")

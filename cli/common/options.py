@@ -11,22 +11,23 @@ where `options` stands, and the function gets them already made into one `Connec
 
 from __future__ import annotations
 
-import asyncio
 import functools
 import inspect
 import os
 import sys
 from collections.abc import Callable, Coroutine
 from pathlib import Path
-from typing import Annotated, Any, NoReturn, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
 import marlin_aio
-from marlin_aio.aio import WireLog
 from marlin_aio.protocol import DEFAULT_LIMITS, check_target
+
+if TYPE_CHECKING:
+    from marlin_aio.aio import WireLog
 
 from .connect import PASSWORD_ENV, ConnectOptions, Exit, UsageProblem, exit_code_for, printer_password
 
@@ -70,6 +71,8 @@ def fail(message: str, code: int = Exit.ERROR) -> NoReturn:
 
 def run(main: Coroutine[Any, Any, _T]) -> _T:
     """Run an async command body; map errors to one line and an exit code, Ctrl-C to 130."""
+    import asyncio  # here, not at the top: `--help` loads no event loop
+
     try:
         return asyncio.run(main)
     except BrokenPipeError:
@@ -214,6 +217,8 @@ def checked_wire_log(path: Path | None) -> WireLog | None:
             style="dim",
             markup=False,
         )
+    from marlin_aio.aio import WireLog  # the client's parts load when a command runs, not for --help
+
     return WireLog(path)
 
 

@@ -21,7 +21,7 @@ from collections.abc import AsyncGenerator, AsyncIterator, Callable, Iterable
 from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Self
+from typing import TYPE_CHECKING, Any, Self
 
 from marlin_aio.aio.backend import PrinterBackend
 from marlin_aio.aio.feed import TemperatureFeed
@@ -31,7 +31,6 @@ from marlin_aio.aio.heatwait import wait_for_targets
 from marlin_aio.aio.listeners import LinkEvent, Listeners
 from marlin_aio.aio.printhandle import PrintHandle
 from marlin_aio.aio.serialbackend import SerialBackend
-from marlin_aio.aio.served import ServedBackend
 from marlin_aio.aio.servicepaths import SERVE_PREFIX
 from marlin_aio.aio.wirelog import WireLog
 from marlin_aio.errors import MarlinError
@@ -49,6 +48,9 @@ from marlin_aio.protocol.printjob import PrintProgress
 from marlin_aio.protocol.stats import LinkStats
 from marlin_aio.protocol.temperatures import TemperatureReading
 from marlin_aio.protocol.wire import Trace
+
+if TYPE_CHECKING:
+    from marlin_aio.aio.served import ServedBackend
 
 __all__ = ["BAUD_RATES", "DEFAULT_BAUDRATE", "LinkEvent", "PrintHandle", "Printer", "ServedPrinter", "connect"]
 
@@ -126,6 +128,9 @@ class Printer(GcodeCommands):
         self._listeners = Listeners(self._feed)
         self._backend: PrinterBackend
         if port.startswith(SERVE_PREFIX):
+            # The service's client (its JSON-RPC socket) loads only for a `serve:` port.
+            from marlin_aio.aio.served import ServedBackend
+
             self._backend = ServedBackend(port, self._listeners, timeout_s=timeout_s, limits=self.heater_limits)
         else:
             self._backend = SerialBackend(

@@ -152,6 +152,7 @@ class Bridge:
             settings.rate_hz,
             settings.telemetry_buffer,
             self._wake.set,
+            batched=settings.batch_telemetry,
         )
         # Events and command answers: QoS 1, each kept until the broker acknowledged it; apart, so that answers to
         # a flood of commands never push an event (a thermal runaway) out.
@@ -211,6 +212,12 @@ class Bridge:
         return self.settings.bridge_availability_topic
 
     # ------------------------------------------------------------------------------------------- counters
+
+    @property
+    def telemetry_path(self) -> tuple[int, int]:
+        """(batches written through paho's private queue, messages through its public `publish`): which way the
+        telemetry went (`telemetry.TelemetryLane.publish`)."""
+        return self._telemetry.batches, self._telemetry.one_by_one
 
     @property
     def published(self) -> int:

@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,6 +87,8 @@ def parse_presets(text: str, source: str) -> tuple[Preset, ...]:
             a key other than hotend and bed, a target that is not a number or is negative, a bad name, a name given
             twice (in any case), a preset with no target, or no preset at all.
     """
+    import tomllib  # when a file is read, not for every command's --help
+
     try:
         document = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -161,7 +161,15 @@ class TelemetryLane:
     the printer's own buffer of `buffer_size` (its oldest dropped, and counted, when full), handed to the MQTT
     client in batches. `wake` is called when a batch is due: the bridge's publisher then calls `publish`."""
 
-    def __init__(self, topics: dict[str, str], rate_hz: float, buffer_size: int, wake: Callable[[], None]) -> None:
+    def __init__(
+        self,
+        topics: dict[str, str],
+        rate_hz: float,
+        buffer_size: int,
+        wake: Callable[[], None],
+        *,
+        batched: bool = True,
+    ) -> None:
         # Each printer keeps its own newest readings while the broker is away: one busy printer (or fifty) never
         # pushes another's out.
         self.buffers: dict[str, deque[bytes]] = {name: deque(maxlen=buffer_size) for name in topics}
@@ -177,6 +185,12 @@ class TelemetryLane:
         """Telemetry messages dropped from a full per-printer buffer (the oldest)."""
         self.published = 0
         """Telemetry messages handed to the MQTT client."""
+        self._batched = batched
+        self.batches = 0
+        """Batches handed to paho as one write (the private path of `publish`)."""
+        self.one_by_one = 0
+        """Messages handed to paho's public `publish` one at a time (the path without the private names, or with
+        `batched=False`)."""
 
     @property
     def waiting(self) -> bool:
@@ -229,7 +243,7 @@ class TelemetryLane:
             asyncio.get_running_loop().call_later(TELEMETRY_BATCH_S, self._wake)
             return
         queue_packet = getattr(paho, "_packet_queue", None)
-        framed = queue_packet is not None and paho.protocol in (mqtt.MQTTv31, mqtt.MQTTv311)
+        framed = self._batched and queue_packet is not None and paho.protocol in (mqtt.MQTTv31, mqtt.MQTTv311)
         packets: list[bytes] = []
         for name in self._waiting:
             buffer = self.buffers[name]
@@ -239,6 +253,7 @@ class TelemetryLane:
                     packets.append(publish_packet(topic, buffer.popleft()))
                 else:
                     _check(paho.publish(topic, buffer.popleft(), 0).rc)
+                    self.one_by_one += 1
                 self.published += 1
         self._waiting.clear()
         if packets:
@@ -247,3 +262,4 @@ class TelemetryLane:
                 _check(mqtt.MQTT_ERR_NO_CONN)
             # mid 0, which paho never gives a message: its callback for the batch is aiomqtt's for no publish.
             _check(queue_packet(mqtt.PUBLISH, b"".join(packets), 0, 0, mqtt.MQTTMessageInfo(0)))
+            self.batches += 1
