@@ -163,6 +163,12 @@ def _polling(entry: Json) -> list[str]:
         "",
         _pi3(summary["marlin_aio"]["cpu_ms_per_1000_readings"], 100, "reading (marlin_aio)"),
     ]
+    calls = entry.get("calls_per_reading")
+    if calls is not None:
+        lines[-3] += (
+            f" Function calls a polled reading (sys.setprofile, `benchmarks.hotpath`): marlin_aio "
+            f"{calls['marlin_aio']:.0f}, the lean floor {calls['lean floor']:.0f}."
+        )
     gain = entry["ratios"].get("uvloop_gain_marlin_aio")
     if gain is not None:
         lines[-1] += (
@@ -210,7 +216,25 @@ def _streaming(entry: Json) -> list[str]:
                 _x(v["seconds"] / limit),
             ]
         )
-    return [*_streaming_table(settings, rows), *_short_lines(entry.get("short_lines"))]
+    return [
+        *_streaming_table(settings, rows),
+        *_short_lines(entry.get("short_lines")),
+        *_simulated_streaming(entry.get("simulated_time")),
+    ]
+
+
+def _simulated_streaming(simulated: Json | None) -> list[str]:
+    if not simulated:
+        return []
+    from benchmarks import streaming_sim
+
+    return [
+        "",
+        "The same file in simulated time (`python -m benchmarks.streaming_sim`: the in-memory link at 250000 baud, "
+        "the clock moved only by the wire and the firmware, so the machine's load cannot change it):",
+        "",
+        *streaming_sim.render(simulated),
+    ]
 
 
 def _short_lines(short: Json | None) -> list[str]:
