@@ -183,7 +183,9 @@ async def resume(context: Context, args: dict[str, Any]) -> object:
 async def restart(context: Context, args: dict[str, Any]) -> object:
     """Print a paused job's file again from its first line: the paused job ends without its cancel script (the
     heaters stay on) and a new one starts with the same file and options."""
-    job = await context.owner.farm.restart_print(context.farm_printer, context.caller.who)
+    restart = context.owner.farm.restart_print(context.farm_printer, context.caller.who)
+    # In a task of the service's, as `start_job`: a client that leaves mid-restart never leaves it half-done.
+    job = await asyncio.shield(asyncio.ensure_future(restart))
     context.owner.tell_progress(context.farm_printer)
     return job.to_json()
 
