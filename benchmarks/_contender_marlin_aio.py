@@ -86,11 +86,17 @@ async def marlin_polling(spec: Result) -> Result:
 async def marlin_streaming(spec: Result) -> Result:
     async with marlin_aio.connect(spec["url"], timeout_s=ANSWER_TIMEOUT_S * 2) as printer:
         with profiled(spec.get("profile")):
+            # The stream is timed from its first line, as printcore's is (its file is parsed before its clock
+            # starts): the whole-file check before it (`start_print`) is kept apart, as `check_s`.
+            checking = time.perf_counter()
+            handle = await printer.start_print(Path(spec["path"]), send_ahead=spec["send_ahead"])
+            check_s = time.perf_counter() - checking
             meter = Meter()
-            progress = await printer.print_file(Path(spec["path"]), send_ahead=spec["send_ahead"])
+            progress = await handle.wait()
             wall, cpu = meter.stop()
     return {
         "seconds": wall,
+        "check_s": check_s,
         "cpu_s": cpu,
         **meter.split(),
         "lines": progress.lines_acked,
