@@ -26,7 +26,7 @@ import marlin_aio
 from marlin_aio.farm.supervisor import FarmPrinter
 from marlin_aio.service import Service
 
-from ..logs.files import TemperatureLog
+from ..logs.files import RowSampler, TemperatureLog
 
 __all__ = ["QUEUE_READINGS", "ServeLogs"]
 
@@ -49,7 +49,14 @@ class ServeLogs:
             farm_printer.reading_listeners.append(self._listener(farm_printer))
 
     def _listener(self, farm_printer: FarmPrinter) -> Callable[[marlin_aio.TemperatureReading], None]:
+        # The log's own schedule, kept here too: only the readings that become rows are queued, so the writer task
+        # wakes once a row (once a second by default), not once a reading (a hundred times a second at 100 Hz).
+        # The log's sampler, seeing only these, takes each of them: both start empty and move on the same readings.
+        sampler = RowSampler(self.interval_s)
+
         def on_reading(reading: marlin_aio.TemperatureReading) -> None:
+            if not reading.temperatures.heaters or not sampler.take(reading):
+                return  # no row of it (a reading without heaters is none either)
             try:
                 self.queue.put_nowait((farm_printer, reading))
             except asyncio.QueueFull:
