@@ -1,6 +1,6 @@
 """Streaming efficiency in simulated time: the protocol's share of the wire, which the machine's load cannot move.
 
-    python -m benchmarks.streaming_sim            # about 20 s; also part of `python -m benchmarks --only streaming`
+    python -m benchmarks.streaming_sim            # about 5 s; also part of `python -m benchmarks --only streaming`
 
 The real-time streaming rows (`--only streaming`) run a client process against `marlin-sim` on a pty: what a user
 sees, but a busy machine stretches them (the issue measured 76.5 % to 90.6 % for the same code). Here the same
@@ -9,10 +9,10 @@ moves, a 4-command buffer and a 128-byte receive buffer) over the in-memory link
 clock moves only by the wire's and the firmware's own times, never by the host's CPU, so the figure is the
 protocol's alone and the same on every run and every machine.
 
-The share is the limit that binds over the time the stream took: the numbered wire (every byte the client wrote,
-at 25,000 B/s) or the firmware's loop (1 ms a line), whichever is longer. The idle wire is split by cause: time
-the host wrote nothing while the firmware's receive buffer had room (the client's own gaps) is what send-ahead
-exists to remove.
+The share is the limit that binds over the time the stream took, from its first line to its end: the numbered
+wire (every byte the client wrote, at 25,000 B/s) or the firmware's loop (1 ms a line), whichever is longer. The
+whole-file check before the first line is left out: it runs in a thread, and while a thread works even this
+loop's clock moves with real time.
 """
 
 from __future__ import annotations

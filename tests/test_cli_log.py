@@ -13,7 +13,6 @@ import csv
 import io
 import itertools
 import json
-import random
 import re
 from datetime import datetime
 from pathlib import Path
@@ -65,21 +64,6 @@ def reading(time_s: float, source: ReadingSource = ReadingSource.POLL, hotend: f
 
 def taken(sampler: RowSampler, readings: list[TemperatureReading]) -> list[TemperatureReading]:
     return [r for r in sorted(readings, key=lambda r: r.monotonic_s) if sampler.take(r)]
-
-
-@pytest.mark.parametrize("seed", range(200))
-def test_a_sampler_fed_what_another_took_takes_all_of_it(seed: int) -> None:
-    # `marlin-temp serve` samples each printer's readings in its listener, so that only rows wake the log's writer;
-    # the log's own sampler then sees only those. It must take every one: the same rows as without the listener's.
-    rng = random.Random(seed)
-    interval = rng.choice((0.05, 0.5, 1.0, 5.0))
-    now, readings = 0.0, []
-    for _ in range(400):
-        now += rng.choice((0.0, 0.001, 0.01, 0.01, 0.01, interval / 3, interval, 3 * interval))
-        source = rng.choice((ReadingSource.POLL, ReadingSource.POLL, ReadingSource.AUTO, ReadingSource.WAIT))
-        readings.append(reading(now, source))
-    first = taken(RowSampler(interval), readings)
-    assert first and taken(RowSampler(interval), first) == first
 
 
 def test_a_poll_and_an_auto_report_of_one_moment_make_one_row() -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import os
 import signal
@@ -398,7 +399,8 @@ def test_a_socket_path_nobody_listens_at_is_one_error_line(tmp_path: Path) -> No
 
 async def test_the_service_logs_every_printer_with_the_prints_file_and_line(tmp_path: Path) -> None:
     gcode = _gcode(tmp_path / "logged.gcode", 600)
-    args = ("--sim", "--sim-speed", "50", "--interval", "0.05", "--log-interval", "0.05")
+    # Polled every 10 ms, logged every 50: the rows keep the log's schedule, not the polls'.
+    args = ("--sim", "--sim-speed", "50", "--interval", "0.01", "--log-interval", "0.05")
     async with serving(tmp_path, *args) as served, marlin_aio.connect(served.url()) as printer:
         handle = await printer.start_print(gcode)
         await handle.wait()
@@ -414,6 +416,8 @@ async def test_the_service_logs_every_printer_with_the_prints_file_and_line(tmp_
         lines = [p["line"] for p in printing]
         assert lines == sorted(lines) and 0 <= lines[0] <= lines[-1] <= 600
         assert all(row["heaters"]["hotend"]["actual_c"] > 0 for row in rows())
+        times = [row["epoch_s"] for row in rows()]
+        assert len(times) > 3 and min(b - a for a, b in itertools.pairwise(times)) >= 0.024  # half an interval
     # The file is the `log --format jsonl` format: `plot` reads it.
     log_file = next((tmp_path / "logs").glob("sim-*.jsonl"))
     result = runner.invoke(app, ["plot", str(log_file), "--show"])

@@ -49,9 +49,9 @@ class ServeLogs:
             farm_printer.reading_listeners.append(self._listener(farm_printer))
 
     def _listener(self, farm_printer: FarmPrinter) -> Callable[[marlin_aio.TemperatureReading], None]:
-        # The log's own schedule, kept here too: only the readings that become rows are queued, so the writer task
-        # wakes once a row (once a second by default), not once a reading (a hundred times a second at 100 Hz).
-        # The log's sampler, seeing only these, takes each of them: both start empty and move on the same readings.
+        # The printer's row schedule lives here, not in its log: only the readings that become rows are queued, so
+        # the writer task wakes once a row (once a second by default), not once a reading (a hundred times a second
+        # at 100 Hz). The log writes every row it is given, and the schedule goes on across a day's new file.
         sampler = RowSampler(self.interval_s)
 
         def on_reading(reading: marlin_aio.TemperatureReading) -> None:
@@ -90,7 +90,7 @@ class ServeLogs:
             return None if log.failure is not None else log
         if current is not None:
             current[1].close()  # midnight: the next day's file
-        log = TemperatureLog(self.folder / f"{name}-{day}.jsonl", "jsonl", interval_s=self.interval_s)
+        log = TemperatureLog(self.folder / f"{name}-{day}.jsonl", "jsonl")  # rows chosen by `_listener`'s schedule
         try:
             await log.__aenter__()
         except (OSError, ValueError) as exc:

@@ -104,12 +104,12 @@ class BridgeSettings:
     max_command_age_s: float = MAX_COMMAND_AGE_S
     """A command with a `time` older (or further in the future) than this is refused."""
     presets: tuple[Preset, ...] = DEFAULT_PRESETS
+    """What a `preset` command may name (`marlin-temp farm` gives the presets file's); with commands, Home
+    Assistant gets a button for each."""
     batch_telemetry: bool = True
     """Hand each batch of telemetry to paho as one write (through two private names of aiomqtt's and paho's,
     `telemetry.TelemetryLane.publish`); False sends every message with paho's public `publish`, what the benchmarks'
     row "through paho's public API" measures."""
-    """What a `preset` command may name (`marlin-temp farm` gives the presets file's); with commands, Home
-    Assistant gets a button for each."""
 
     def topic(self, printer: str, leaf: str) -> str:
         """`prefix/printer/leaf`."""
